@@ -1,0 +1,121 @@
+"""The constant and the self-triggered midpoint laws (ALGORITHMS.md sections 3 and 4).
+
+Pure functions of numpy arrays that broadcast over robots and trials: the in-process engine calls
+them for a whole team at once, a robot process for itself. Angles are radians (robot ``i``'s local
+frame, see :mod:`agents.ring`), ``omega_max`` is rad/s, ``dt`` and ages in seconds are
+``age_steps * dt``; ages are kept as integer step counts so that trigger ties do not drift.
+
+Symbols: ``theta`` own angle; ``m_minus``/``m_plus`` remembered predecessor/successor angles;
+``c_minus``/``c_plus`` their ages in steps; ``gV`` the guaranteed midpoint; ``ubd`` the bound on
+``|V - gV|``; ``sigma`` the trigger tolerance (radians).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from agents.ring import midpoint
+
+Strategy = Literal["self", "constant"]
+FreshLaw = Literal["prop", "deadbeat"]
+
+
+class Trigger(enum.IntFlag):
+    """Why a robot polled its neighbours in a step (a bit mask; 0 means it did not)."""
+
+    UNCERTAINTY = 1  # T1: ubd >= max(|gV - theta|, sigma)
+    SUCCESSOR = 2  # T2: m_plus - phi_plus <= theta (order with the CCW neighbour not guaranteed)
+    PREDECESSOR = 4  # T3: m_minus + phi_minus >= theta
+    SCHEDULE = 8  # constant strategy: every step
+    START = 16  # step 1: every robot starts with exact information
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """Parameters of the midpoint laws.
+
+    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self" or "constant"; ``law`` is the
+    fresh-information law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``).
+    """
+
+    omega_max: float
+    dt: float
+    sigma: float = 0.0
+    strategy: Strategy = "self"
+    law: FreshLaw = "prop"
+
+    @property
+    def max_step(self) -> float:
+        """Largest angular step in one step, ``omega_max * dt`` (radians)."""
+        return self.omega_max * self.dt
+
+
+def uncertainty_bound(c_minus: ArrayLike, c_plus: ArrayLike, params: ControlParams) -> NDArray[np.float64]:
+    """``ubd = omega_max (tau_minus + tau_plus) / 4`` (radians), ``tau = c * dt``."""
+    return params.omega_max * (np.asarray(c_minus) + np.asarray(c_plus)) * params.dt / 4.0
+
+
+def guarded_step(offset: ArrayLike, ubd: ArrayLike, max_step: float) -> NDArray[np.float64]:
+    """Non-triggered motion towards ``theta + offset`` (``offset = gV - theta``, radians).
+
+    Moves ``|offset| - ubd`` clipped to ``[0, max_step]`` in the direction of ``offset``: full speed
+    while farther than ``ubd + max_step``, stop within ``ubd``. With ``ubd = 0`` it is the deadbeat law.
+    """
+    offset = np.asarray(offset, dtype=float)
+    return np.sign(offset) * np.clip(np.abs(offset) - ubd, 0.0, max_step)
+
+
+def fresh_step(offset: ArrayLike, params: ControlParams) -> NDArray[np.float64]:
+    """Motion with exact neighbour information towards ``theta + offset`` (``offset = V - theta``)."""
+    if params.law == "prop":
+        return params.dt * np.clip(offset, -params.omega_max, params.omega_max)
+    return guarded_step(offset, 0.0, params.max_step)
+
+
+def trigger_reasons(
+    theta: ArrayLike,
+    m_minus: ArrayLike,
+    m_plus: ArrayLike,
+    c_minus: ArrayLike,
+    c_plus: ArrayLike,
+    params: ControlParams,
+) -> NDArray[np.int64]:
+    """Evaluate the self-triggered rule at the start of a step, before moving.
+
+    Returns a :class:`Trigger` mask per robot: T1 ``ubd >= max(|gV - theta|, sigma)``,
+    T2 ``m_plus - omega tau_plus <= theta``, T3 ``m_minus + omega tau_minus >= theta``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    ubd = uncertainty_bound(c_minus, c_plus, params)
+    offset = midpoint(m_minus, theta, m_plus) - theta
+    reach_minus = params.omega_max * np.asarray(c_minus) * params.dt
+    reach_plus = params.omega_max * np.asarray(c_plus) * params.dt
+    t1 = ubd >= np.maximum(np.abs(offset), params.sigma)
+    t2 = np.asarray(m_plus) - reach_plus <= theta
+    t3 = np.asarray(m_minus) + reach_minus >= theta
+    return t1 * int(Trigger.UNCERTAINTY) + t2 * int(Trigger.SUCCESSOR) + t3 * int(Trigger.PREDECESSOR)
+
+
+def angular_step(
+    theta: ArrayLike,
+    m_minus: ArrayLike,
+    m_plus: ArrayLike,
+    c_minus: ArrayLike,
+    c_plus: ArrayLike,
+    fresh: ArrayLike,
+    params: ControlParams,
+) -> NDArray[np.float64]:
+    """The step ``Delta theta`` (radians, CCW positive) a robot applies this step.
+
+    Where ``fresh`` (its memory was just refreshed, ages 0) the fresh-information law moves towards
+    the exact midpoint; elsewhere the guarded law moves towards ``gV`` and stops within ``ubd``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    offset = midpoint(m_minus, theta, m_plus) - theta
+    guarded = guarded_step(offset, uncertainty_bound(c_minus, c_plus, params), params.max_step)
+    return np.where(fresh, fresh_step(offset, params), guarded)

@@ -1,0 +1,50 @@
+"""Circle arithmetic of a robot ring (ALGORITHMS.md section 2).
+
+Robots ``0..N-1`` sit in counter-clockwise (CCW) order; robot ``i+1`` is the CCW successor of ``i``.
+Angles are radians. A robot reads its neighbours' angles in its own *local frame*: the successor's
+angle is placed in ``[theta, theta + 2 pi)`` and the predecessor's in ``(theta - 2 pi, theta]``, so
+"``theta_{i+1} > theta_i > theta_{i-1}``" means strictly positive gaps. Every function broadcasts over
+leading axes (robots, trials).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+TWO_PI = 2.0 * np.pi
+
+FloatArray = NDArray[np.float64]
+
+
+def wrap(angle: ArrayLike) -> FloatArray:
+    """``angle mod 2 pi`` in ``[0, 2 pi)`` (radians)."""
+    return np.mod(angle, TWO_PI)
+
+
+def local_frame(theta: ArrayLike, predecessor: ArrayLike, successor: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Neighbour angles in the frame of a robot at ``theta`` (all radians, any representation).
+
+    Returns ``(m_minus, m_plus)`` with ``m_plus = theta + wrap(successor - theta)`` and
+    ``m_minus = theta - wrap(theta - predecessor)``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    return theta - wrap(theta - predecessor), theta + wrap(successor - theta)
+
+
+def midpoint(m_minus: ArrayLike, theta: ArrayLike, m_plus: ArrayLike) -> FloatArray:
+    """Midpoint of the robot's Voronoi segment on the circle, ``(m_minus + 2 theta + m_plus) / 4``
+    (radians). With remembered rather than current neighbour angles it is the guaranteed midpoint gV."""
+    return (np.asarray(m_minus) + 2.0 * np.asarray(theta) + np.asarray(m_plus)) / 4.0
+
+
+def ring_gaps(angles: ArrayLike) -> FloatArray:
+    """CCW gaps ``d_i^+ = wrap(theta_{i+1} - theta_i)`` (radians) of a whole ring along the last axis."""
+    angles = np.asarray(angles, dtype=float)
+    return wrap(np.roll(angles, -1, axis=-1) - angles)
+
+
+def midpoint_errors(angles: ArrayLike) -> FloatArray:
+    """``e_i = V_i - theta_i = (d_i^+ - d_i^-) / 4`` (radians) of a whole ring with exact information."""
+    gaps = ring_gaps(angles)
+    return (gaps - np.roll(gaps, 1, axis=-1)) / 4.0

@@ -1,0 +1,1 @@
+"""Shipped TOML scenarios, resolved by name (``ringtrack simulate paper-stationary``)."""

@@ -1,0 +1,1 @@
+"""ringtrack: tools."""

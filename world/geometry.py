@@ -1,0 +1,244 @@
+"""Geometry of a convex polygonal region Q and its boundary (ALGORITHMS.md sections 1, 10, 11).
+
+Conventions used throughout:
+
+* points are in metres, numpy arrays of shape ``(..., 2)``;
+* angles are in radians, measured counter-clockwise (CCW) from the +x axis;
+* the arc-length parameter ``s`` (metres) runs CCW along the boundary from vertex 0, in ``[0, L)``;
+* the map ``phi_o`` sends a boundary point ``p`` to the angle ``atan2(p - o)`` seen from an interior
+  centre ``o`` (the target or its estimate); ``boundary_point`` is its inverse.
+
+Q is stored as ``{x : n_k . x <= c_k for every edge k}`` with unit outward normals ``n_k`` and offsets
+``c_k``; ``h_k(o) = c_k - n_k . o`` is the distance from ``o`` to the line of edge k.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+TWO_PI = 2.0 * np.pi
+
+FloatArray = NDArray[np.float64]
+
+
+class RegionError(ValueError):
+    """A region or a point in it is unusable; the message is one line naming the problem and the fix."""
+
+
+def angle_of(point: ArrayLike, centre: ArrayLike) -> FloatArray:
+    """``phi_centre(point)``: the angle (radians, CCW, in (-pi, pi]) of ``point`` seen from ``centre``."""
+    delta = np.asarray(point, dtype=float) - np.asarray(centre, dtype=float)
+    return np.arctan2(delta[..., 1], delta[..., 0])
+
+
+class ConvexRegion:
+    """A strictly convex polygon with its vertices stored counter-clockwise.
+
+    Build it with :meth:`from_vertices`, which validates the vertex list; the constructor assumes a
+    valid CCW list.
+    """
+
+    def __init__(self, vertices: FloatArray) -> None:
+        self.vertices: FloatArray = vertices
+        following = np.roll(vertices, -1, axis=0)
+        edges = following - vertices
+        self.edge_lengths: FloatArray = np.hypot(edges[:, 0], edges[:, 1])
+        self.directions: FloatArray = edges / self.edge_lengths[:, None]
+        # Right-hand normal of a CCW edge points outwards.
+        self.normals: FloatArray = np.stack([self.directions[:, 1], -self.directions[:, 0]], axis=1)
+        self.offsets: FloatArray = np.einsum("kd,kd->k", self.normals, vertices)
+        self.vertex_arc: FloatArray = np.concatenate([[0.0], np.cumsum(self.edge_lengths)])
+        self.perimeter: float = float(self.vertex_arc[-1])
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_vertices(cls, vertices: ArrayLike) -> "ConvexRegion":
+        """Validate ``vertices`` (a list of (x, y) in metres, either orientation) and build the region.
+
+        Refuses fewer than three vertices, non-finite values, repeated vertices, zero area, collinear
+        consecutive vertices, reflex (non-convex) corners and self-intersecting lists, each with a
+        :class:`RegionError` naming the offending vertex. A clockwise list is reordered to CCW while
+        keeping vertex 0 first.
+        """
+        try:
+            points = np.asarray(vertices, dtype=float)
+        except (TypeError, ValueError):
+            raise RegionError("region.vertices must be a list of [x, y] number pairs") from None
+        if points.ndim != 2 or points.shape[1] != 2:
+            raise RegionError("region.vertices must be a list of [x, y] number pairs")
+        count = len(points)
+        if count < 3:
+            raise RegionError(f"region.vertices has {count} vertices; a polygon needs at least 3")
+        if not np.all(np.isfinite(points)):
+            raise RegionError("region.vertices contains NaN or infinity; give finite coordinates")
+        scale = float(np.ptp(points, axis=0).max())
+        edges = np.roll(points, -1, axis=0) - points
+        lengths = np.hypot(edges[:, 0], edges[:, 1])
+        for k in np.flatnonzero(lengths <= 1e-12 * max(scale, 1.0)):
+            raise RegionError(
+                f"region.vertices {k} and {(k + 1) % count} coincide; remove the repeated vertex"
+            )
+        area2 = float(np.sum(points[:, 0] * np.roll(points[:, 1], -1) - np.roll(points[:, 0], -1) * points[:, 1]))
+        if abs(area2) <= 1e-12 * scale * scale:
+            raise RegionError("region.vertices enclose zero area; give a polygon with an interior")
+        orientation = np.sign(area2)  # +1 counter-clockwise, -1 clockwise
+        incoming = np.roll(edges, 1, axis=0)
+        turn_cross = orientation * (incoming[:, 0] * edges[:, 1] - incoming[:, 1] * edges[:, 0])
+        turn_dot = np.einsum("kd,kd->k", incoming, edges)
+        tolerance = 1e-12 * scale * scale
+        for k in range(count):
+            if turn_cross[k] < -tolerance:
+                raise RegionError(
+                    f"region is not convex at vertex {k} {points[k].tolist()}; give a convex polygon"
+                )
+            if abs(turn_cross[k]) <= tolerance:
+                raise RegionError(
+                    f"region.vertices {(k - 1) % count}, {k}, {(k + 1) % count} are collinear; remove vertex {k}"
+                )
+        total_turning = float(np.sum(np.arctan2(turn_cross, turn_dot)))
+        if abs(total_turning - TWO_PI) > 1e-6:
+            raise RegionError(
+                "region.vertices wind around more than once (self-intersecting); list each corner once, in order"
+            )
+        if orientation < 0:  # clockwise: reverse, keeping vertex 0 first
+            points = np.concatenate([points[:1], points[:0:-1]])
+        return cls(points)
+
+    # ------------------------------------------------------------------ interior
+    def heights(self, centre: ArrayLike) -> FloatArray:
+        """``h_k(centre)``: signed distances (metres, shape ``(..., M)``) from ``centre`` to each edge line;
+        all positive exactly when ``centre`` is interior."""
+        return self.offsets - np.asarray(centre, dtype=float) @ self.normals.T
+
+    def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
+        """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""
+        return np.all(self.heights(point) > margin, axis=-1)
+
+    def require_interior(self, point: ArrayLike, field: str) -> None:
+        """Raise :class:`RegionError` naming ``field`` unless ``point`` is strictly inside the region."""
+        if not bool(np.all(self.is_interior(point))):
+            raise RegionError(
+                f"{field} {np.asarray(point).tolist()} is not inside the region; move it inside the polygon"
+            )
+
+    def clamp_interior(self, point: ArrayLike, margin: float) -> FloatArray:
+        """Pull ``point`` towards the Chebyshev centre until it is ``margin`` metres inside every edge.
+
+        Used for an estimate that left Q, where ``phi`` stops being a bijection (spec section 1).
+        Points already that deep inside are returned unchanged.
+        """
+        point = np.asarray(point, dtype=float)
+        centre, radius = self.chebyshev_centre
+        if margin >= radius:
+            raise RegionError(f"clamp margin {margin} m exceeds the inscribed radius {radius:.6g} m")
+        outward = point - centre
+        reach = outward @ self.normals.T
+        room = self.offsets - margin - self.normals @ centre
+        with np.errstate(divide="ignore", invalid="ignore"):
+            limits = np.where(reach > 0, room / reach, np.inf)
+        fraction = np.minimum(limits.min(axis=-1), 1.0)
+        return centre + fraction[..., None] * outward
+
+    # ------------------------------------------------------------------ boundary map
+    def boundary_point(self, theta: ArrayLike, centre: ArrayLike) -> FloatArray:
+        """``phi_centre^{-1}(theta)``: the boundary point seen from interior ``centre`` at angle ``theta``.
+
+        ``theta`` (radians) of shape ``S`` and ``centre`` of shape ``(..., 2)`` broadcast; the result has
+        shape ``S + (2,)``. With ``u = (cos theta, sin theta)``, ``t* = min over n_k.u > 0 of
+        h_k(centre) / (n_k.u)`` and the point is ``centre + t* u``.
+        """
+        theta = np.asarray(theta, dtype=float)
+        direction = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+        approach = direction @ self.normals.T
+        heights = self.heights(centre)
+        with np.errstate(divide="ignore"):
+            reach = np.where(approach > 0, heights / approach, np.inf)
+        return np.asarray(centre, dtype=float) + reach.min(axis=-1)[..., None] * direction
+
+    def arc_length(self, point: ArrayLike) -> FloatArray:
+        """Arc length ``s`` (metres, CCW from vertex 0, in ``[0, L)``) of a boundary point."""
+        point = np.asarray(point, dtype=float)
+        relative = point[..., None, :] - self.vertices
+        along = np.clip(np.einsum("...kd,kd->...k", relative, self.directions), 0.0, self.edge_lengths)
+        foot = self.vertices + along[..., None] * self.directions
+        gap = np.sum((point[..., None, :] - foot) ** 2, axis=-1)
+        edge = np.argmin(gap, axis=-1)
+        s = self.vertex_arc[edge] + np.take_along_axis(along, edge[..., None], axis=-1)[..., 0]
+        return np.mod(s, self.perimeter)
+
+    def point_at(self, s: ArrayLike) -> FloatArray:
+        """The boundary point at arc length ``s`` (metres, taken modulo the perimeter)."""
+        s = np.mod(np.asarray(s, dtype=float), self.perimeter)
+        edge = np.clip(np.searchsorted(self.vertex_arc, s, side="right") - 1, 0, len(self.vertices) - 1)
+        return self.vertices[edge] + (s - self.vertex_arc[edge])[..., None] * self.directions[edge]
+
+    def move_along(self, start: ArrayLike, goal: ArrayLike, max_distance: float | None) -> FloatArray:
+        """Move from boundary point ``start`` towards ``goal`` along the shorter boundary arc, at most
+        ``max_distance`` metres (``None``: no cap). Returns ``goal`` itself whenever it is reachable."""
+        goal = np.asarray(goal, dtype=float)
+        if max_distance is None:
+            return goal
+        s_start = self.arc_length(start)
+        half = 0.5 * self.perimeter
+        shift = np.mod(self.arc_length(goal) - s_start + half, self.perimeter) - half
+        reachable = np.abs(shift) <= max_distance
+        capped = self.point_at(s_start + np.clip(shift, -max_distance, max_distance))
+        return np.where(reachable[..., None], goal, capped)
+
+    # ------------------------------------------------------------------ sizes (spec section 11)
+    @cached_property
+    def chebyshev_centre(self) -> tuple[FloatArray, float]:
+        """Centre (metres) and radius of the largest inscribed disc: ``max r s.t. n_k.c + r <= c_k``."""
+        from scipy.optimize import linprog
+
+        constraints = np.hstack([self.normals, np.ones((len(self.normals), 1))])
+        solution = linprog(
+            c=[0.0, 0.0, -1.0],
+            A_ub=constraints,
+            b_ub=self.offsets,
+            bounds=[(None, None), (None, None), (0, None)],
+            method="highs",
+        )
+        if not solution.success:  # pragma: no cover - a validated convex polygon always has one
+            raise RegionError(f"could not find the inscribed circle: {solution.message}")
+        return solution.x[:2].copy(), float(solution.x[2])
+
+    @property
+    def inner_diameter(self) -> float:
+        """``D_in``: diameter (metres) of the largest inscribed disc."""
+        return 2.0 * self.chebyshev_centre[1]
+
+    @cached_property
+    def outer_diameter(self) -> float:
+        """``D_out``: the longest segment in the polygon (metres), which joins two vertices."""
+        gaps = self.vertices[:, None, :] - self.vertices[None, :, :]
+        return float(np.sqrt(np.max(np.sum(gaps**2, axis=-1))))
+
+    # ------------------------------------------------------------------ speed (spec section 10)
+    def omega_max(self, v_max: float, dt: float, centre: ArrayLike, samples: int = 20_000) -> float:
+        """Largest angular speed (rad/s) about ``centre`` that no boundary move of at most
+        ``d_max = v_max * dt`` metres can exceed in one step of ``dt`` seconds:
+
+        ``omega_max = (1/dt) * min over s of wrap(theta(s + d_max) - theta(s))``
+
+        for point robots (no turn-in-place time at vertices). ``s`` is sampled densely and at every
+        vertex and vertex - ``d_max``, where the minimum of a sliding window is attained.
+        """
+        d_max = v_max * dt
+        if d_max >= self.perimeter:
+            raise RegionError(f"v_max * dt = {d_max} m is at least the perimeter {self.perimeter:.6g} m")
+        centre = np.asarray(centre, dtype=float)
+        starts = np.concatenate(
+            [
+                np.linspace(0.0, self.perimeter, samples, endpoint=False),
+                self.vertex_arc[:-1],
+                self.vertex_arc[:-1] - d_max,
+            ]
+        )
+        swept = np.mod(
+            angle_of(self.point_at(starts + d_max), centre) - angle_of(self.point_at(starts), centre), TWO_PI
+        )
+        return float(swept.min() / dt)

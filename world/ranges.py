@@ -1,0 +1,75 @@
+"""Communication and sensing ranges (ALGORITHMS.md section 11). Distances in metres.
+
+* Necessary (paper Thm 1): ``r_c >= D_in sin(pi / N)`` and ``r_s >= D_in / 2``.
+* Sufficient for sensing: ``r_s >= D_out``.
+* The paper's ``r_c >= L / N`` is *not* sufficient (unit square, N = 6, target (0.2, 0.2) needs 0.828);
+  safe choices are ``r_c >= D_out`` or the longest link of the best angle-uniform configuration for
+  the given target, :func:`uniform_link_requirement`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from world.geometry import ConvexRegion, FloatArray
+
+
+def uniform_ring(region: ConvexRegion, centre: ArrayLike, robots: int, rotation: ArrayLike = 0.0) -> FloatArray:
+    """Boundary points of ``robots`` robots spaced ``2 pi / robots`` apart about ``centre``, the first at
+    angle ``rotation`` (radians; an array of rotations gives shape ``rotation.shape + (robots, 2)``)."""
+    rotation = np.asarray(rotation, dtype=float)
+    angles = rotation[..., None] + 2.0 * np.pi * np.arange(robots) / robots
+    return region.boundary_point(angles, centre)
+
+
+def link_lengths(positions: ArrayLike) -> FloatArray:
+    """Distances (metres) from each robot to its CCW successor along axis -2 of ``positions``."""
+    positions = np.asarray(positions, dtype=float)
+    return np.linalg.norm(np.roll(positions, -1, axis=-2) - positions, axis=-1)
+
+
+def uniform_link_requirement(
+    region: ConvexRegion, centre: ArrayLike, robots: int, samples: int = 4096
+) -> tuple[float, float]:
+    """The smallest ``r_c`` that keeps every ring link of *some* angle-uniform configuration about
+    ``centre`` connected: ``min over rotations t0 of max_i ||p_{i+1} - p_i||``.
+
+    Rotations are sampled on ``[0, 2 pi / robots)`` (the configuration repeats with that period).
+    Returns ``(r_c, best rotation in radians)``.
+    """
+    rotations = np.linspace(0.0, 2.0 * np.pi / robots, samples, endpoint=False)
+    longest = link_lengths(uniform_ring(region, centre, robots, rotations)).max(axis=-1)
+    best = int(np.argmin(longest))
+    return float(longest[best]), float(rotations[best])
+
+
+@dataclass(frozen=True)
+class RangeBounds:
+    """Range bounds (metres) for a region, a team size and a target."""
+
+    perimeter: float  # L
+    inner_diameter: float  # D_in
+    outer_diameter: float  # D_out
+    necessary_communication: float  # D_in sin(pi / N)
+    necessary_sensing: float  # D_in / 2
+    paper_communication: float  # L / N, the paper's (insufficient) Theorem 2 bound
+    safe_communication: float  # min over rotations of the longest uniform link, for this target
+    safe_sensing: float  # D_out
+
+
+def range_bounds(region: ConvexRegion, centre: ArrayLike, robots: int) -> RangeBounds:
+    """All bounds of section 11 for ``robots`` robots around ``centre``."""
+    d_in = region.inner_diameter
+    return RangeBounds(
+        perimeter=region.perimeter,
+        inner_diameter=d_in,
+        outer_diameter=region.outer_diameter,
+        necessary_communication=d_in * float(np.sin(np.pi / robots)),
+        necessary_sensing=d_in / 2.0,
+        paper_communication=region.perimeter / robots,
+        safe_communication=uniform_link_requirement(region, centre, robots)[0],
+        safe_sensing=region.outer_diameter,
+    )

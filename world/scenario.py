@@ -1,0 +1,315 @@
+"""Scenarios: TOML files validated by msgspec (unknown keys rejected), resolved into run parameters.
+
+A scenario file looks like::
+
+    name = "paper-stationary"
+    seed = 0
+    [region]
+    vertices = [[3, 7], [8, 17], [5, 26], [1, 22]]   # metres, either orientation
+    [target]
+    position = [4, 20]                               # metres, inside the region
+    [team]
+    robots = 6
+    angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
+    [control]
+    strategy = "self"          # "self" | "constant"
+    law = "prop"               # fresh-information law: "prop" | "deadbeat"
+    dt = 0.1                   # s
+    omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
+    sigma_deg = 0.06           # trigger tolerance, deg
+    threshold_deg = 0.6        # convergence threshold on Cerr, deg (default 0.1 N)
+    max_steps = 3000
+
+Every problem is reported as one :class:`ScenarioError` line naming the key and the fix.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args, get_origin, get_type_hints
+
+import msgspec
+import numpy as np
+
+from agents.laws import ControlParams
+from agents.ring import ring_gaps
+from world.geometry import ConvexRegion, FloatArray, RegionError
+
+# msgspec bounds must be finite; these also refuse NaN and infinities, reported as "a finite number".
+HUGE = 1e300
+Finite = Annotated[float, msgspec.Meta(ge=-HUGE, le=HUGE)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=HUGE)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=HUGE)]
+Point = tuple[Finite, Finite]
+
+MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
+
+
+class ScenarioError(ValueError):
+    """A scenario cannot be used; the message is one line naming the key and the fix."""
+
+
+class _Spec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, frozen=True):
+    pass
+
+
+class RegionSpec(_Spec):
+    vertices: list[Point]
+
+
+class TargetSpec(_Spec):
+    position: Point
+
+
+class TeamSpec(_Spec):
+    robots: Annotated[int, msgspec.Meta(ge=3)] = 6
+    angles_deg: list[Finite] | None = None
+
+
+class ControlSpec(_Spec):
+    strategy: Literal["self", "constant"] = "self"
+    law: Literal["prop", "deadbeat"] = "prop"
+    dt: Positive = 0.1
+    omega_max_deg: Positive | None = None
+    v_max: Positive | None = None
+    sigma_deg: NonNegative = 0.0
+    threshold_deg: Positive | None = None
+    max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
+
+
+class ScenarioSpec(_Spec, kw_only=True):
+    region: RegionSpec
+    target: TargetSpec
+    name: str = "scenario"
+    seed: Annotated[int, msgspec.Meta(ge=0)] = 0
+    team: TeamSpec = TeamSpec()
+    control: ControlSpec = ControlSpec()
+
+
+DEFAULT_OMEGA_MAX_DEG = 1.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario with everything in SI units (metres, seconds, radians)."""
+
+    spec: ScenarioSpec
+    region: ConvexRegion
+    target: FloatArray
+    control: ControlParams
+    threshold: float  # rad, convergence threshold on Cerr
+    v_max: float | None  # m/s cap on boundary speed in the world, None: no cap
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def seed(self) -> int:
+        return self.spec.seed
+
+    @property
+    def robots(self) -> int:
+        return self.spec.team.robots
+
+    @property
+    def max_steps(self) -> int:
+        return self.spec.control.max_steps
+
+    def start_angles(self, seed: int) -> FloatArray:
+        """Initial angles (radians about the target, CCW ring order): the scenario's explicit
+        ``team.angles_deg`` or ``robots`` distinct uniform draws from ``numpy.random.default_rng(seed)``."""
+        if self.spec.team.angles_deg is not None:
+            return np.deg2rad(np.asarray(self.spec.team.angles_deg, dtype=float))
+        rng = np.random.default_rng(seed)
+        while True:
+            angles = np.sort(rng.uniform(0.0, 2.0 * np.pi, self.robots))
+            if ring_gaps(angles).min() > MIN_START_GAP:
+                return angles
+
+    def start_positions(self, seed: int) -> FloatArray:
+        """Initial boundary points (metres, shape ``(robots, 2)``) for ``seed``."""
+        return self.region.boundary_point(self.start_angles(seed), self.target)
+
+    def to_toml(self) -> bytes:
+        """The scenario as TOML, so a run folder can record exactly what ran."""
+        return msgspec.toml.encode(self.spec)
+
+
+# ---------------------------------------------------------------------------- loading
+SCENARIO_PACKAGE = "scenarios"
+
+
+def shipped_scenarios() -> list[str]:
+    """Names of the scenarios shipped in ``scenarios/``."""
+    folder = resources.files(SCENARIO_PACKAGE)
+    return sorted(entry.name[:-5] for entry in folder.iterdir() if entry.name.endswith(".toml"))
+
+
+def read_scenario_text(name_or_path: str) -> tuple[bytes, str]:
+    """Bytes and a display name of a scenario given as a file path or a shipped scenario name."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path.read_bytes(), str(path)
+    shipped = resources.files(SCENARIO_PACKAGE) / f"{name_or_path.removesuffix('.toml')}.toml"
+    if shipped.is_file():
+        return shipped.read_bytes(), f"{shipped.name}"
+    raise ScenarioError(
+        f"scenario {name_or_path!r} is neither a file nor a shipped scenario; use a path or one of: "
+        + ", ".join(shipped_scenarios())
+    )
+
+
+def load_scenario(name_or_path: str, **overrides: Any) -> Scenario:
+    """Read, validate and resolve a scenario; ``overrides`` are ``section.key``-free keyword pairs
+    such as ``strategy="constant"``, ``robots=8``, ``seed=3``, ``max_steps=500`` (see
+    :func:`apply_overrides`)."""
+    text, label = read_scenario_text(name_or_path)
+    spec = parse_scenario(text, label)
+    return resolve(apply_overrides(spec, **overrides), label)
+
+
+def parse_scenario(text: bytes | str, label: str = "scenario") -> ScenarioSpec:
+    """Decode and type-check TOML into a :class:`ScenarioSpec`."""
+    try:
+        return msgspec.toml.decode(text, type=ScenarioSpec)
+    except msgspec.ValidationError as error:
+        raise ScenarioError(f"{label}: {_explain_validation(str(error))}") from None
+    except msgspec.DecodeError as error:
+        raise ScenarioError(f"{label}: not valid TOML ({error}); fix the syntax") from None
+
+
+OVERRIDABLE = {
+    "strategy": "control",
+    "law": "control",
+    "dt": "control",
+    "omega_max_deg": "control",
+    "v_max": "control",
+    "sigma_deg": "control",
+    "threshold_deg": "control",
+    "max_steps": "control",
+    "robots": "team",
+    "seed": None,
+    "name": None,
+}
+
+
+def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
+    """Replace keys of a spec (command-line flags); ``None`` values are ignored. The result is
+    validated like a file, so a bad flag value gets the same one-line error as a bad key."""
+    sections: dict[str | None, dict[str, Any]] = {}
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        if key not in OVERRIDABLE:
+            raise ScenarioError(f"unknown override {key!r}; use one of {', '.join(OVERRIDABLE)}")
+        sections.setdefault(OVERRIDABLE[key], {})[key] = value
+    replaced: dict[str, Any] = dict(sections.pop(None, {}))
+    for section, values in sections.items():
+        assert section is not None
+        replaced[section] = msgspec.structs.replace(getattr(spec, section), **values)
+    merged = msgspec.structs.replace(spec, **replaced)
+    try:
+        return msgspec.convert(msgspec.to_builtins(merged), ScenarioSpec)
+    except msgspec.ValidationError as error:
+        raise ScenarioError(_explain_validation(str(error))) from None
+
+
+def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
+    """Check the cross-field rules of a spec and build the :class:`Scenario`."""
+    try:
+        region = ConvexRegion.from_vertices(spec.region.vertices)
+        target = np.asarray(spec.target.position, dtype=float)
+        region.require_interior(target, "target.position")
+    except RegionError as error:
+        raise ScenarioError(f"{label}: {error}") from None
+    team = spec.team
+    if team.angles_deg is not None:
+        if len(team.angles_deg) != team.robots:
+            raise ScenarioError(
+                f"{label}: team.angles_deg has {len(team.angles_deg)} angles for team.robots = {team.robots};"
+                " give one angle per robot"
+            )
+        gaps = ring_gaps(np.deg2rad(team.angles_deg))
+        if gaps.min() <= MIN_START_GAP:
+            raise ScenarioError(f"{label}: team.angles_deg has co-located robots; give distinct angles")
+        if abs(gaps.sum() - 2.0 * np.pi) > 1e-9:
+            raise ScenarioError(
+                f"{label}: team.angles_deg must go once counter-clockwise around the target; sort them"
+            )
+    control = spec.control
+    omega_deg = control.omega_max_deg
+    if omega_deg is None and control.v_max is not None:
+        omega = region.omega_max(control.v_max, control.dt, target)
+    else:
+        omega = math.radians(omega_deg if omega_deg is not None else DEFAULT_OMEGA_MAX_DEG)
+    threshold_deg = control.threshold_deg if control.threshold_deg is not None else 0.1 * team.robots
+    params = ControlParams(
+        omega_max=omega,
+        dt=control.dt,
+        sigma=math.radians(control.sigma_deg),
+        strategy=control.strategy,
+        law=control.law,
+    )
+    return Scenario(
+        spec=spec,
+        region=region,
+        target=target,
+        control=params,
+        threshold=math.radians(threshold_deg),
+        v_max=control.v_max,
+    )
+
+
+# ---------------------------------------------------------------------------- error text
+def _explain_validation(message: str) -> str:
+    """Turn msgspec's message into ``section.key: problem; fix``."""
+    where = re.search(r" - at `\$\.?(.*)`$", message)
+    path = where.group(1) if where else ""
+    body = message[: where.start()] if where else message
+    unknown = re.match(r"Object contains unknown field `(.+)`", body)
+    if unknown:
+        allowed = ", ".join(_fields_at(path))
+        place = f"[{path}]" if path else "top level"
+        return f"unknown key {unknown.group(1)!r} in {place}; allowed keys: {allowed}"
+    missing = re.match(r"Object missing required field `(.+)`", body)
+    if missing:
+        key = f"{path}.{missing.group(1)}" if path else missing.group(1)
+        return f"{key} is missing; add it"
+    key = path or "scenario"
+    if body.startswith("Expected `float`") and "e+300" in body:
+        sign = " > 0" if "> 0.0" in body else " >= 0" if ">= 0.0" in body else ""
+        return f"{key}: expected a finite number{sign}; fix the value"
+    if body.startswith("Invalid enum value"):
+        choices = ", ".join(repr(choice) for choice in _literal_choices(path))
+        return f"{key}: {body[0].lower()}{body[1:]}; use one of {choices}"
+    return f"{key}: {body[0].lower()}{body[1:]}; fix the value"
+
+
+def _type_at(path: str) -> Any:
+    """The annotation found at a dotted path of the spec (``""``: :class:`ScenarioSpec`)."""
+    found: Any = ScenarioSpec
+    for part in filter(None, re.sub(r"\[\d+\]", "", path).split(".")):
+        candidates = [found, *get_args(found)]
+        owner = next((c for c in candidates if isinstance(c, type) and issubclass(c, _Spec)), None)
+        if owner is None:
+            return None
+        found = get_type_hints(owner).get(part)
+    return found
+
+
+def _fields_at(path: str) -> list[str]:
+    """Field names of the spec struct found at a dotted path."""
+    found = _type_at(path)
+    owner = next((c for c in [found, *get_args(found)] if isinstance(c, type) and issubclass(c, _Spec)), None)
+    return list(owner.__struct_fields__) if owner else []
+
+
+def _literal_choices(path: str) -> list[Any]:
+    """The allowed values of a ``Literal`` key at a dotted path."""
+    found = _type_at(path)
+    return list(get_args(found)) if get_origin(found) is Literal else []
