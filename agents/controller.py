@@ -4,9 +4,9 @@ One :class:`MidpointController` holds the memory of any number of robots as arra
 leading shape ``S``: ``()`` for the single robot of a robot process, ``(N,)`` for a team, ``(T, N)``
 for a batch of trials in the engine. Both call the same methods in the same order every step::
 
-    reasons = controller.observe(step, own_position, centre)   # ages += 1, evaluate the trigger
+    reasons = controller.observe(step, own_position, centre)   # age the memory, evaluate the trigger
     # ... where reasons != 0: ask both neighbours for their step-start positions ...
-    controller.receive(reasons != 0, predecessor_position, successor_position)
+    controller.receive(predecessor_position, successor_position, reasons != 0, reasons != 0)
     goal = controller.goal(own_position, centre)                # boundary point to move to
 
 Neighbours are remembered by *position* (metres) and angles are recomputed from the current centre
@@ -30,24 +30,21 @@ class MidpointController:
     ``predecessor_position``/``successor_position`` (shape ``S + (2,)``) are the remembered
     neighbour positions, ``predecessor_age``/``successor_age`` (shape ``S``, int) their ages in steps,
     and ``guaranteed_offset`` the last observed ``gV - theta`` (radians) from memory as it was before
-    any exchange, the quantity of the paper's self-triggered Cerr.
+    polling, the quantity of the paper's self-triggered Cerr. A new controller knows nothing: its
+    memory holds its own position until the exchange of step 1, after which ``guaranteed_offset``
+    is the exact step-1 offset.
     """
 
-    def __init__(
-        self,
-        region: ConvexRegion,
-        params: ControlParams,
-        predecessor_position: ArrayLike,
-        successor_position: ArrayLike,
-    ) -> None:
+    def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> None:
         self.region = region
         self.params = params
-        self.predecessor_position: FloatArray = np.array(predecessor_position, dtype=float)
-        self.successor_position: FloatArray = np.array(successor_position, dtype=float)
+        self.predecessor_position: FloatArray = np.array(own_position, dtype=float)
+        self.successor_position: FloatArray = self.predecessor_position.copy()
         shape = self.predecessor_position.shape[:-1]
         self.predecessor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.successor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.guaranteed_offset: FloatArray = np.zeros(shape)
+        self.step = 0
 
     def view(self, own_position: ArrayLike, centre: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(theta, m_minus, m_plus)``: own angle and remembered neighbour angles (radians, local
@@ -65,8 +62,9 @@ class MidpointController:
         self-triggered strategy polls where T1, T2 or T3 holds.
         """
         if step > 1:
-            self.predecessor_age += 1
-            self.successor_age += 1
+            self.predecessor_age += step - self.step
+            self.successor_age += step - self.step
+        self.step = step
         theta, m_minus, m_plus = self.view(own_position, centre)
         self.guaranteed_offset = midpoint(m_minus, theta, m_plus) - theta
         if step == 1:
@@ -75,21 +73,35 @@ class MidpointController:
             return np.full(theta.shape, int(Trigger.SCHEDULE))
         return trigger_reasons(theta, m_minus, m_plus, self.predecessor_age, self.successor_age, self.params)
 
-    def receive(self, polled: ArrayLike, predecessor_position: ArrayLike, successor_position: ArrayLike) -> None:
-        """Store the neighbours' step-start positions where ``polled`` is true and reset those ages."""
-        polled = np.asarray(polled, dtype=bool)
-        self.predecessor_position = np.where(polled[..., None], predecessor_position, self.predecessor_position)
-        self.successor_position = np.where(polled[..., None], successor_position, self.successor_position)
-        self.predecessor_age = np.where(polled, 0, self.predecessor_age)
-        self.successor_age = np.where(polled, 0, self.successor_age)
+    def receive(
+        self,
+        predecessor_position: ArrayLike,
+        successor_position: ArrayLike,
+        predecessor_fresh: ArrayLike = True,
+        successor_fresh: ArrayLike = True,
+        predecessor_age: ArrayLike = 0,
+        successor_age: ArrayLike = 0,
+    ) -> None:
+        """Store replied neighbour positions where ``*_fresh`` holds, with their ages in steps (0 for
+        a reply describing the start of the current step); the other side keeps its older memory."""
+        for side, position, fresh, age in (
+            ("predecessor", predecessor_position, predecessor_fresh, predecessor_age),
+            ("successor", successor_position, successor_fresh, successor_age),
+        ):
+            fresh = np.asarray(fresh, dtype=bool)
+            setattr(self, f"{side}_position", np.where(fresh[..., None], position, getattr(self, f"{side}_position")))
+            setattr(self, f"{side}_age", np.where(fresh, age, getattr(self, f"{side}_age")))
 
     def goal(self, own_position: ArrayLike, centre: ArrayLike) -> FloatArray:
         """The boundary point (metres) to move to this step: ``phi_centre^{-1}(theta + Delta theta)``.
 
         Memory refreshed this step (both ages 0) takes the fresh-information law, stale memory the
-        guarded law of Algorithm 1.
+        guarded law of Algorithm 1 with ``ubd = omega_max (tau_minus + tau_plus) / 4``.
         """
         theta, m_minus, m_plus = self.view(own_position, centre)
+        offset = midpoint(m_minus, theta, m_plus) - theta
+        if self.step == 1:
+            self.guaranteed_offset = offset
         fresh = (self.predecessor_age == 0) & (self.successor_age == 0)
         step = angular_step(
             theta, m_minus, m_plus, self.predecessor_age, self.successor_age, fresh, self.params

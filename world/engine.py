@@ -25,8 +25,9 @@ class History:
     """Per-step record of a batch of runs of one scenario.
 
     ``angles`` are radians about the true target, unwrapped along time; ``positions`` metres (or
-    ``None`` when not recorded); ``triggers`` the :class:`agents.laws.Trigger` masks; ``cerr_true`` and
-    ``cerr_memory`` degrees (see :mod:`world.metrics`).
+    ``None`` when not recorded); ``triggers`` the :class:`agents.laws.Trigger` masks; ``offsets`` each
+    robot's ``gV - theta`` (radians) from memory before polling; ``cerr_true`` degrees (see
+    :mod:`world.metrics`).
     """
 
     scenario: Scenario
@@ -34,12 +35,17 @@ class History:
     angles: FloatArray  # (K, T, N)
     positions: FloatArray | None  # (K, T, N, 2)
     triggers: NDArray[np.uint8]  # (K, T, N)
+    offsets: FloatArray  # (K, T, N)
     cerr_true: FloatArray  # (K, T)
-    cerr_memory: FloatArray  # (K, T)
 
     @property
     def steps(self) -> int:
         return self.angles.shape[0]
+
+    @property
+    def cerr_memory(self) -> FloatArray:
+        """Cerr from each robot's memory before polling (degrees, shape (K, T))."""
+        return convergence_error(self.offsets)
 
     @property
     def cerr(self) -> FloatArray:
@@ -86,16 +92,13 @@ def run(
 
     positions = np.stack([scenario.start_positions(seed) for seed in seeds])
     trials, robots = positions.shape[:2]
-    controller = MidpointController(
-        region, params, np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
-    )
+    controller = MidpointController(region, params, positions)
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
+    offsets = np.empty((steps, trials, robots))
     cerr_true = np.empty((steps, trials))
-    cerr_memory = np.empty((steps, trials))
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     converged = np.zeros(trials, dtype=bool)
-    paper_cerr = cerr_memory if params.strategy == "self" else cerr_true
 
     for k in range(1, steps + 1):
         row = k - 1
@@ -104,13 +107,16 @@ def run(
         angles[row] = angle_of(positions, target)
         cerr_true[row] = convergence_error(true_offsets(positions, target))
         reasons = controller.observe(k, positions, target)
-        cerr_memory[row] = convergence_error(controller.guaranteed_offset)
         triggers[row] = reasons
-        controller.receive(reasons != 0, np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1))
-        positions = region.move_along(positions, controller.goal(positions, target), max_move)
+        polled = reasons != 0
+        controller.receive(np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1), polled, polled)
+        goal = controller.goal(positions, target)
+        offsets[row] = controller.guaranteed_offset
+        positions = region.move_along(positions, goal, max_move)
         if on_step is not None:
             on_step(k)
-        converged |= paper_cerr[row] < threshold_deg
+        paper_cerr = convergence_error(offsets[row]) if params.strategy == "self" else cerr_true[row]
+        converged |= paper_cerr < threshold_deg
         if until_converged and converged.all():
             steps = k
             break
@@ -121,6 +127,31 @@ def run(
         angles=np.unwrap(angles[:steps], axis=0),
         positions=None if recorded is None else recorded[:steps],
         triggers=triggers[:steps],
+        offsets=offsets[:steps],
         cerr_true=cerr_true[:steps],
-        cerr_memory=cerr_memory[:steps],
     )
+
+
+def summary(history: History, trial: int = 0) -> dict[str, object]:
+    """The JSON-ready summary of one trial of a run: convergence, communication and final error."""
+    scenario = history.scenario
+    ctime = int(history.ctime[trial])
+    ctime_true = int(history.ctime_true[trial])
+    polled = (history.triggers[:, trial] != 0).sum(axis=0)
+    com_bar = float(history.com_bar[trial])
+    return {
+        "scenario": scenario.name,
+        "strategy": scenario.control.strategy,
+        "law": scenario.control.law,
+        "robots": int(history.angles.shape[2]),
+        "seed": history.seeds[trial],
+        "steps": history.steps,
+        "threshold_deg": float(np.rad2deg(scenario.threshold)),
+        "converged": ctime > 0,
+        "ctime": ctime or None,
+        "ctime_true": ctime_true or None,
+        "com_bar": com_bar if ctime else None,
+        "triggers": {"total": int(polled.sum()), "per_robot": polled.tolist()},
+        "cerr_final_deg": float(history.cerr[-1, trial]),
+        "cerr_true_final_deg": float(history.cerr_true[-1, trial]),
+    }

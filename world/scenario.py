@@ -53,7 +53,7 @@ class ScenarioError(ValueError):
     """A scenario cannot be used; the message is one line naming the key and the fix."""
 
 
-class _Spec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, frozen=True):
+class _Spec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, frozen=True, omit_defaults=True):
     pass
 
 
@@ -200,7 +200,11 @@ OVERRIDABLE = {
 
 def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     """Replace keys of a spec (command-line flags); ``None`` values are ignored. The result is
-    validated like a file, so a bad flag value gets the same one-line error as a bad key."""
+    validated like a file, so a bad flag value gets the same one-line error as a bad key.
+
+    A ``robots`` override that no longer matches explicit ``team.angles_deg`` replaces them by a
+    seeded random start (``start_angles``).
+    """
     sections: dict[str | None, dict[str, Any]] = {}
     for key, value in overrides.items():
         if value is None:
@@ -208,6 +212,10 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
         if key not in OVERRIDABLE:
             raise ScenarioError(f"unknown override {key!r}; use one of {', '.join(OVERRIDABLE)}")
         sections.setdefault(OVERRIDABLE[key], {})[key] = value
+    team = sections.get("team", {})
+    angles = spec.team.angles_deg
+    if "robots" in team and angles is not None and len(angles) != team["robots"]:
+        team["angles_deg"] = None  # explicit start of another team size: use a seeded random start
     replaced: dict[str, Any] = dict(sections.pop(None, {}))
     for section, values in sections.items():
         assert section is not None

@@ -1,0 +1,26 @@
+# Two commands on a fresh machine with only python3: `make run` and `make test`.
+# Each creates .venv and installs the project (editable, with the test extra) when needed.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: run test bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --upgrade pip
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/ringtrack simulate paper-stationary
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/ringtrack bench engine
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .hypothesis

@@ -1,0 +1,79 @@
+"""Key expressions of one run. Every key lives under ``ringtrack/<run>`` so two runs never meet.
+
+Data keys read ``ringtrack/<run>/<destination>/<source>/<kind>`` with participants named ``world``,
+``monitor``, ``all`` (broadcast) and ``r<i>`` (robot i), so the monitor learns the link of every
+message from its key alone. Liveliness tokens live under ``ringtrack/<run>/alive/<name>`` (the
+process is up) and ``ringtrack/<run>/ready/<name>`` (it has seen everyone it talks to).
+"""
+
+from __future__ import annotations
+
+import re
+import secrets
+from dataclasses import dataclass
+
+ROOT = "ringtrack"
+WORLD = "world"
+MONITOR = "monitor"
+BROADCAST = "all"
+
+ROBOT_NAME = re.compile(r"^r(0|[1-9][0-9]{0,5})$")
+
+
+def new_run_id() -> int:
+    """A random 32-bit run id."""
+    return secrets.randbits(32)
+
+
+def robot_name(robot: int) -> str:
+    return f"r{robot}"
+
+
+def robot_index(name: str) -> int | None:
+    """``i`` for ``"r<i>"``; ``None`` for any other participant name."""
+    match = ROBOT_NAME.match(name)
+    return int(match.group(1)) if match else None
+
+
+@dataclass(frozen=True)
+class Route:
+    """Where a data message goes, parsed from its key."""
+
+    destination: str
+    source: str
+    kind: str
+
+
+@dataclass(frozen=True)
+class Keys:
+    """The key expressions of run ``run`` (a 32-bit id, shown as 8 hex digits)."""
+
+    run: int
+
+    @property
+    def prefix(self) -> str:
+        return f"{ROOT}/{self.run:08x}"
+
+    def data(self, destination: str, source: str, kind: str) -> str:
+        return f"{self.prefix}/{destination}/{source}/{kind}"
+
+    def inbox(self, name: str) -> str:
+        """Everything addressed to participant ``name``."""
+        return f"{self.prefix}/{name}/**"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.prefix}/**"
+
+    def alive(self, name: str = "*") -> str:
+        return f"{self.prefix}/alive/{name}"
+
+    def ready(self, name: str = "*") -> str:
+        return f"{self.prefix}/ready/{name}"
+
+    def parse(self, key: str) -> Route | None:
+        """The route of a data key of this run, or ``None`` for a key of another shape or run."""
+        parts = key.split("/")
+        if len(parts) != 5 or f"{parts[0]}/{parts[1]}" != self.prefix:
+            return None
+        return Route(destination=parts[2], source=parts[3], kind=parts[4])

@@ -1,0 +1,186 @@
+"""Message schemas (msgspec structs, msgpack-encoded as compact tagged arrays) and their validation.
+
+Every message starts ``[tag, schema, run, ...]``: ``tag`` names the kind, ``schema`` the version of
+these definitions, ``run`` the 32-bit run id. Positions are metres as ``(x, y)``; ``time`` is
+simulated seconds; ``step`` is the 1-based step. :func:`decode` rejects anything malformed,
+of another schema or run, or claiming a sender its key does not carry, with a :class:`Rejected`
+whose ``reason`` is counted by the receiver.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import msgspec
+
+from bus.keys import MONITOR, WORLD, Route, robot_index, robot_name
+
+SCHEMA = 1
+
+Point = tuple[float, float]
+Covariance = tuple[float, float, float]  # (xx, xy, yy), m^2
+
+
+class Message(msgspec.Struct, array_like=True, frozen=True, tag=True, omit_defaults=True):
+    schema: int
+    run: int
+    kind: ClassVar[str] = ""
+    category: ClassVar[str] = ""  # "robot" (robot-to-robot), "world" or "monitoring"
+
+
+class Measurement(Message, tag=1):
+    """World -> robot: the robot's exact position and a noisy range to the target (None: beyond r_s)."""
+
+    step: int
+    time: float
+    robot: int
+    position: Point
+    range: float | None
+    kind: ClassVar[str] = "measurement"
+    category: ClassVar[str] = "world"
+
+
+class Command(Message, tag=2):
+    """Robot -> world: where to move this step, why it polled (a Trigger mask), and its view.
+
+    ``guaranteed_offset`` is ``gV - theta`` (radians) before polling, ``centre`` the point it steers
+    about (the known target or its estimate) with ``covariance`` when it estimates.
+    """
+
+    step: int
+    robot: int
+    goal: Point
+    trigger: int
+    guaranteed_offset: float
+    centre: Point
+    covariance: Covariance | None = None
+    kind: ClassVar[str] = "command"
+    category: ClassVar[str] = "world"
+
+
+class Request(Message, tag=3):
+    """Robot -> ring neighbour: send me your state at the start of ``step``."""
+
+    step: int
+    sender: int
+    receiver: int
+    nonce: int
+    kind: ClassVar[str] = "request"
+    category: ClassVar[str] = "robot"
+
+
+class Reply(Message, tag=4):
+    """Ring neighbour -> robot: its position at the start of ``step`` (and belief when estimating),
+    answering the request with ``nonce``."""
+
+    step: int
+    sender: int
+    receiver: int
+    nonce: int
+    position: Point
+    mean: Point | None = None
+    covariance: Covariance | None = None
+    kind: ClassVar[str] = "reply"
+    category: ClassVar[str] = "robot"
+
+
+class Tick(Message, tag=5):
+    """World -> monitor: the true state at the start of ``step`` (never sent to robots)."""
+
+    step: int
+    time: float
+    positions: list[Point]
+    target: Point
+    live: list[int]
+    kind: ClassVar[str] = "tick"
+    category: ClassVar[str] = "world"
+
+
+class End(Message, tag=6):
+    """World -> everyone: the run is over after ``step`` steps (``reason``: "done", "stopped", ...)."""
+
+    step: int
+    reason: str
+    wall_s: float
+    kind: ClassVar[str] = "end"
+    category: ClassVar[str] = "world"
+
+
+Traffic = tuple[str, str, str, int, int]  # (kind, source, destination, messages, bytes)
+
+
+class Stats(Message, tag=7):
+    """Any process -> monitor: what it has sent and received so far, by kind and link."""
+
+    name: str
+    final: bool
+    sent: list[Traffic]
+    received: list[Traffic]
+    rejected: dict[str, int]
+    rss_kib: int
+    kind: ClassVar[str] = "stats"
+    category: ClassVar[str] = "monitoring"
+
+
+KINDS: dict[str, type[Message]] = {
+    cls.kind: cls for cls in (Measurement, Command, Request, Reply, Tick, End, Stats)
+}
+AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(AnyMessage)
+
+
+class Rejected(ValueError):
+    """A received payload was dropped; ``reason`` is one of :data:`REJECT_REASONS`."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender")
+
+
+def encode(message: Message) -> bytes:
+    return _encoder.encode(message)
+
+
+def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMessage:
+    """Decode and validate ``payload`` received on ``route`` in run ``run`` of ``robots`` robots.
+
+    Raises :class:`Rejected` for bytes that are not a message ("malformed"), another schema
+    version ("schema"), another run ("foreign"), a kind that does not match the key ("route"), or
+    a sender/receiver that is not the one its key names or not a robot of this team ("sender").
+    """
+    try:
+        message = _decoder.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError) as error:
+        raise Rejected("malformed", str(error)) from None
+    if message.schema != SCHEMA:
+        raise Rejected("schema", f"schema {message.schema}, expected {SCHEMA}")
+    if message.run != run or route is None:
+        raise Rejected("foreign", f"run {message.run:#x} on {route}")
+    if route.kind != message.kind:
+        raise Rejected("route", f"{message.kind} sent as {route.kind}")
+    source, destination = endpoints(message)
+    if source != route.source or destination not in (route.destination, None):
+        raise Rejected("sender", f"{message.kind} from {source} to {destination} on {route}")
+    for name in (source, destination):
+        index = robot_index(name) if name else None
+        if index is not None and index >= robots:
+            raise Rejected("sender", f"robot {index} does not exist in a team of {robots}")
+    return message
+
+
+def endpoints(message: Message) -> tuple[str, str | None]:
+    """``(source, destination)`` participant names a message claims (destination None: any)."""
+    if isinstance(message, (Request, Reply)):
+        return robot_name(message.sender), robot_name(message.receiver)
+    if isinstance(message, Measurement):
+        return WORLD, robot_name(message.robot)
+    if isinstance(message, Command):
+        return robot_name(message.robot), WORLD
+    if isinstance(message, Stats):
+        return message.name, MONITOR
+    return WORLD, None

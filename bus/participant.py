@@ -1,0 +1,175 @@
+"""One named participant of a run (the world, the monitor, robot i) on a Zenoh session.
+
+It encodes, counts and publishes outgoing messages, and turns incoming samples and liveliness
+changes into validated messages and :class:`Presence` events on an asyncio loop. Every payload that
+fails validation is dropped and counted by reason, never raised.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import resource
+from dataclasses import dataclass
+from typing import Literal
+
+import zenoh
+
+from bus.counting import TrafficCounter
+from bus.inbox import Inbox
+from bus.keys import Keys, Route
+from bus.messages import SCHEMA, AnyMessage, Message, Rejected, Stats, decode, encode
+
+log = logging.getLogger(__name__)
+
+PresenceKind = Literal["alive", "ready"]
+CONTROL_KINDS = frozenset({"measurement", "command", "tick", "end"})
+
+
+@dataclass(frozen=True)
+class Presence:
+    """A liveliness change: participant ``name`` is ``up`` (or gone) as ``kind``."""
+
+    kind: PresenceKind
+    name: str
+    up: bool
+
+
+@dataclass(frozen=True)
+class Delivery:
+    """A validated message with the route its key named and its payload size in bytes."""
+
+    message: AnyMessage
+    route: Route
+    size: int
+
+
+@dataclass(frozen=True)
+class Interrupt:
+    """The process was asked to stop (a signal, or the parent that started it went away)."""
+
+    reason: str
+
+
+Event = Delivery | Presence | Interrupt
+
+
+class Participant:
+    """Send and receive the messages of one participant of run ``keys.run`` with ``robots`` robots."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        name: str,
+        robots: int,
+        loop: asyncio.AbstractEventLoop,
+    ) -> None:
+        self.session = session
+        self.keys = keys
+        self.name = name
+        self.robots = robots
+        self.counter = TrafficCounter()
+        self.inbox: Inbox[tuple[str, bytes] | Presence | Interrupt] = Inbox(loop)
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._entities: list[object] = []
+        self.callback_failures = 0
+
+    # ------------------------------------------------------------------ receiving
+    def listen(self, key_expr: str) -> None:
+        """Receive data samples on ``key_expr``."""
+        self._entities.append(self.session.declare_subscriber(key_expr, self._on_sample))
+
+    def watch(self, kind: PresenceKind) -> None:
+        """Receive :class:`Presence` events for every ``kind`` token of the run, current ones first."""
+        key_expr = self.keys.alive() if kind == "alive" else self.keys.ready()
+        self._entities.append(
+            self.session.liveliness().declare_subscriber(
+                key_expr, lambda sample: self._on_token(kind, sample), history=True
+            )
+        )
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            self.inbox.push((str(sample.key_expr), sample.payload.to_bytes()))
+        except Exception:  # pragma: no cover - a failing callback must never go silent
+            self.callback_failures += 1
+            log.exception("sample callback failed")
+
+    def _on_token(self, kind: PresenceKind, sample: zenoh.Sample) -> None:
+        try:
+            name = str(sample.key_expr).rsplit("/", 1)[-1]
+            self.inbox.push(Presence(kind, name, sample.kind == zenoh.SampleKind.PUT))
+        except Exception:  # pragma: no cover
+            self.callback_failures += 1
+            log.exception("liveliness callback failed")
+
+    async def events(self) -> list[Event]:
+        """Wait for and return the next batch of validated messages and presence changes."""
+        batch = await self.inbox.batch()
+        return self.accept(batch)
+
+    def accept(self, batch: list[tuple[str, bytes] | Presence | Interrupt]) -> list[Event]:
+        """Decode, validate and count raw samples; rejected payloads are counted and dropped."""
+        accepted: list[Event] = []
+        for item in batch:
+            if not isinstance(item, tuple):
+                accepted.append(item)
+                continue
+            key, payload = item
+            route = self.keys.parse(key)
+            try:
+                message = decode(payload, route, self.keys.run, self.robots)
+            except Rejected as rejection:
+                self.counter.count_rejected(rejection.reason)
+                continue
+            assert route is not None
+            self.counter.count_received((message.kind, route.source, route.destination), len(payload))
+            accepted.append(Delivery(message, route, len(payload)))
+        return accepted
+
+    # ------------------------------------------------------------------ sending
+    def announce(self, kind: PresenceKind) -> None:
+        """Declare this participant's ``kind`` liveliness token (withdrawn when the session closes)."""
+        key = self.keys.alive(self.name) if kind == "alive" else self.keys.ready(self.name)
+        self._entities.append(self.session.liveliness().declare_token(key))
+
+    def send(self, destination: str, message: Message) -> int:
+        """Publish ``message`` to ``destination`` (a participant name or "all"); returns its bytes."""
+        key = self.keys.data(destination, self.name, message.kind)
+        payload = encode(message)
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self.session.declare_publisher(
+                key,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.INTERACTIVE_HIGH if message.kind in CONTROL_KINDS else zenoh.Priority.DATA,
+                express=True,
+            )
+            self._publishers[key] = publisher
+        publisher.put(payload)
+        self.counter.count_sent((message.kind, self.name, destination), len(payload))
+        return len(payload)
+
+    def stats(self, final: bool) -> Stats:
+        """What this participant has sent, received and rejected so far."""
+        return Stats(
+            SCHEMA,
+            self.keys.run,
+            name=self.name,
+            final=final,
+            sent=self.counter.sent_table(),
+            received=self.counter.received_table(),
+            rejected=self.counter.rejected_table(),
+            rss_kib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+        )
+
+    def close(self) -> None:
+        """Undeclare every entity (call before the event loop ends; the session is closed by its owner)."""
+        for entity in [*self._publishers.values(), *reversed(self._entities)]:
+            try:
+                entity.undeclare()  # type: ignore[attr-defined]
+            except Exception:  # pragma: no cover - the session may already be closed
+                pass
+        self._publishers.clear()
+        self._entities.clear()

@@ -1,0 +1,135 @@
+"""Multi-process teams over Zenoh: each test starts its own processes and ends them."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bus.counting import totals_by_category
+from tests.emulation import (
+    assert_equals_engine,
+    lockstep_run,
+    processes_mentioning,
+    scenario,
+    start_spawn,
+    stop_all,
+    wait_for_steps,
+)
+from tools.runlog import read_log, robot_to_robot_sent
+
+pytestmark = pytest.mark.timeout(240)
+
+STEPS = 300
+
+
+@pytest.mark.parametrize("strategy", ["self", "constant"])
+def test_lockstep_team_equals_the_engine(tmp_path: Path, strategy: str) -> None:
+    result, log = lockstep_run(scenario(strategy=strategy, max_steps=STEPS), tmp_path)
+    logged = assert_equals_engine(log)
+    assert len(log.steps) == STEPS
+
+    # Every role is its own OS process.
+    pids = result["pids"]
+    assert set(pids) == {"world", "monitor"} | {f"r{i}" for i in range(6)}
+    assert len(set(pids.values())) == 8
+
+    # Robot-to-robot traffic happens only at polls: 2 requests + 2 replies per poll, attributed to
+    # the step and robot that sent them.
+    polled = logged.triggers[:, 0] != 0
+    sent = np.array([record["sent_messages"] for record in log.steps])
+    assert np.array_equal(sent, robot_to_robot_sent(polled))
+    assert result["messages"]["robot"] == 4 * int(polled.sum())
+    assert result["triggers"]["total"] == int(polled.sum())
+    if strategy == "constant":
+        assert result["messages"]["robot"] == 4 * 6 * STEPS
+    # The world serves one measurement per robot per step and one tick, and gets one command back.
+    kinds = result["by_kind"]
+    assert kinds["measurement"]["messages"] == kinds["command"]["messages"] == 6 * STEPS
+    assert kinds["tick"]["messages"] == STEPS
+
+
+def test_monitor_totals_equal_senders_and_log(tmp_path: Path) -> None:
+    _, log = lockstep_run(scenario(max_steps=150), tmp_path)
+    end = log.end
+    assert end is not None and end["reason"] == "done" and end["late"] == 0 and end["rejected"] == {}
+    seen = totals_by_category([tuple(row) for row in end["traffic"]])
+    said = totals_by_category([tuple(row) for rows in end["senders"].values() for row in rows])
+    assert set(end["senders"]) == {"world"} | {f"r{i}" for i in range(6)}
+    for category in ("robot", "world"):
+        assert seen[category] == said[category]
+    assert end["consistent"] is True
+    logged_messages = sum(sum(record["sent_messages"]) for record in log.steps)
+    logged_bytes = sum(sum(record["sent_bytes"]) for record in log.steps)
+    assert (logged_messages, logged_bytes) == (seen["robot"]["messages"], seen["robot"]["bytes"])
+
+
+def test_two_runs_at_once_do_not_interfere(tmp_path: Path) -> None:
+    runs = {"a": scenario(seed=1, robots=5, max_steps=200), "b": scenario(strategy="constant", seed=2, max_steps=200)}
+    outcomes: dict[str, object] = {}
+
+    def run(name: str) -> None:
+        try:
+            outcomes[name] = lockstep_run(runs[name], tmp_path / name)
+        except BaseException as error:  # reported below
+            outcomes[name] = error
+
+    threads = [threading.Thread(target=run, args=(name,)) for name in runs]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for name in runs:
+        outcome = outcomes[name]
+        assert not isinstance(outcome, BaseException), outcome
+        result, log = outcome
+        assert_equals_engine(log)
+        assert result["monitor_equals_senders"] is True
+        assert result["robots"] == runs[name].robots
+    assert outcomes["a"][0]["run"] != outcomes["b"][0]["run"]
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.Signals) -> None:
+    process = start_spawn(tmp_path, "--steps", "100000")
+    try:
+        folder = wait_for_steps(tmp_path, 30)
+        assert len(processes_mentioning(str(folder))) == 8
+        sent_at = time.monotonic()
+        process.send_signal(stop)
+        code = process.wait(timeout=20)
+        stopped_in = time.monotonic() - sent_at
+    finally:
+        stop_all(process)
+    assert code == 130
+    assert stopped_in < 10, "spawn did not end its team (hang guard; the target is 2 s)"
+    assert processes_mentioning(str(folder)) == []
+    log = read_log(folder / "log.jsonl")
+    steps = [record["step"] for record in log.steps]
+    assert len(steps) >= 30 and steps == list(range(1, len(steps) + 1))
+    assert_equals_engine(log)
+
+
+def test_a_killed_robot_fails_the_run_cleanly(tmp_path: Path) -> None:
+    process = start_spawn(tmp_path, "--steps", "100000")
+    try:
+        folder = wait_for_steps(tmp_path, 20)
+        robot = [pid for pid in processes_mentioning(str(folder)) if _is_robot(pid, 3)]
+        assert len(robot) == 1
+        os.kill(robot[0], signal.SIGKILL)
+        code = process.wait(timeout=30)
+    finally:
+        stop_all(process)
+    assert code != 0
+    assert processes_mentioning(str(folder)) == []
+    assert read_log(folder / "log.jsonl").end["reason"].startswith("robot r3 disappeared")
+
+
+def _is_robot(pid: int, robot: int) -> bool:
+    command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    return b"robot" in command and command[command.index(b"--id") + 1] == str(robot).encode()

@@ -1,0 +1,75 @@
+"""``ringtrack bench``: speed measurements reported as a rich table and JSON (never timed tests)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from importlib import metadata
+from pathlib import Path
+
+from rich.table import Table
+
+from tools.console import err, out, write_json
+from tools.experiment import stationary_experiment
+from world import engine
+from world.scenario import load_scenario
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser("bench", help="measure speed (engine, emulator)")
+    kinds = parser.add_subparsers(dest="bench", required=True, metavar="BENCHMARK")
+    engine_parser = kinds.add_parser(
+        "engine",
+        help="in-process engine: one run, the 30-trial N = 6 experiment, the N = 3..30 sweep",
+    )
+    engine_parser.add_argument("--trials", type=int, default=30)
+    engine_parser.add_argument("--sweep", type=str, default="3-30", help="team sizes of the sweep, e.g. 3-30")
+    engine_parser.add_argument("--json", type=Path, metavar="PATH")
+    engine_parser.set_defaults(handler=run_engine_bench)
+
+
+def machine() -> dict[str, object]:
+    """Core count, Python and library versions that a benchmark result depends on."""
+    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy")}
+    return {
+        "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "versions": versions,
+    }
+
+
+def parse_range(text: str) -> list[int]:
+    first, _, last = text.partition("-")
+    return list(range(int(first), int(last or first) + 1))
+
+
+def run_engine_bench(args: argparse.Namespace) -> int:
+    results: dict[str, object] = {"benchmark": "engine", "machine": machine()}
+    scenario = load_scenario("paper-stationary")
+    started = time.perf_counter()
+    history = engine.run(scenario, steps=scenario.max_steps, record_positions=False)
+    elapsed = time.perf_counter() - started
+    results["single_run"] = {"robots": scenario.robots, "steps": history.steps, "steps_per_s": history.steps / elapsed}
+
+    err.print(f"running the {args.trials}-trial two-strategy experiment for N = 6 ...")
+    experiment = stationary_experiment("paper-stationary", [6], args.trials, 0)
+    results["experiment_n6"] = {"trials": args.trials, "wall_s": experiment["wall_s"]}
+
+    sizes = parse_range(args.sweep)
+    err.print(f"running the sweep N = {sizes[0]}..{sizes[-1]} x {args.trials} trials ...")
+    sweep = stationary_experiment("paper-stationary", sizes, args.trials, 0)
+    results["sweep"] = {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": args.trials, "wall_s": sweep["wall_s"]}
+
+    table = Table(title=f"engine benchmark ({results['machine']['cores']} cores)")
+    table.add_column("measurement")
+    table.add_column("result", justify="right")
+    table.add_row(f"one run, N = {scenario.robots}", f"{results['single_run']['steps_per_s']:.0f} steps/s")
+    table.add_row(f"experiment N = 6, {args.trials} trials x 2 strategies", f"{experiment['wall_s']:.2f} s")
+    table.add_row(f"sweep N = {sizes[0]}..{sizes[-1]}, {args.trials} trials x 2", f"{sweep['wall_s']:.2f} s")
+    out.print(table)
+    if args.json:
+        write_json(args.json, results)
+    return 0

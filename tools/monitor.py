@@ -1,0 +1,297 @@
+"""The monitor process: tallies every message and byte of a run live and writes its run log.
+
+It subscribes to every key of the run and counts what it receives by kind and link (the same
+:class:`bus.counting.TrafficCounter` the senders use for what they send). From the world's Ticks, the
+robots' Commands and their requests and replies it assembles one log record per step. When the
+world ends the run it waits for every sender's final statistics, checks that its totals equal what
+the senders counted, writes the end record and prints a summary.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bus.config import BusConfig
+from bus.counting import TrafficCounter, totals_by_category
+from bus.keys import MONITOR, WORLD, Keys, robot_index, robot_name
+from bus.messages import Command, End, Reply, Request, Stats, Tick, Traffic
+from bus.participant import Delivery, Interrupt, Participant, Presence
+from bus.runtime import Roster, gather_until, joined
+from tools.runlog import LogWriter, step_record
+from world.scenario import Scenario
+
+FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
+FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)
+VIEW_PERIOD_S = 0.25
+
+
+@dataclass
+class PendingStep:
+    """What the monitor has seen of one step so far."""
+
+    tick: Tick | None = None
+    commands: dict[int, Command] = field(default_factory=dict)
+    sent_messages: dict[int, int] = field(default_factory=dict)
+    sent_bytes: dict[int, int] = field(default_factory=dict)
+
+    def robot_to_robot_seen(self) -> int:
+        return sum(self.sent_messages.values())
+
+    def complete(self) -> bool:
+        """Tick and every live robot's command are in, and all 4 messages of every poll."""
+        if self.tick is None or not set(self.tick.live) <= set(self.commands):
+            return False
+        polls = sum(1 for command in self.commands.values() if command.trigger)
+        return self.robot_to_robot_seen() >= 4 * polls
+
+
+class Recorder:
+    """Turns deliveries into step records, in step order, each written once it is complete, or
+    ``FORCE_AFTER_S`` after its tick when later steps exist (a message was lost), or at the end.
+
+    Messages of different senders travel on different links, so a robot's command for step k may
+    reach the monitor after the world's tick for k + 5: completeness, not arrival order, decides.
+    """
+
+    def __init__(self, writer: LogWriter, robots: int) -> None:
+        self.writer = writer
+        self.robots = robots
+        self.pending: dict[int, PendingStep] = {}
+        self.next_step = 1
+        self.latest_tick = 0
+        self.tick_seen_at: dict[int, float] = {}
+        self.late = 0
+        self.polls = [0] * robots
+        self.last_trigger = [0] * robots
+
+    def on_delivery(self, delivery: Delivery) -> None:
+        message = delivery.message
+        if isinstance(message, (Tick, Command, Request, Reply)) and message.step < self.next_step:
+            self.late += 1  # its step record is already written
+            return
+        if isinstance(message, Tick):
+            self._pending(message.step).tick = message
+            self.tick_seen_at[message.step] = time.monotonic()
+            self.latest_tick = max(self.latest_tick, message.step)
+        elif isinstance(message, Command):
+            self._pending(message.step).commands[message.robot] = message
+            self.last_trigger[message.robot] = message.trigger
+            self.polls[message.robot] += bool(message.trigger)
+        elif isinstance(message, (Request, Reply)):
+            entry = self._pending(message.step)
+            entry.sent_messages[message.sender] = entry.sent_messages.get(message.sender, 0) + 1
+            entry.sent_bytes[message.sender] = entry.sent_bytes.get(message.sender, 0) + delivery.size
+
+    def _pending(self, step: int) -> PendingStep:
+        return self.pending.setdefault(step, PendingStep())
+
+    def flush(self, everything: bool = False) -> None:
+        """Write complete steps in order, overdue ones as they are, and with ``everything`` all
+        steps whose tick arrived."""
+        now = time.monotonic()
+        while self.next_step in self.pending:
+            entry = self.pending[self.next_step]
+            overdue = self.latest_tick > self.next_step and now - self.tick_seen_at[self.next_step] > FORCE_AFTER_S
+            if entry.tick is None or not (entry.complete() or overdue or everything):
+                return
+            self._write(self.next_step, entry)
+            del self.pending[self.next_step]
+            del self.tick_seen_at[self.next_step]
+            self.next_step += 1
+
+    def _write(self, step: int, entry: PendingStep) -> None:
+        tick = entry.tick
+        assert tick is not None
+        robots = range(self.robots)
+        commands = entry.commands
+        self.writer.write(
+            step_record(
+                step=step,
+                time=tick.time,
+                positions=tick.positions,
+                target=tick.target,
+                live=list(tick.live),
+                trigger=[commands[r].trigger if r in commands else None for r in robots],
+                offset=[commands[r].guaranteed_offset if r in commands else None for r in robots],
+                centre=[list(commands[r].centre) if r in commands else None for r in robots],
+                sent_messages=[entry.sent_messages.get(r, 0) for r in robots],
+                sent_bytes=[entry.sent_bytes.get(r, 0) for r in robots],
+            )
+        )
+
+
+@dataclass
+class MonitorReport:
+    """What the monitor saw, and whether it matches what the senders counted."""
+
+    received: list[Traffic]
+    senders: dict[str, list[Traffic]]
+    rejected: dict[str, int]
+    rss_kib: dict[str, int]
+    end: End | None
+    late: int
+
+    def sender_totals(self) -> dict[str, dict[str, int]]:
+        return totals_by_category([row for rows in self.senders.values() for row in rows])
+
+    def monitor_totals(self) -> dict[str, dict[str, int]]:
+        return totals_by_category(self.received)
+
+    def consistent(self) -> bool:
+        """Robot-to-robot and world traffic seen equals what the senders say they sent."""
+        mine, theirs = self.monitor_totals(), self.sender_totals()
+        return all(mine.get(category) == theirs.get(category) for category in ("robot", "world"))
+
+
+View = Callable[["MonitorState"], None]
+
+
+@dataclass
+class MonitorState:
+    """A snapshot for views: progress, per-robot polls and the traffic so far."""
+
+    step: int
+    steps: int
+    polls: list[int]
+    last_trigger: list[int]
+    counter: TrafficCounter
+    alive: set[str]
+    finished: bool = False
+
+
+async def run_monitor(
+    scenario: Scenario,
+    seed: int,
+    run: int,
+    bus: BusConfig,
+    log_path: Path,
+    steps: int,
+    clock: str,
+    view: View | None = None,
+    exit_with_parent: bool = False,
+) -> tuple[int, MonitorReport | None]:
+    """Monitor one run; returns the exit code and the report (None when stopped before the start)."""
+    keys = Keys(run)
+    robots = scenario.robots
+    async with joined(bus, keys, MONITOR, robots, exit_with_parent) as participant:
+        participant.listen(keys.everything)
+        participant.watch("alive")
+        participant.announce("alive")
+        roster = Roster()
+        everyone = {WORLD} | {robot_name(i) for i in range(robots)}
+        started, held = await gather_until(participant, roster, lambda: everyone <= roster.alive)
+        if not started:
+            return 130, None
+        participant.announce("ready")
+        with LogWriter(log_path) as writer:
+            writer.header(scenario, "emulator", run, seed, clock, steps)
+            recorder = Recorder(writer, robots)
+            code, report = await _watch(participant, recorder, roster, held, steps, view)
+            recorder.flush(everything=True)
+            writer.write(
+                {
+                    "type": "end",
+                    "steps": report.end.step if report.end else recorder.next_step - 1,
+                    "reason": report.end.reason if report.end else "monitor stopped",
+                    "wall_s": report.end.wall_s if report.end else None,
+                    "traffic": [list(row) for row in report.received],
+                    "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
+                    "rejected": report.rejected,
+                    "late": recorder.late,
+                    "rss_kib": report.rss_kib,
+                    "consistent": report.consistent(),
+                }
+            )
+        return code, report
+
+
+async def _watch(
+    participant: Participant,
+    recorder: Recorder,
+    roster: Roster,
+    events: list,
+    steps: int,
+    view: View | None,
+) -> tuple[int, MonitorReport]:
+    """Record until the run has ended and everything every sender says it sent has been seen (or
+    nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died)."""
+    finals: dict[str, Stats] = {}
+    end: End | None = None
+    code = 0
+    last_view = 0.0
+    loop = asyncio.get_running_loop()
+    last_event_at = loop.time()
+    senders = {WORLD} | {robot_name(i) for i in range(recorder.robots)}
+    while True:
+        for event in events:
+            if isinstance(event, Delivery):
+                message = event.message
+                recorder.on_delivery(event)
+                if isinstance(message, Stats) and message.final:
+                    finals[message.name] = message
+                elif isinstance(message, End):
+                    end = message
+            elif isinstance(event, Presence):
+                roster.update(event)
+            elif isinstance(event, Interrupt):
+                code = 130
+        if events:
+            last_event_at = loop.time()
+        recorder.flush()
+        if code:
+            break
+        if end is not None:
+            accounted = all(name in finals or roster.gone_for_good(name) for name in senders)
+            if (accounted and _seen_everything(participant.counter, finals)) or (
+                loop.time() - last_event_at > FINAL_STATS_GRACE_S
+            ):
+                break
+        elif roster.gone_for_good(WORLD):
+            code = 1  # the world went away without ending the run
+            break
+        now = time.monotonic()
+        if view is not None and now - last_view >= VIEW_PERIOD_S:
+            view(_state(recorder, participant, roster, steps))
+            last_view = now
+        try:
+            events = await asyncio.wait_for(participant.events(), 0.5 if end is None else 0.1)
+        except TimeoutError:
+            events = []
+    if view is not None:
+        view(_state(recorder, participant, roster, steps, finished=True))
+    report = MonitorReport(
+        received=participant.counter.received_table(),
+        senders={name: stats.sent for name, stats in finals.items()},
+        rejected=participant.counter.rejected_table(),
+        rss_kib={name: stats.rss_kib for name, stats in finals.items()},
+        end=end,
+        late=recorder.late,
+    )
+    return code, report
+
+
+def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:
+    """Whether the monitor has received every message each finished sender says it sent."""
+    for name, stats in finals.items():
+        said = sum(row[3] for row in stats.sent)
+        seen = sum(count for (_kind, source, _dest), count in counter.received_messages.items() if source == name)
+        if seen < said:
+            return False
+    return True
+
+
+def _state(recorder: Recorder, participant: Participant, roster: Roster, steps: int,
+           finished: bool = False) -> MonitorState:
+    return MonitorState(
+        step=recorder.latest_tick,
+        steps=steps,
+        polls=list(recorder.polls),
+        last_trigger=list(recorder.last_trigger),
+        counter=participant.counter,
+        alive=set(roster.alive),
+        finished=finished,
+    )

@@ -1,0 +1,111 @@
+"""``ringtrack world``, ``ringtrack robot --id I`` and ``ringtrack monitor``: one role per process,
+so a team can be assembled by hand or across hosts (``spawn`` starts exactly these)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+from pathlib import Path
+
+from bus.config import LOOPBACK_ANY_PORT, BusConfig
+from tools.console import UsageError, err, out
+from tools.options import add_scenario_arguments, scenario_from_arguments
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    world = commands.add_parser("world", help="run the world process of a team")
+    _common(world)
+    world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    world.add_argument("--rate", type=float, default=1.0, help="realtime: simulated seconds per wall second")
+    world.add_argument("--announce", type=Path, metavar="PATH",
+                       help="write the endpoints the world listens on to PATH (JSON)")
+    world.set_defaults(handler=run_world_role)
+
+    robot = commands.add_parser("robot", help="run one robot process")
+    _common(robot)
+    robot.add_argument("--id", type=int, required=True, help="robot index 0..N-1 in counter-clockwise order")
+    robot.set_defaults(handler=run_robot_role)
+
+    monitor = commands.add_parser("monitor", help="tally a team's messages live and write its run log")
+    _common(monitor)
+    monitor.add_argument("--log", type=Path, required=True, metavar="PATH", help="run log to write (JSON lines)")
+    monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    monitor.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of a live view")
+    monitor.set_defaults(handler=run_monitor_role)
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    add_scenario_arguments(parser, steps_help="steps to run (default: control.max_steps)")
+    parser.add_argument("--run", type=run_id, default=0, metavar="HEX", help="run id shared by the team (hex)")
+    parser.add_argument("--mode", choices=["peer", "router", "client"], default="peer", help="Zenoh mode")
+    parser.add_argument("--listen", action="append", metavar="ENDPOINT",
+                        help=f"endpoint to listen on (default {LOOPBACK_ANY_PORT}); repeatable")
+    parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="endpoint to connect to; repeatable")
+    parser.add_argument("--monitor", action="store_true", help="a monitor is part of the team: wait for it")
+    parser.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
+
+
+def run_id(text: str) -> int:
+    try:
+        value = int(text, 16)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--run {text!r}: give the run id in hex, e.g. 1f2e3d4c") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"--run {text!r}: the run id has at most 8 hex digits")
+    return value
+
+
+def bus_config(args: argparse.Namespace, admin_space: bool = False) -> BusConfig:
+    return BusConfig(
+        mode=args.mode,
+        listen=tuple(args.listen or (LOOPBACK_ANY_PORT,)),
+        connect=tuple(args.connect or ()),
+        admin_space=admin_space,
+    )
+
+
+def run_world_role(args: argparse.Namespace) -> int:
+    from world.process import WorldOptions, run_world
+
+    scenario = scenario_from_arguments(args)
+    if args.rate <= 0:
+        raise UsageError(f"--rate {args.rate}: give a positive factor, e.g. 1 or 10")
+    options = WorldOptions(
+        steps=scenario.max_steps,
+        clock=args.clock,
+        rate=args.rate,
+        expect_monitor=args.monitor,
+        announce=args.announce,
+    )
+    config = bus_config(args, admin_space=args.announce is not None)
+    return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))
+
+
+def run_robot_role(args: argparse.Namespace) -> int:
+    from agents.process import run_robot
+
+    scenario = scenario_from_arguments(args)
+    if not 0 <= args.id < scenario.robots:
+        raise UsageError(f"--id {args.id}: the team has robots 0..{scenario.robots - 1}")
+    return asyncio.run(
+        run_robot(args.id, scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent)
+    )
+
+
+def run_monitor_role(args: argparse.Namespace) -> int:
+    from tools.monitor import run_monitor
+    from tools.views import make_view, print_report
+
+    scenario = scenario_from_arguments(args)
+    view = make_view(out, scenario, dashboard=not args.no_dashboard)
+    with view:
+        code, report = asyncio.run(
+            run_monitor(scenario, scenario.seed, args.run, bus_config(args), args.log, scenario.max_steps,
+                        args.clock, view.update, args.exit_with_parent)
+        )
+    if report is not None:
+        print_report(out, report)
+        if not report.consistent():
+            err.print("monitor: totals differ from what the senders counted (see the table)", highlight=False)
+            return code or 1
+    return code

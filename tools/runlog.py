@@ -1,0 +1,232 @@
+"""The run log: one JSON-lines file per run, flushed record by record.
+
+Records, one per line:
+
+* ``header``: format version, source ("emulator" or "engine"), run id, the scenario as TOML, seed,
+  team size, clock, step limit, library versions, start time (UTC);
+* ``step``: the true state at the start of step k (``positions``, ``target``, ``live``), what each
+  robot decided (``trigger`` mask, ``offset`` = gV - theta in radians before polling, ``centre`` it
+  steered about) and the robot-to-robot traffic each robot sent for that step (``sent_messages``,
+  ``sent_bytes``; bytes are null for the engine, which sends none);
+* ``event``: something that happened between steps (faults, crashes);
+* ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
+  says it sent, rejected payloads and late messages.
+
+A killed run leaves every complete line readable; :func:`read_log` ignores a torn last line.
+"""
+
+from __future__ import annotations
+
+import datetime
+import platform
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import IO, Any
+
+import msgspec
+import numpy as np
+
+from world.engine import History
+from world.geometry import angle_of
+from world.metrics import convergence_error, true_offsets
+from world.scenario import Scenario, parse_scenario, resolve
+
+FORMAT = 1
+_encoder = msgspec.json.Encoder()
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and of the libraries a result depends on."""
+    found = {"python": platform.python_version()}
+    for name in ("ringtrack", "numpy", "eclipse-zenoh", "msgspec", "filterpy"):
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:  # pragma: no cover
+            found[name] = "unknown"
+    return found
+
+
+class LogWriter:
+    """Appends records to a run log, flushing each line."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self._file: IO[bytes] = path.open("wb")
+
+    def write(self, record: dict[str, Any]) -> None:
+        self._file.write(_encoder.encode(record) + b"\n")
+        self._file.flush()
+
+    def header(self, scenario: Scenario, source: str, run: int, seed: int, clock: str, steps: int) -> None:
+        self.write(
+            {
+                "type": "header",
+                "format": FORMAT,
+                "source": source,
+                "run": f"{run:08x}",
+                "scenario_name": scenario.name,
+                "scenario_toml": scenario.to_toml().decode(),
+                "seed": seed,
+                "robots": scenario.robots,
+                "clock": clock,
+                "steps": steps,
+                "versions": versions(),
+                "started_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            }
+        )
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "LogWriter":
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def step_record(
+    step: int,
+    time: float,
+    positions: Any,
+    target: Any,
+    live: list[int],
+    trigger: list[int | None],
+    offset: list[float | None],
+    centre: list[Any],
+    sent_messages: list[int],
+    sent_bytes: list[int] | None,
+) -> dict[str, Any]:
+    """A ``step`` record (see the module docstring for the fields)."""
+    return {
+        "type": "step",
+        "step": step,
+        "time": time,
+        "positions": np.asarray(positions, dtype=float).tolist(),
+        "target": np.asarray(target, dtype=float).tolist(),
+        "live": live,
+        "trigger": trigger,
+        "offset": offset,
+        "centre": centre,
+        "sent_messages": sent_messages,
+        "sent_bytes": sent_bytes,
+    }
+
+
+def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
+    """Messages each robot sends in a step of the request/reply protocol: 2 requests when it polls,
+    and one reply to each ring neighbour that polls it. ``polled`` is boolean with robots last."""
+    polled = polled.astype(np.int64)
+    return 2 * polled + np.roll(polled, 1, axis=-1) + np.roll(polled, -1, axis=-1)
+
+
+def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
+    """Write one trial of an engine run in the run-log format (positions must be recorded)."""
+    if history.positions is None:
+        raise ValueError("the engine run did not record positions; run it with record_positions=True")
+    scenario = history.scenario
+    robots = scenario.robots
+    polled = history.triggers[:, trial] != 0
+    sent = robot_to_robot_sent(polled)
+    with LogWriter(path) as writer:
+        writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
+        target = scenario.target.tolist()
+        for row in range(history.steps):
+            writer.write(
+                step_record(
+                    step=row + 1,
+                    time=row * scenario.control.dt,
+                    positions=history.positions[row, trial],
+                    target=target,
+                    live=list(range(robots)),
+                    trigger=history.triggers[row, trial].tolist(),
+                    offset=history.offsets[row, trial].tolist(),
+                    centre=[target] * robots,
+                    sent_messages=sent[row].tolist(),
+                    sent_bytes=None,
+                )
+            )
+        writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
+                      "traffic": _engine_traffic(polled), "senders": {}, "rejected": {}, "late": 0})
+
+
+def _engine_traffic(polled: np.ndarray) -> list[list[Any]]:
+    """Robot-to-robot message counts per link implied by the polls (no bytes: nothing was sent)."""
+    robots = polled.shape[1]
+    polls = polled.sum(axis=0)
+    rows: list[list[Any]] = []
+    for robot in range(robots):
+        for neighbour in ((robot - 1) % robots, (robot + 1) % robots):
+            rows.append(["request", f"r{robot}", f"r{neighbour}", int(polls[robot]), None])
+            rows.append(["reply", f"r{neighbour}", f"r{robot}", int(polls[robot]), None])
+    return rows
+
+
+# ---------------------------------------------------------------------------- reading
+@dataclass
+class RunLog:
+    """A run log read back: the header, every complete step record, events and the end record
+    (``None`` when the run was killed before it ended)."""
+
+    header: dict[str, Any]
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    end: dict[str, Any] | None = None
+
+    @property
+    def scenario(self) -> Scenario:
+        return resolve(parse_scenario(self.header["scenario_toml"], "run log"), "run log")
+
+
+class LogError(ValueError):
+    """The file is not a run log; the message says why."""
+
+
+def read_log(path: Path) -> RunLog:
+    """Read a run log, skipping a torn last line (a killed run)."""
+    lines = path.read_bytes().split(b"\n")
+    records = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            records.append(msgspec.json.decode(line))
+        except msgspec.DecodeError:
+            if number >= len(lines) - 1:
+                break  # torn last line of a killed run
+            raise LogError(f"{path}: line {number} is not JSON; the file is damaged") from None
+    if not records or records[0].get("type") != "header":
+        raise LogError(f"{path}: no header record; this is not a ringtrack run log")
+    if records[0].get("format") != FORMAT:
+        raise LogError(f"{path}: log format {records[0].get('format')}, this ringtrack reads {FORMAT}")
+    log = RunLog(header=records[0])
+    for record in records[1:]:
+        kind = record.get("type")
+        if kind == "step":
+            log.steps.append(record)
+        elif kind == "event":
+            log.events.append(record)
+        elif kind == "end":
+            log.end = record
+    return log
+
+
+def history_from_log(log: RunLog) -> History:
+    """The per-step arrays of a logged run, as the engine returns them (one trial)."""
+    scenario = log.scenario
+    positions = np.array([record["positions"] for record in log.steps], dtype=float)[:, None]
+    targets = np.array([record["target"] for record in log.steps], dtype=float)[:, None]
+    triggers = np.array([[value or 0 for value in record["trigger"]] for record in log.steps], dtype=np.uint8)
+    offsets = np.array([[value or 0.0 for value in record["offset"]] for record in log.steps], dtype=float)
+    angles = angle_of(positions, targets[..., None, :])
+    return History(
+        scenario=scenario,
+        seeds=[log.header["seed"]],
+        angles=np.unwrap(angles, axis=0),
+        positions=positions,
+        triggers=triggers[:, None],
+        offsets=offsets[:, None],
+        cerr_true=convergence_error(true_offsets(positions, targets)),
+    )

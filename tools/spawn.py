@@ -1,0 +1,176 @@
+"""``ringtrack spawn``: start a world, N robots and a monitor as separate OS processes over Zenoh.
+
+Everything of a run goes into one run folder (``runs/<UTC time>-<name>-<run id>/`` by default): the
+resolved scenario, the run log, each process's standard error and the summary JSON. The world
+listens on a free loopback port and announces it; the others connect to it and gossip links the
+rest. Completion, Ctrl-C and SIGTERM all end every process within 2 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from bus.config import LOOPBACK_ANY_PORT
+from bus.counting import totals_by_category, totals_by_kind
+from bus.keys import new_run_id
+from tools.console import UsageError, err, out, write_json
+from tools.options import add_scenario_arguments, scenario_from_arguments
+from tools.runlog import history_from_log, read_log
+from tools.supervisor import Supervisor, Terminated, terminate_as_exception
+from world import engine
+from world.scenario import Scenario
+
+ANNOUNCE_TIMEOUT_S = 20.0
+STALL_TIMEOUT_S = 60.0
+ROLE_COMMAND = [sys.executable, "-m", "tools.cli"]
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser(
+        "spawn",
+        help="run a team: world, robots and monitor as separate processes over Zenoh",
+        description="Start the world, one process per robot and the monitor over Zenoh (loopback, free "
+        "ports), show progress, and stop everything on completion, Ctrl-C or SIGTERM.",
+    )
+    add_scenario_arguments(parser, steps_help="steps to run (default: control.max_steps)")
+    parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    parser.add_argument("--rate", type=float, default=1.0, help="realtime: simulated seconds per wall second")
+    parser.add_argument("--log", type=Path, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="also write the summary JSON here")
+    parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
+    parser.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of a live view")
+    parser.set_defaults(handler=run_spawn)
+
+
+def run_spawn(args: argparse.Namespace) -> int:
+    scenario = scenario_from_arguments(args)
+    if args.rate <= 0:
+        raise UsageError(f"--rate {args.rate}: give a positive factor, e.g. 1 or 10")
+    result = spawn_team(
+        scenario,
+        clock=args.clock,
+        rate=args.rate,
+        runs=args.runs,
+        log_path=args.log,
+        dashboard=not args.no_dashboard,
+    )
+    if args.json:
+        write_json(args.json, result)
+    out.print(_summary_line(result), highlight=False)
+    return int(result["exit_code"])
+
+
+def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
+    folder = runs / f"{stamp}-{scenario.name}-{run:08x}"
+    folder.mkdir(parents=True, exist_ok=False)
+    return folder
+
+
+def spawn_team(
+    scenario: Scenario,
+    clock: str = "lockstep",
+    rate: float = 1.0,
+    runs: Path = Path("runs"),
+    log_path: Path | None = None,
+    dashboard: bool = True,
+) -> dict:
+    """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``)."""
+    run = new_run_id()
+    folder = run_folder(runs, scenario, run)
+    scenario_path = folder / "scenario.toml"
+    scenario_path.write_bytes(scenario.to_toml())
+    log_path = log_path or folder / "log.jsonl"
+    announce = folder / "world-endpoints.json"
+    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
+    started = time.perf_counter()
+    interrupted = ""
+    with Supervisor(folder) as supervisor:
+        try:
+            with terminate_as_exception():
+                supervisor.start("world", [*ROLE_COMMAND, "world", *common, "--clock", clock, "--rate", str(rate),
+                                           "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce)])
+                connect = [flag for endpoint in _announced(announce, supervisor) for flag in ("--connect", endpoint)]
+                monitor_flags = [] if dashboard else ["--no-dashboard"]
+                supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
+                                             "--clock", clock, *monitor_flags], stdout=None)
+                for robot in range(scenario.robots):
+                    supervisor.start(f"r{robot}", [*ROLE_COMMAND, "robot", *common, *connect, "--id", str(robot)])
+                supervisor.wait(until_all=False, stall_s=STALL_TIMEOUT_S, watched=log_path)
+                if supervisor.failed():
+                    supervisor.stop()
+                else:
+                    supervisor.wait()
+        except KeyboardInterrupt:
+            interrupted = "interrupted (Ctrl-C)"
+        except Terminated:
+            interrupted = "terminated (SIGTERM)"
+        except TimeoutError as error:
+            interrupted = f"stalled: {error}"
+        finally:
+            supervisor.stop()
+    failures = {child.name: child.process.returncode for child in supervisor.children if child.process.returncode}
+    for child in supervisor.children:
+        if child.process.returncode not in (0, None, -15, 130) and not interrupted:
+            err.print(f"{child.name} exited with {child.process.returncode}: {child.stderr_tail()}", highlight=False)
+    result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started)
+    result["failures"] = failures
+    result["stopped"] = interrupted or None
+    result["exit_code"] = 130 if interrupted.startswith(("interrupted", "terminated")) else int(bool(failures or interrupted))
+    write_json(folder / "summary.json", result)
+    if interrupted:
+        err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
+    return result
+
+
+def _announced(path: Path, supervisor: Supervisor) -> list[str]:
+    """Wait for the world to write its endpoints."""
+    deadline = time.monotonic() + ANNOUNCE_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if path.exists():
+            return list(json.loads(path.read_text())["endpoints"])
+        if supervisor.failed():
+            child = supervisor.failed()[0]
+            raise UsageError(f"the world process failed to start: {child.stderr_tail()}")
+        time.sleep(0.02)
+    raise TimeoutError(f"the world did not announce its endpoints within {ANNOUNCE_TIMEOUT_S:.0f} s")
+
+
+def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: int, supervisor: Supervisor,
+             wall_s: float) -> dict:
+    """The summary of ``ringtrack simulate --json`` plus traffic, pids and timing of the run."""
+    result: dict = {"run": f"{run:08x}", "clock": clock, "folder": str(folder), "log": str(log_path),
+                    "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
+    if not log_path.exists():
+        return result
+    log = read_log(log_path)
+    if log.steps:
+        result.update(engine.summary(history_from_log(log)))
+    end = log.end or {}
+    traffic = [tuple(row) for row in end.get("traffic", [])]
+    result["messages"] = {category: entry["messages"] for category, entry in totals_by_category(traffic).items()}
+    result["bytes"] = {category: entry["bytes"] for category, entry in totals_by_category(traffic).items()}
+    result["by_kind"] = totals_by_kind(traffic)
+    result["monitor_equals_senders"] = end.get("consistent")
+    result["rejected"] = end.get("rejected", {})
+    result["rss_kib"] = end.get("rss_kib", {})
+    result["end_reason"] = end.get("reason")
+    if end.get("wall_s") and end.get("steps"):
+        result["steps_per_s"] = end["steps"] / end["wall_s"]
+    return result
+
+
+def _summary_line(result: dict) -> str:
+    if "ctime" not in result:
+        return f"run folder: {result['folder']}"
+    converged = f"converged at step {result['ctime']}" if result.get("converged") else "did not converge"
+    robot = result.get("messages", {}).get("robot", 0)
+    speed = f", {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
+    return (f"{result['robots']} robots, {result['strategy']} strategy: {converged} in {result['steps']} steps"
+            f"{speed}; robot-to-robot messages {robot}; run folder {result['folder']}")

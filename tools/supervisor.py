@@ -1,0 +1,127 @@
+"""Starting role processes and always ending them.
+
+Children are started with ``subprocess`` (never ``fork``: a forked child of a process that opened a
+Zenoh session hangs), in their own session so a terminal's Ctrl-C reaches only the supervisor,
+which then ends them in order. Each child's standard input is a pipe from the supervisor: if the
+supervisor dies, even by SIGKILL, the pipe closes and the child stops itself (``--exit-with-parent``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+STOP_GRACE_S = 1.5  # SIGTERM, then SIGKILL after this long; everything is gone within 2 s
+
+
+@dataclass
+class Child:
+    name: str
+    process: subprocess.Popen[bytes]
+    stderr_path: Path
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def stderr_tail(self, lines: int = 5) -> str:
+        try:
+            text = self.stderr_path.read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return ""
+        return "\n".join(text[-lines:])
+
+
+class Supervisor:
+    """Owns a set of child processes; ``stop()`` (also on leaving the ``with`` block) ends them all."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.children: list[Child] = []
+
+    def start(self, name: str, argv: Sequence[str], stdout: int | IO[bytes] | None = subprocess.DEVNULL) -> Child:
+        stderr_path = self.folder / f"{name}.stderr"
+        with stderr_path.open("wb") as stderr:
+            process = subprocess.Popen(
+                list(argv), stdin=subprocess.PIPE, stdout=stdout, stderr=stderr, start_new_session=True
+            )
+        child = Child(name, process, stderr_path)
+        self.children.append(child)
+        return child
+
+    def running(self) -> list[Child]:
+        return [child for child in self.children if child.process.poll() is None]
+
+    def failed(self) -> list[Child]:
+        return [child for child in self.children if child.process.poll() not in (None, 0)]
+
+    def wait(self, until_all: bool = True, poll_s: float = 0.05, stall_s: float | None = None,
+             watched: Path | None = None) -> None:
+        """Wait until every child has exited; return early when one fails (``until_all`` false), or
+        when ``watched`` has not grown for ``stall_s`` seconds (a hung run)."""
+        last_size, last_change = -1, time.monotonic()
+        while self.running():
+            if not until_all and self.failed():
+                return
+            if stall_s is not None and watched is not None:
+                size = watched.stat().st_size if watched.exists() else 0
+                if size != last_size:
+                    last_size, last_change = size, time.monotonic()
+                elif time.monotonic() - last_change > stall_s:
+                    raise TimeoutError(f"no progress for {stall_s:.0f} s")
+            time.sleep(poll_s)
+
+    def stop(self, grace_s: float = STOP_GRACE_S) -> None:
+        """SIGTERM every running child, SIGKILL what is left after ``grace_s``, reap everything."""
+        for child in self.running():
+            with contextlib.suppress(ProcessLookupError):
+                child.process.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + grace_s
+        for child in self.children:
+            remaining = max(0.0, deadline - time.monotonic())
+            try:
+                child.process.wait(remaining)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    child.process.kill()
+                child.process.wait()
+        for child in self.children:
+            if child.process.stdin is not None:
+                with contextlib.suppress(OSError):
+                    child.process.stdin.close()
+
+    def __enter__(self) -> "Supervisor":
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 trace: TracebackType | None) -> None:
+        self.stop()
+
+
+class Terminated(Exception):
+    """SIGTERM received."""
+
+
+@contextlib.contextmanager
+def terminate_as_exception() -> Iterator[None]:
+    """Turn SIGTERM into :class:`Terminated` (and keep SIGINT as KeyboardInterrupt) inside the block."""
+
+    def handler(number: int, frame: object) -> None:
+        raise Terminated()
+
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals reach only the main thread; a caller in another thread handles its own
+        return
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -1,0 +1,141 @@
+"""The world process: owns the clock and the true state, serves measurements, integrates motion.
+
+Clocks:
+
+* ``lockstep``: publish step k (a Tick to the monitor, a Measurement to every robot), wait for every
+  robot's Command for k, integrate, publish k + 1. Deterministic for a scenario and seed.
+* ``realtime``: step every ``dt / rate`` wall seconds, integrating each robot's latest goal
+  whatever step it was computed for.
+
+The world starts once every robot (and the monitor, when one is expected) is ready, and ends the
+run with an :class:`~bus.messages.End` to everyone. A robot that disappears stops the run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from bus.config import BusConfig, listening_locators
+from bus.keys import BROADCAST, MONITOR, WORLD, Keys, robot_index, robot_name
+from bus.messages import SCHEMA, Command, End
+from bus.participant import Delivery, Interrupt, Participant, Presence
+from bus.runtime import Roster, gather_until, joined
+from world.scenario import Scenario
+from world.state import WorldState
+
+Clock = Literal["lockstep", "realtime"]
+LINGER_S = 2.0
+
+
+@dataclass(frozen=True)
+class WorldOptions:
+    """How the world runs: ``steps`` to take, the ``clock``, the realtime ``rate`` factor (simulated
+    seconds per wall second), whether a monitor must be ready before step 1, and where to write the
+    endpoints it listens on (``announce``) so others can connect."""
+
+    steps: int
+    clock: Clock = "lockstep"
+    rate: float = 1.0
+    expect_monitor: bool = False
+    announce: Path | None = None
+
+
+class RunStopped(Exception):
+    """The run cannot go on; the message says why."""
+
+
+async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, options: WorldOptions,
+                    exit_with_parent: bool = False) -> int:
+    """Serve one run; returns the process exit code (0 done, 1 failed, 130 interrupted)."""
+    keys = Keys(run)
+    async with joined(bus, keys, WORLD, scenario.robots, exit_with_parent) as participant:
+        participant.listen(keys.inbox(WORLD))
+        participant.watch("alive")
+        participant.watch("ready")
+        participant.announce("alive")
+        if options.announce is not None:
+            _announce(participant, options.announce)
+        team = {robot_name(i) for i in range(scenario.robots)}
+        needed = team | ({MONITOR} if options.expect_monitor else set())
+        roster = Roster()
+        started, _ = await gather_until(participant, roster, lambda: needed <= roster.ready)
+        if not started:
+            return 130
+        world = WorldState(scenario, seed, run)
+        began = time.perf_counter()
+        step_once = _lockstep if options.clock == "lockstep" else _realtime
+        reason, code = "done", 0
+        try:
+            for _ in range(options.steps):
+                await step_once(participant, world, roster, options)
+        except RunStopped as stop:
+            reason, code = str(stop), 130 if str(stop).startswith("interrupted") else 1
+        wall = time.perf_counter() - began
+        last = world.step - 1
+        participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
+        participant.send(MONITOR, participant.stats(final=True))
+        await _linger(participant, roster, team)
+        return code
+
+
+async def _linger(participant: Participant, roster: Roster, team: set[str]) -> None:
+    """Stay up until the robots have left (they leave on the End), at most ``LINGER_S``: robots
+    that saw the world vanish before its End would report a lost world."""
+    try:
+        await asyncio.wait_for(gather_until(participant, roster, lambda: not team & roster.alive), LINGER_S)
+    except TimeoutError:
+        pass
+
+
+def _announce(participant: Participant, path: Path) -> None:
+    """Write the endpoints this world listens on, atomically, for spawn and hand-assembled teams."""
+    locators = listening_locators(participant.session)
+    temporary = path.with_suffix(".tmp")
+    temporary.write_text(json.dumps({"endpoints": locators}))
+    temporary.replace(path)
+
+
+def _publish(participant: Participant, world: WorldState, live: list[int]) -> None:
+    participant.send(MONITOR, world.tick(live))
+    for robot in live:
+        participant.send(robot_name(robot), world.measurement(robot))
+
+
+def _handle(event: object, world: WorldState, roster: Roster) -> None:
+    """Apply one event to the world; raise :class:`RunStopped` when the run must end."""
+    if isinstance(event, Delivery) and isinstance(event.message, Command):
+        world.accept(event.message)
+    elif isinstance(event, Interrupt):
+        raise RunStopped(f"interrupted ({event.reason})")
+    elif isinstance(event, Presence):
+        roster.update(event)
+        if event.kind == "alive" and not event.up and robot_index(event.name) is not None:
+            raise RunStopped(f"robot {event.name} disappeared at step {world.step}")
+
+
+async def _lockstep(participant: Participant, world: WorldState, roster: Roster, options: WorldOptions) -> None:
+    live = list(range(world.scenario.robots))
+    _publish(participant, world, live)
+    while not world.commanded.issuperset(live):
+        for event in await participant.events():
+            _handle(event, world, roster)
+    world.advance()
+
+
+async def _realtime(participant: Participant, world: WorldState, roster: Roster, options: WorldOptions) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + world.scenario.control.dt / options.rate
+    _publish(participant, world, list(range(world.scenario.robots)))
+    while (remaining := deadline - loop.time()) > 0:
+        try:
+            events = await asyncio.wait_for(participant.events(), remaining)
+        except TimeoutError:
+            break
+        for event in events:
+            _handle(event, world, roster)
+    world.advance()

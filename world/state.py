@@ -1,0 +1,69 @@
+"""The world's ground truth between steps: robot positions, the target, and the motion step.
+
+Shared by the world process and (through the same motion call) the in-process engine. Units:
+metres, seconds; ``step`` is 1-based and ``time = (step - 1) * dt``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bus.messages import SCHEMA, Command, Measurement, Tick
+from world.geometry import FloatArray
+from world.scenario import Scenario
+
+
+class WorldState:
+    """Positions of ``scenario.robots`` robots started from ``seed``, and the goals commanded for the
+    current step."""
+
+    def __init__(self, scenario: Scenario, seed: int, run: int) -> None:
+        self.scenario = scenario
+        self.run = run
+        self.positions: FloatArray = scenario.start_positions(seed)
+        self.target: FloatArray = scenario.target.copy()
+        self.goals: FloatArray = self.positions.copy()
+        self.commanded: set[int] = set()
+        self.step = 1
+        dt = scenario.control.dt
+        self.max_move = None if scenario.v_max is None else scenario.v_max * dt
+
+    @property
+    def time(self) -> float:
+        return (self.step - 1) * self.scenario.control.dt
+
+    def measurement(self, robot: int) -> Measurement:
+        """Robot ``robot``'s exact position and its range to the target at the start of the step."""
+        position = self.positions[robot]
+        distance = float(np.hypot(*(self.target - position)))
+        return Measurement(
+            SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])), distance
+        )
+
+    def tick(self, live: list[int]) -> Tick:
+        """The true state at the start of the step, for the monitor."""
+        return Tick(
+            SCHEMA,
+            self.run,
+            self.step,
+            self.time,
+            [(float(x), float(y)) for x, y in self.positions],
+            (float(self.target[0]), float(self.target[1])),
+            live,
+        )
+
+    def accept(self, command: Command) -> bool:
+        """Take a robot's goal; in lockstep only commands for the current step count."""
+        if command.step > self.step:
+            return False
+        self.goals[command.robot] = command.goal
+        if command.step == self.step:
+            self.commanded.add(command.robot)
+        return True
+
+    def advance(self) -> None:
+        """Move every robot towards its latest goal along the boundary (capped by v_max) and start
+        the next step."""
+        self.positions = self.scenario.region.move_along(self.positions, self.goals, self.max_move)
+        self.commanded.clear()
+        self.step += 1
