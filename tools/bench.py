@@ -12,7 +12,7 @@ from pathlib import Path
 from rich.table import Table
 
 from tools.console import err, out, write_json
-from tools.experiment import stationary_experiment
+from tools.experiment import robot_list, stationary_experiment
 from world import engine
 from world.scenario import load_scenario
 
@@ -28,6 +28,17 @@ def register(commands: argparse._SubParsersAction) -> None:
     engine_parser.add_argument("--sweep", type=str, default="3-30", help="team sizes of the sweep, e.g. 3-30")
     engine_parser.add_argument("--json", type=Path, metavar="PATH")
     engine_parser.set_defaults(handler=run_engine_bench)
+
+    emulator_parser = kinds.add_parser(
+        "emulator",
+        help="lockstep steps per second of a multi-process team over Zenoh, bytes per message, memory",
+    )
+    emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
+    emulator_parser.add_argument("--steps", type=int, default=1000)
+    emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self")
+    emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
+    emulator_parser.add_argument("--json", type=Path, metavar="PATH")
+    emulator_parser.set_defaults(handler=run_emulator_bench)
 
 
 def machine() -> dict[str, object]:
@@ -69,6 +80,52 @@ def run_engine_bench(args: argparse.Namespace) -> int:
     table.add_row(f"one run, N = {scenario.robots}", f"{results['single_run']['steps_per_s']:.0f} steps/s")
     table.add_row(f"experiment N = 6, {args.trials} trials x 2 strategies", f"{experiment['wall_s']:.2f} s")
     table.add_row(f"sweep N = {sizes[0]}..{sizes[-1]}, {args.trials} trials x 2", f"{sweep['wall_s']:.2f} s")
+    out.print(table)
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+def run_emulator_bench(args: argparse.Namespace) -> int:
+    from tools.spawn import spawn_team
+
+    rows = []
+    for robots in args.robots:
+        scenario = load_scenario("paper-stationary", robots=robots, strategy=args.strategy, max_steps=args.steps)
+        err.print(f"running {robots} robots for {args.steps} lockstep steps ...")
+        result = spawn_team(scenario, clock="lockstep", runs=args.runs, dashboard=False)
+        if result["exit_code"] != 0:
+            err.print(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
+            return 1
+        by_kind = result["by_kind"]
+        robot_rss = [kib for name, kib in result["rss_kib"].items() if name.startswith("r")]
+        rows.append(
+            {
+                "robots": robots,
+                "steps": result["steps"],
+                "steps_per_s": result["steps_per_s"],
+                "bytes_per_message": {
+                    kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(by_kind.items()) if entry["messages"]
+                },
+                "robot_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
+                "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
+                "run_folder": result["folder"],
+            }
+        )
+    results = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy, "rows": rows}
+    if len(rows) == 1:
+        results["steps_per_s"] = rows[0]["steps_per_s"]
+    table = Table(title=f"lockstep emulator ({results['machine']['cores']} cores, {args.strategy} strategy)")
+    for column in ("robots", "steps/s", "request B", "reply B", "measurement B", "command B", "robot RSS MiB"):
+        table.add_column(column, justify="right")
+    for row in rows:
+        size = row["bytes_per_message"]
+        table.add_row(
+            str(row["robots"]),
+            f"{row['steps_per_s']:.0f}",
+            *(f"{size.get(kind, 0):.1f}" for kind in ("request", "reply", "measurement", "command")),
+            f"{row['robot_rss_mib']:.1f}" if row["robot_rss_mib"] else "-",
+        )
     out.print(table)
     if args.json:
         write_json(args.json, results)

@@ -27,6 +27,7 @@ from world.scenario import Scenario
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
 FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)
 VIEW_PERIOD_S = 0.25
+END_AFTER_INTERRUPT_S = 0.5  # a stopped monitor waits this long for the world's End
 
 
 @dataclass
@@ -89,14 +90,15 @@ class Recorder:
     def _pending(self, step: int) -> PendingStep:
         return self.pending.setdefault(step, PendingStep())
 
-    def flush(self, everything: bool = False) -> None:
-        """Write complete steps in order, overdue ones as they are, and with ``everything`` all
-        steps whose tick arrived."""
+    def flush(self, through: int | None = None) -> None:
+        """Write complete steps in order and overdue ones as they are; with ``through``, also every
+        step up to that one (the last step the world completed) whatever is missing."""
         now = time.monotonic()
         while self.next_step in self.pending:
             entry = self.pending[self.next_step]
             overdue = self.latest_tick > self.next_step and now - self.tick_seen_at[self.next_step] > FORCE_AFTER_S
-            if entry.tick is None or not (entry.complete() or overdue or everything):
+            final = through is not None and self.next_step <= through
+            if entry.tick is None or not (entry.complete() or overdue or final):
                 return
             self._write(self.next_step, entry)
             del self.pending[self.next_step]
@@ -191,7 +193,8 @@ async def run_monitor(
             writer.header(scenario, "emulator", run, seed, clock, steps)
             recorder = Recorder(writer, robots)
             code, report = await _watch(participant, recorder, roster, held, steps, view)
-            recorder.flush(everything=True)
+            # The step the world was in when it stopped never completed: it is not written.
+            recorder.flush(through=report.end.step if report.end else None)
             writer.write(
                 {
                     "type": "end",
@@ -222,6 +225,7 @@ async def _watch(
     finals: dict[str, Stats] = {}
     end: End | None = None
     code = 0
+    interrupted_at = 0.0
     last_view = 0.0
     loop = asyncio.get_running_loop()
     last_event_at = loop.time()
@@ -237,13 +241,13 @@ async def _watch(
                     end = message
             elif isinstance(event, Presence):
                 roster.update(event)
-            elif isinstance(event, Interrupt):
-                code = 130
+            elif isinstance(event, Interrupt) and not code:
+                code, interrupted_at = 130, loop.time()
         if events:
             last_event_at = loop.time()
         recorder.flush()
-        if code:
-            break
+        if code and (end is not None or loop.time() - interrupted_at > END_AFTER_INTERRUPT_S):
+            break  # stopped: keep what the world's End says completed, if it comes in time
         if end is not None:
             accounted = all(name in finals or roster.gone_for_good(name) for name in senders)
             if (accounted and _seen_everything(participant.counter, finals)) or (
@@ -258,7 +262,7 @@ async def _watch(
             view(_state(recorder, participant, roster, steps))
             last_view = now
         try:
-            events = await asyncio.wait_for(participant.events(), 0.5 if end is None else 0.1)
+            events = await asyncio.wait_for(participant.events(), 0.5 if end is None and not code else 0.1)
         except TimeoutError:
             events = []
     if view is not None:

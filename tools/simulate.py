@@ -9,6 +9,7 @@ from rich.table import Table
 
 from tools.console import out, write_json
 from tools.options import add_scenario_arguments, scenario_from_arguments
+from tools.runlog import write_engine_log
 from world import engine
 
 
@@ -21,16 +22,19 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     add_scenario_arguments(parser, steps_help="run exactly this many steps")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the summary as JSON")
+    parser.add_argument("--log", type=Path, metavar="PATH", help="write the run log (same format as spawn's)")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
-    history = engine.run(scenario, until_converged=args.steps is None, record_positions=False)
+    history = engine.run(scenario, until_converged=args.steps is None, record_positions=args.log is not None)
     result = engine.summary(history)
     out.print(summary_table(result))
     if args.json:
         write_json(args.json, result)
+    if args.log:
+        write_engine_log(args.log, history)
     return 0
 
 

@@ -80,11 +80,18 @@ class Supervisor:
             time.sleep(poll_s)
 
     def stop(self, grace_s: float = STOP_GRACE_S) -> None:
-        """SIGTERM every running child, SIGKILL what is left after ``grace_s``, reap everything."""
-        for child in self.running():
-            with contextlib.suppress(ProcessLookupError):
-                child.process.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + grace_s
+        """End every child within ``grace_s`` (+ reaping): SIGTERM the first child started (the
+        leader, whose End makes the others finish on their own), then SIGTERM whoever is still running
+        halfway through the grace, then SIGKILL what is left."""
+        started = time.monotonic()
+        deadline = started + grace_s
+        for phase_end, group in ((started + grace_s / 2, self.children[:1]), (deadline, self.children)):
+            for child in group:
+                if child.process.poll() is None:
+                    with contextlib.suppress(ProcessLookupError):
+                        child.process.send_signal(signal.SIGTERM)
+            while self.running() and time.monotonic() < phase_end:
+                time.sleep(0.01)
         for child in self.children:
             remaining = max(0.0, deadline - time.monotonic())
             try:

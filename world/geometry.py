@@ -34,6 +34,24 @@ def angle_of(point: ArrayLike, centre: ArrayLike) -> FloatArray:
     return np.arctan2(delta[..., 1], delta[..., 0])
 
 
+def _first_crossing(points: FloatArray) -> tuple[int, int] | None:
+    """The first pair of non-adjacent edges (edge k joins vertex k to k + 1) that intersect."""
+    count = len(points)
+    following = np.roll(points, -1, axis=0)
+
+    def side(a: FloatArray, b: FloatArray, c: FloatArray) -> float:
+        return float(np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])))
+
+    for first in range(count):
+        for second in range(first + 2, count):
+            if first == 0 and second == count - 1:
+                continue  # adjacent through vertex 0
+            p, q, r, t = points[first], following[first], points[second], following[second]
+            if side(p, q, r) * side(p, q, t) < 0 and side(r, t, p) * side(r, t, q) < 0:
+                return first, second
+    return None
+
+
 class ConvexRegion:
     """A strictly convex polygon with its vertices stored counter-clockwise.
 
@@ -58,15 +76,17 @@ class ConvexRegion:
     def from_vertices(cls, vertices: ArrayLike) -> "ConvexRegion":
         """Validate ``vertices`` (a list of (x, y) in metres, either orientation) and build the region.
 
-        Refuses fewer than three vertices, non-finite values, repeated vertices, zero area, collinear
-        consecutive vertices, reflex (non-convex) corners and self-intersecting lists, each with a
-        :class:`RegionError` naming the offending vertex. A clockwise list is reordered to CCW while
+        Refuses fewer than three vertices, non-finite values, repeated vertices, crossing edges
+        (self-intersecting lists), zero area, collinear consecutive vertices and reflex (non-convex)
+        corners, each with a :class:`RegionError` naming the offending vertex or edges. A clockwise list is reordered to CCW while
         keeping vertex 0 first.
         """
         try:
             points = np.asarray(vertices, dtype=float)
         except (TypeError, ValueError):
             raise RegionError("region.vertices must be a list of [x, y] number pairs") from None
+        if points.size == 0:
+            points = points.reshape(0, 2)
         if points.ndim != 2 or points.shape[1] != 2:
             raise RegionError("region.vertices must be a list of [x, y] number pairs")
         count = len(points)
@@ -75,11 +95,14 @@ class ConvexRegion:
         if not np.all(np.isfinite(points)):
             raise RegionError("region.vertices contains NaN or infinity; give finite coordinates")
         scale = float(np.ptp(points, axis=0).max())
+        separation = np.hypot(*(points[:, None, :] - points[None, :, :]).transpose(2, 0, 1))
+        for first, second in zip(*np.nonzero(np.triu(separation <= 1e-12 * max(scale, 1.0), k=1)), strict=True):
+            raise RegionError(f"region.vertices {first} and {second} coincide; remove the repeated vertex")
         edges = np.roll(points, -1, axis=0) - points
-        lengths = np.hypot(edges[:, 0], edges[:, 1])
-        for k in np.flatnonzero(lengths <= 1e-12 * max(scale, 1.0)):
+        crossing = _first_crossing(points)
+        if crossing is not None:
             raise RegionError(
-                f"region.vertices {k} and {(k + 1) % count} coincide; remove the repeated vertex"
+                f"region edges {crossing[0]} and {crossing[1]} cross (self-intersecting); list the corners in order"
             )
         area2 = float(np.sum(points[:, 0] * np.roll(points[:, 1], -1) - np.roll(points[:, 0], -1) * points[:, 1]))
         if abs(area2) <= 1e-12 * scale * scale:
@@ -87,7 +110,6 @@ class ConvexRegion:
         orientation = np.sign(area2)  # +1 counter-clockwise, -1 clockwise
         incoming = np.roll(edges, 1, axis=0)
         turn_cross = orientation * (incoming[:, 0] * edges[:, 1] - incoming[:, 1] * edges[:, 0])
-        turn_dot = np.einsum("kd,kd->k", incoming, edges)
         tolerance = 1e-12 * scale * scale
         for k in range(count):
             if turn_cross[k] < -tolerance:
@@ -98,11 +120,6 @@ class ConvexRegion:
                 raise RegionError(
                     f"region.vertices {(k - 1) % count}, {k}, {(k + 1) % count} are collinear; remove vertex {k}"
                 )
-        total_turning = float(np.sum(np.arctan2(turn_cross, turn_dot)))
-        if abs(total_turning - TWO_PI) > 1e-6:
-            raise RegionError(
-                "region.vertices wind around more than once (self-intersecting); list each corner once, in order"
-            )
         if orientation < 0:  # clockwise: reverse, keeping vertex 0 first
             points = np.concatenate([points[:1], points[:0:-1]])
         return cls(points)
@@ -154,7 +171,7 @@ class ConvexRegion:
         direction = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
         approach = direction @ self.normals.T
         heights = self.heights(centre)
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", over="ignore"):
             reach = np.where(approach > 0, heights / approach, np.inf)
         return np.asarray(centre, dtype=float) + reach.min(axis=-1)[..., None] * direction
 

@@ -289,7 +289,7 @@ def _explain_validation(message: str) -> str:
         key = f"{path}.{missing.group(1)}" if path else missing.group(1)
         return f"{key} is missing; add it"
     key = path or "scenario"
-    if body.startswith("Expected `float`") and "e+300" in body:
+    if body.startswith("Expected `float`") and ("e+300" in body or body.endswith("0.0")):
         sign = " > 0" if "> 0.0" in body else " >= 0" if ">= 0.0" in body else ""
         return f"{key}: expected a finite number{sign}; fix the value"
     if body.startswith("Invalid enum value"):
