@@ -7,11 +7,12 @@ for a batch of trials in the engine. Both call the same methods in the same orde
     reasons = controller.observe(step, own_position, centre)   # age the memory, evaluate the trigger
     # ... where reasons != 0: ask both neighbours for their step-start positions ...
     controller.receive(predecessor_position, successor_position, reasons != 0, reasons != 0)
-    goal = controller.goal(own_position, centre)                # boundary point to move to
+    controller.recentre(fused_centre)                           # only when the centre changed
+    goal = controller.goal()                                    # boundary point to move to
 
-Neighbours are remembered by *position* (metres) and angles are recomputed from the current centre
-every step (ALGORITHMS.md section 2), so the same code serves a known stationary target and a moving
-estimate. Ages are integer step counts.
+Neighbours are remembered by *position* (metres) and their angles are recomputed from the current
+centre every step (ALGORITHMS.md section 2), so the same code serves a known stationary target and a
+moving estimate. Ages are integer step counts.
 """
 
 from __future__ import annotations
@@ -33,30 +34,30 @@ class MidpointController:
     polling, the quantity of the paper's self-triggered Cerr. A new controller knows nothing: its
     memory holds its own position until the exchange of step 1, after which ``guaranteed_offset``
     is the exact step-1 offset.
+
+    The current view (``theta``, ``m_minus``, ``m_plus`` in radians, robot-local frame, seen from
+    ``centre``) is set by :meth:`observe` and kept up to date by :meth:`receive` and :meth:`recentre`.
     """
 
     def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> None:
         self.region = region
         self.params = params
-        self.predecessor_position: FloatArray = np.array(own_position, dtype=float)
-        self.successor_position: FloatArray = self.predecessor_position.copy()
-        shape = self.predecessor_position.shape[:-1]
+        self.own_position: FloatArray = np.array(own_position, dtype=float)
+        self.predecessor_position: FloatArray = self.own_position.copy()
+        self.successor_position: FloatArray = self.own_position.copy()
+        shape = self.own_position.shape[:-1]
         self.predecessor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.successor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.guaranteed_offset: FloatArray = np.zeros(shape)
+        self.centre: FloatArray = np.zeros(2)
+        self.theta: FloatArray = np.zeros(shape)
+        self.m_minus: FloatArray = np.zeros(shape)
+        self.m_plus: FloatArray = np.zeros(shape)
         self.step = 0
 
-    def view(self, own_position: ArrayLike, centre: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """``(theta, m_minus, m_plus)``: own angle and remembered neighbour angles (radians, local
-        frame) seen from ``centre``."""
-        theta = angle_of(own_position, centre)
-        m_minus, m_plus = local_frame(
-            theta, angle_of(self.predecessor_position, centre), angle_of(self.successor_position, centre)
-        )
-        return theta, m_minus, m_plus
-
     def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike) -> NDArray[np.int64]:
-        """Start step ``step`` (1-based): age the memory and return the :class:`Trigger` mask.
+        """Start step ``step`` (1-based) at ``own_position`` seen from ``centre``: age the memory and
+        return the :class:`Trigger` mask.
 
         Step 1 always polls (``START``); the constant strategy polls every step (``SCHEDULE``); the
         self-triggered strategy polls where T1, T2 or T3 holds.
@@ -65,13 +66,27 @@ class MidpointController:
             self.predecessor_age += step - self.step
             self.successor_age += step - self.step
         self.step = step
-        theta, m_minus, m_plus = self.view(own_position, centre)
-        self.guaranteed_offset = midpoint(m_minus, theta, m_plus) - theta
+        self.own_position = np.asarray(own_position, dtype=float)
+        self.recentre(centre)
+        self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta
         if step == 1:
-            return np.full(theta.shape, int(Trigger.START))
+            return np.full(self.theta.shape, int(Trigger.START))
         if self.params.strategy == "constant":
-            return np.full(theta.shape, int(Trigger.SCHEDULE))
-        return trigger_reasons(theta, m_minus, m_plus, self.predecessor_age, self.successor_age, self.params)
+            return np.full(self.theta.shape, int(Trigger.SCHEDULE))
+        return trigger_reasons(
+            self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, self.params
+        )
+
+    def recentre(self, centre: ArrayLike) -> None:
+        """See the ring from ``centre`` (the target or its estimate, metres)."""
+        self.centre = np.asarray(centre, dtype=float)
+        self.theta = angle_of(self.own_position, self.centre)
+        self._remembered_angles()
+
+    def _remembered_angles(self) -> None:
+        self.m_minus, self.m_plus = local_frame(
+            self.theta, angle_of(self.predecessor_position, self.centre), angle_of(self.successor_position, self.centre)
+        )
 
     def receive(
         self,
@@ -91,19 +106,18 @@ class MidpointController:
             fresh = np.asarray(fresh, dtype=bool)
             setattr(self, f"{side}_position", np.where(fresh[..., None], position, getattr(self, f"{side}_position")))
             setattr(self, f"{side}_age", np.where(fresh, age, getattr(self, f"{side}_age")))
+        self._remembered_angles()
 
-    def goal(self, own_position: ArrayLike, centre: ArrayLike) -> FloatArray:
+    def goal(self) -> FloatArray:
         """The boundary point (metres) to move to this step: ``phi_centre^{-1}(theta + Delta theta)``.
 
         Memory refreshed this step (both ages 0) takes the fresh-information law, stale memory the
         guarded law of Algorithm 1 with ``ubd = omega_max (tau_minus + tau_plus) / 4``.
         """
-        theta, m_minus, m_plus = self.view(own_position, centre)
-        offset = midpoint(m_minus, theta, m_plus) - theta
         if self.step == 1:
-            self.guaranteed_offset = offset
+            self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta
         fresh = (self.predecessor_age == 0) & (self.successor_age == 0)
         step = angular_step(
-            theta, m_minus, m_plus, self.predecessor_age, self.successor_age, fresh, self.params
+            self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, fresh, self.params
         )
-        return self.region.boundary_point(theta + step, centre)
+        return self.region.boundary_point(self.theta + step, self.centre)

@@ -119,7 +119,7 @@ class RobotNode:
 
     def _command(self) -> tuple[str, Message]:
         assert self.controller is not None and self.position is not None
-        goal = self.controller.goal(self.position, self.centre)
+        goal = self.controller.goal()
         command = Command(
             SCHEMA,
             self.run,

@@ -47,6 +47,10 @@ class Inbox(Generic[Item]):
             if self._items:
                 break
             await self._ready.wait()
+        return self.take()
+
+    def take(self) -> list[Item]:
+        """Take everything queued now, without waiting."""
         items = []
         while self._items:
             items.append(self._items.popleft())

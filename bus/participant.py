@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import resource
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -54,6 +55,13 @@ class Interrupt:
 Event = Delivery | Presence | Interrupt
 
 
+def _direct(callback: Callable[[zenoh.Sample], None]) -> zenoh.handlers.Callback:
+    """Run ``callback`` on Zenoh's network thread rather than on a Python thread of its own: our
+    callbacks only append to a deque, and the saved thread hop halves the CPU of a round trip
+    (measured 227 -> 128 us per process)."""
+    return zenoh.handlers.Callback(callback, indirect=False)
+
+
 class Participant:
     """Send and receive the messages of one participant of run ``keys.run`` with ``robots`` robots."""
 
@@ -73,19 +81,38 @@ class Participant:
         self.inbox: Inbox[tuple[str, bytes] | Presence | Interrupt] = Inbox(loop)
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._entities: list[object] = []
+        self._channels: list[zenoh.Handler[zenoh.Sample]] = []
         self.callback_failures = 0
 
     # ------------------------------------------------------------------ receiving
     def listen(self, key_expr: str) -> None:
-        """Receive data samples on ``key_expr``."""
-        self._entities.append(self.session.declare_subscriber(key_expr, self._on_sample))
+        """Receive data samples on ``key_expr``, waking the loop for each burst (latency first)."""
+        self._entities.append(self.session.declare_subscriber(key_expr, _direct(self._on_sample)))
+
+    def collect(self, key_expr: str, capacity: int = 1 << 16) -> None:
+        """Receive data samples on ``key_expr`` into a Zenoh FIFO channel that :meth:`drain` empties
+        (throughput first: no Python code and no wake-up per sample; for the monitor). A full
+        channel pushes back on the senders rather than dropping."""
+        subscriber = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(capacity))
+        self._entities.append(subscriber)
+        self._channels.append(subscriber.handler)
+
+    def drain(self) -> list[Event]:
+        """Take everything waiting in the channels of :meth:`collect` and in the inbox, validated."""
+        batch: list[tuple[str, bytes] | Presence | Interrupt] = []
+        for channel in self._channels:
+            while (sample := channel.try_recv()) is not None:
+                batch.append((str(sample.key_expr), sample.payload.to_bytes()))
+        while self.inbox.pending():
+            batch.extend(self.inbox.take())
+        return self.accept(batch)
 
     def watch(self, kind: PresenceKind) -> None:
         """Receive :class:`Presence` events for every ``kind`` token of the run, current ones first."""
         key_expr = self.keys.alive() if kind == "alive" else self.keys.ready()
         self._entities.append(
             self.session.liveliness().declare_subscriber(
-                key_expr, lambda sample: self._on_token(kind, sample), history=True
+                key_expr, _direct(lambda sample: self._on_token(kind, sample)), history=True
             )
         )
 
@@ -144,7 +171,6 @@ class Participant:
                 key,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 priority=zenoh.Priority.INTERACTIVE_HIGH if message.kind in CONTROL_KINDS else zenoh.Priority.DATA,
-                express=True,
             )
             self._publishers[key] = publisher
         publisher.put(payload)
@@ -173,3 +199,4 @@ class Participant:
                 pass
         self._publishers.clear()
         self._entities.clear()
+        self._channels.clear()

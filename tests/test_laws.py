@@ -122,7 +122,7 @@ def test_oracle4_uniform_ring_stays_put_through_the_controller(case, robots, rot
     for k in range(1, 8):
         reasons = controller.observe(k, positions, centre)
         exchange(controller, reasons, positions)
-        goal = controller.goal(positions, centre)
+        goal = controller.goal()
         step = np.mod(angle_of(goal, centre) - angle_of(positions, centre) + math.pi, TWO_PI) - math.pi
         assert np.abs(step).max() <= 1e-12
         positions = goal
@@ -302,7 +302,7 @@ def test_oracle8_uncertainty_bound_is_sound_inside_a_running_ring(case, angles, 
         exchange(controller, reasons, positions)
         np.testing.assert_array_equal(controller.predecessor_age[reasons != 0], 0)
         np.testing.assert_array_equal(controller.successor_age[reasons != 0], 0)
-        goal = controller.goal(positions, centre)
+        goal = controller.goal()
         if k == 1:  # after the step-1 exchange every robot knows its exact offset
             np.testing.assert_allclose(controller.guaranteed_offset, true_offsets(positions, centre), rtol=0, atol=1e-12)
         step = np.mod(angle_of(goal, centre) - angle_of(positions, centre) + math.pi, TWO_PI) - math.pi
@@ -360,7 +360,7 @@ def test_oracle12_everyone_polls_at_step_1_and_constant_polls_every_step(strateg
         reasons = controller.observe(k, positions, centre)
         triggered.append(reasons.copy())
         exchange(controller, reasons, positions)
-        positions = controller.goal(positions, centre)
+        positions = controller.goal()
     triggered = np.array(triggered)
     np.testing.assert_array_equal(triggered[0], int(Trigger.START))
     if strategy == "constant":

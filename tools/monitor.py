@@ -27,6 +27,7 @@ from world.scenario import Scenario
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
 FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)
 VIEW_PERIOD_S = 0.25
+DRAIN_PERIOD_S = 0.02  # the monitor is not on the critical path: it takes samples in batches
 END_AFTER_INTERRUPT_S = 0.5  # a stopped monitor waits this long for the world's End
 
 
@@ -180,7 +181,7 @@ async def run_monitor(
     keys = Keys(run)
     robots = scenario.robots
     async with joined(bus, keys, MONITOR, robots, exit_with_parent) as participant:
-        participant.listen(keys.everything)
+        participant.collect(keys.everything)
         participant.watch("alive")
         participant.announce("alive")
         roster = Roster()
@@ -261,10 +262,8 @@ async def _watch(
         if view is not None and now - last_view >= VIEW_PERIOD_S:
             view(_state(recorder, participant, roster, steps))
             last_view = now
-        try:
-            events = await asyncio.wait_for(participant.events(), 0.5 if end is None and not code else 0.1)
-        except TimeoutError:
-            events = []
+        await asyncio.sleep(DRAIN_PERIOD_S)
+        events = participant.drain()
     if view is not None:
         view(_state(recorder, participant, roster, steps, finished=True))
     report = MonitorReport(

@@ -110,7 +110,7 @@ def run(
         triggers[row] = reasons
         polled = reasons != 0
         controller.receive(np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1), polled, polled)
-        goal = controller.goal(positions, target)
+        goal = controller.goal()
         offsets[row] = controller.guaranteed_offset
         positions = region.move_along(positions, goal, max_move)
         if on_step is not None:

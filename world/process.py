@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,8 @@ from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined
 from world.scenario import Scenario
 from world.state import WorldState
+
+log = logging.getLogger("ringtrack.world")
 
 Clock = Literal["lockstep", "realtime"]
 LINGER_S = 2.0
@@ -78,6 +81,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         wall = time.perf_counter() - began
         last = world.step - 1
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
+        log.info("run %s after %d steps in %.2f s (%.0f steps/s)", reason, last, wall, last / wall if wall else 0.0)
         participant.send(MONITOR, participant.stats(final=True))
         await _linger(participant, roster, team)
         return code
