@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/ringtrack simulate paper-stationary
+	$(BIN)/ringtrack spawn paper-stationary --robots 6
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

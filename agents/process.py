@@ -11,7 +11,7 @@ import asyncio
 
 from bus.config import BusConfig
 from bus.keys import BROADCAST, MONITOR, WORLD, Keys, robot_name
-from bus.messages import End
+from bus.messages import End, Measurement
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined
 from agents.node import RobotNode
@@ -46,9 +46,21 @@ async def run_robot(
         return code
 
 
+def _newest_measurement_only(events: list) -> list:
+    """Drop measurements superseded by a newer one in the same batch (a robot that fell behind the
+    realtime clock acts on the latest state; in lockstep a batch never holds two)."""
+    steps = [event.message.step for event in events
+             if isinstance(event, Delivery) and isinstance(event.message, Measurement)]
+    if len(steps) < 2:
+        return events
+    newest = max(steps)
+    return [event for event in events if not (isinstance(event, Delivery) and isinstance(event.message, Measurement)
+                                              and event.message.step < newest)]
+
+
 async def _serve(participant: Participant, node: RobotNode, roster: Roster, events: list) -> int:
     while True:
-        for event in events:
+        for event in _newest_measurement_only(events):
             if isinstance(event, Delivery):
                 for destination, message in node.handle(event.message):
                     participant.send(destination, message)
@@ -60,7 +72,10 @@ async def _serve(participant: Participant, node: RobotNode, roster: Roster, even
                 roster.update(event)
         if roster.gone_for_good(WORLD):
             return 1  # the world went away without ending the run
-        try:
-            events = await asyncio.wait_for(participant.events(), None if WORLD in roster.alive else 0.5)
+        if WORLD in roster.alive:
+            events = await participant.events()
+            continue
+        try:  # the world is gone: wait a little for its End
+            events = await asyncio.wait_for(participant.events(), 0.5)
         except TimeoutError:
             events = []

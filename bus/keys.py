@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 import secrets
 from dataclasses import dataclass
+from functools import cached_property, lru_cache
 
 ROOT = "ringtrack"
 WORLD = "world"
@@ -50,7 +51,7 @@ class Keys:
 
     run: int
 
-    @property
+    @cached_property
     def prefix(self) -> str:
         return f"{ROOT}/{self.run:08x}"
 
@@ -73,7 +74,13 @@ class Keys:
 
     def parse(self, key: str) -> Route | None:
         """The route of a data key of this run, or ``None`` for a key of another shape or run."""
-        parts = key.split("/")
-        if len(parts) != 5 or f"{parts[0]}/{parts[1]}" != self.prefix:
-            return None
-        return Route(destination=parts[2], source=parts[3], kind=parts[4])
+        return _parse(self.prefix, key)
+
+
+@lru_cache(maxsize=4096)
+def _parse(prefix: str, key: str) -> Route | None:
+    """Routes repeat for the whole run (a few keys per participant): parse each key once."""
+    parts = key.split("/")
+    if len(parts) != 5 or f"{parts[0]}/{parts[1]}" != prefix:
+        return None
+    return Route(destination=parts[2], source=parts[3], kind=parts[4])

@@ -21,7 +21,7 @@ Point = tuple[float, float]
 Covariance = tuple[float, float, float]  # (xx, xy, yy), m^2
 
 
-class Message(msgspec.Struct, array_like=True, frozen=True, tag=True, omit_defaults=True):
+class Message(msgspec.Struct, array_like=True, frozen=True, tag=True):
     schema: int
     run: int
     kind: ClassVar[str] = ""

@@ -14,6 +14,7 @@ import pytest
 from bus.counting import totals_by_category
 from tests.emulation import (
     assert_equals_engine,
+    engine_twin,
     lockstep_run,
     processes_mentioning,
     scenario,
@@ -21,7 +22,7 @@ from tests.emulation import (
     stop_all,
     wait_for_steps,
 )
-from tools.runlog import read_log, robot_to_robot_sent
+from tools.runlog import history_from_log, read_log, robot_to_robot_sent
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -133,3 +134,75 @@ def test_a_killed_robot_fails_the_run_cleanly(tmp_path: Path) -> None:
 def _is_robot(pid: int, robot: int) -> bool:
     command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     return b"robot" in command and command[command.index(b"--id") + 1] == str(robot).encode()
+
+
+def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
+    from tools.spawn import spawn_team
+    from world import engine
+
+    team = scenario(robots=5, seed=4, max_steps=2000, omega_max_deg=3.0)
+    result = spawn_team(team, runs=tmp_path, dashboard=False, until_converged=True)
+    twin = engine.summary(engine.run(team, until_converged=True, record_positions=False))
+    assert result["exit_code"] == 0 and result["end_reason"] == "converged"
+    for key in ("ctime", "com_bar", "steps", "triggers"):
+        assert result[key] == twin[key], key
+
+
+def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
+    from tools.spawn import spawn_team
+
+    result = spawn_team(scenario(max_steps=200), clock="realtime", rate=10.0, runs=tmp_path, dashboard=False)
+    assert result["exit_code"] == 0 and result["end_reason"] == "done"
+    assert result["monitor_equals_senders"] is True
+    log = read_log(Path(result["log"]))
+    assert len(log.steps) == 200
+    # The world keeps its schedule: 200 steps of 0.1 s at 10x take about 2 s.
+    assert 1.0 < log.end["wall_s"] < 10.0
+    # Requests go out in pairs; a robot that falls behind the clock may abandon a poll when a newer
+    # measurement arrives, so completed polls (those in commands) are a lower bound.
+    completed = sum(1 for record in log.steps for trigger in record["trigger"] if trigger)
+    requests = result["by_kind"]["request"]["messages"]
+    replies = result["by_kind"]["reply"]["messages"]
+    assert requests % 2 == 0
+    assert 2 * completed <= replies <= requests
+    # The team moves towards the uniform configuration about as fast as in lockstep.
+    cerr = history_from_log(log).cerr_true[:, 0]
+    twin = engine_twin(log).cerr_true[:, 0]
+    assert cerr[-1] < 0.75 * cerr[0]
+    assert abs(cerr[-1] - twin[-1]) < 0.1 * twin[0]
+
+
+def test_a_team_assembled_by_hand_from_the_role_commands(tmp_path: Path) -> None:
+    """``ringtrack world``, ``robot`` and ``monitor`` started one by one, as across hosts."""
+    import json
+    import subprocess
+
+    from tests.emulation import RINGTRACK
+
+    announce, log_path = tmp_path / "world.json", tmp_path / "log.jsonl"
+    common = ["paper-stationary", "--robots", "4", "--seed", "7", "--steps", "120", "--run", "00c0ffee", "--monitor"]
+    processes = [subprocess.Popen([*RINGTRACK, "world", *common, "--announce", str(announce)],
+                                  stderr=subprocess.PIPE)]
+    try:
+        deadline = time.monotonic() + 30
+        while not announce.exists():
+            assert time.monotonic() < deadline and processes[0].poll() is None, "the world did not start"
+            time.sleep(0.02)
+        connect = ["--connect", json.loads(announce.read_text())["endpoints"][0]]
+        processes.append(subprocess.Popen([*RINGTRACK, "monitor", *common, *connect, "--log", str(log_path),
+                                           "--no-dashboard"], stdout=subprocess.PIPE))
+        processes += [subprocess.Popen([*RINGTRACK, "robot", *common, *connect, "--id", str(robot)])
+                      for robot in range(4)]
+        codes = [process.wait(timeout=120) for process in processes]
+    finally:
+        for process in processes:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    assert codes == [0] * 6
+    log = read_log(log_path)
+    assert len(log.steps) == 120 and log.end["consistent"] is True
+    assert_equals_engine(log)
+    monitor_output = processes[1].stdout.read().decode()
+    assert "monitor vs senders: equal" in monitor_output
+    assert "ringtrack.world: run done after 120 steps" in processes[0].stderr.read().decode()

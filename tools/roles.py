@@ -19,6 +19,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     world.add_argument("--rate", type=float, default=1.0, help="realtime: simulated seconds per wall second")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
+    world.add_argument("--until-converged", action="store_true",
+                       help="end the run at the first step whose Cerr is below the threshold")
     world.set_defaults(handler=run_world_role)
 
     robot = commands.add_parser("robot", help="run one robot process")
@@ -76,6 +78,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         rate=args.rate,
         expect_monitor=args.monitor,
         announce=args.announce,
+        until_converged=args.until_converged,
     )
     config = bus_config(args, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))

@@ -38,7 +38,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         description="Start the world, one process per robot and the monitor over Zenoh (loopback, free "
         "ports), show progress, and stop everything on completion, Ctrl-C or SIGTERM.",
     )
-    add_scenario_arguments(parser, steps_help="steps to run (default: control.max_steps)")
+    add_scenario_arguments(parser, steps_help="run exactly this many steps (default: until converged, at "
+                           "most control.max_steps)")
     parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
     parser.add_argument("--rate", type=float, default=1.0, help="realtime: simulated seconds per wall second")
     parser.add_argument("--log", type=Path, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
@@ -59,6 +60,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         runs=args.runs,
         log_path=args.log,
         dashboard=not args.no_dashboard,
+        until_converged=args.steps is None,
     )
     if args.json:
         write_json(args.json, result)
@@ -80,8 +82,10 @@ def spawn_team(
     runs: Path = Path("runs"),
     log_path: Path | None = None,
     dashboard: bool = True,
+    until_converged: bool = False,
 ) -> dict:
-    """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``)."""
+    """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
+    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``)."""
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -94,8 +98,9 @@ def spawn_team(
     with Supervisor(folder) as supervisor:
         try:
             with terminate_as_exception():
+                stop_rule = ["--until-converged"] if until_converged else []
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, "--clock", clock, "--rate", str(rate),
-                                           "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce)])
+                                           "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce), *stop_rule])
                 connect = [flag for endpoint in _announced(announce, supervisor) for flag in ("--connect", endpoint)]
                 monitor_flags = [] if dashboard else ["--no-dashboard"]
                 supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),

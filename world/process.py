@@ -37,15 +37,17 @@ LINGER_S = 2.0
 
 @dataclass(frozen=True)
 class WorldOptions:
-    """How the world runs: ``steps`` to take, the ``clock``, the realtime ``rate`` factor (simulated
-    seconds per wall second), whether a monitor must be ready before step 1, and where to write the
-    endpoints it listens on (``announce``) so others can connect."""
+    """How the world runs: at most ``steps`` steps (fewer with ``until_converged``: it ends after the
+    first step whose Cerr is below the threshold), the ``clock``, the realtime ``rate`` factor
+    (simulated seconds per wall second), whether a monitor must be ready before step 1, and where to
+    write the endpoints it listens on (``announce``) so others can connect."""
 
     steps: int
     clock: Clock = "lockstep"
     rate: float = 1.0
     expect_monitor: bool = False
     announce: Path | None = None
+    until_converged: bool = False
 
 
 class RunStopped(Exception):
@@ -73,9 +75,16 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         began = time.perf_counter()
         step_once = _lockstep if options.clock == "lockstep" else _realtime
         reason, code = "done", 0
+        period = scenario.control.dt / options.rate
+        start = asyncio.get_running_loop().time()
         try:
-            for _ in range(options.steps):
-                await step_once(participant, world, roster, options)
+            for index in range(options.steps):
+                await step_once(participant, world, roster, start + (index + 1) * period)
+                converged = options.until_converged and world.converged()
+                world.advance()
+                if converged:
+                    reason = "converged"
+                    break
         except RunStopped as stop:
             reason, code = str(stop), 130 if str(stop).startswith("interrupted") else 1
         wall = time.perf_counter() - began
@@ -122,18 +131,19 @@ def _handle(event: object, world: WorldState, roster: Roster) -> None:
             raise RunStopped(f"robot {event.name} disappeared at step {world.step}")
 
 
-async def _lockstep(participant: Participant, world: WorldState, roster: Roster, options: WorldOptions) -> None:
+async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
+    """Publish the step and wait for every robot's command for it (no deadline)."""
     live = list(range(world.scenario.robots))
     _publish(participant, world, live)
     while not world.commanded.issuperset(live):
         for event in await participant.events():
             _handle(event, world, roster)
-    world.advance()
 
 
-async def _realtime(participant: Participant, world: WorldState, roster: Roster, options: WorldOptions) -> None:
+async def _realtime(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
+    """Publish the step and take whatever commands arrive until ``deadline`` (loop time: the start
+    of the run plus ``step * dt / rate``, so the schedule does not drift)."""
     loop = asyncio.get_running_loop()
-    deadline = loop.time() + world.scenario.control.dt / options.rate
     _publish(participant, world, list(range(world.scenario.robots)))
     while (remaining := deadline - loop.time()) > 0:
         try:
@@ -142,4 +152,3 @@ async def _realtime(participant: Participant, world: WorldState, roster: Roster,
             break
         for event in events:
             _handle(event, world, roster)
-    world.advance()

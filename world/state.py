@@ -10,6 +10,7 @@ import numpy as np
 
 from bus.messages import SCHEMA, Command, Measurement, Tick
 from world.geometry import FloatArray
+from world.metrics import convergence_error, true_offsets
 from world.scenario import Scenario
 
 
@@ -23,6 +24,7 @@ class WorldState:
         self.positions: FloatArray = scenario.start_positions(seed)
         self.target: FloatArray = scenario.target.copy()
         self.goals: FloatArray = self.positions.copy()
+        self.offsets: FloatArray = np.zeros(scenario.robots)  # gV - theta each robot reported, rad
         self.commanded: set[int] = set()
         self.step = 1
         dt = scenario.control.dt
@@ -57,9 +59,19 @@ class WorldState:
         if command.step > self.step:
             return False
         self.goals[command.robot] = command.goal
+        self.offsets[command.robot] = command.guaranteed_offset
         if command.step == self.step:
             self.commanded.add(command.robot)
         return True
+
+    def converged(self) -> bool:
+        """Whether the paper's Cerr of the current step is below the scenario's threshold: from the
+        robots' reported memory offsets (self-triggered) or the true positions (constant)."""
+        if self.scenario.control.strategy == "self":
+            cerr = convergence_error(self.offsets)
+        else:
+            cerr = convergence_error(true_offsets(self.positions, self.target))
+        return bool(cerr < np.rad2deg(self.scenario.threshold))
 
     def advance(self) -> None:
         """Move every robot towards its latest goal along the boundary (capped by v_max) and start

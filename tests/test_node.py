@@ -1,0 +1,147 @@
+"""The robot protocol state machine (agents/node.py), without any bus."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from agents.laws import Trigger
+from agents.node import RobotNode
+from bus.messages import SCHEMA, Command, End, Measurement, Reply, Request
+from world import engine
+from world.scenario import load_scenario
+from world.state import WorldState
+
+RUN = 0x51
+
+
+def make_node(robot: int = 2, **overrides: object) -> tuple[RobotNode, WorldState]:
+    scenario = load_scenario("paper-stationary", **overrides)
+    counter = itertools.count(1000)
+    return RobotNode(robot, scenario, RUN, nonce=lambda: next(counter)), WorldState(scenario, 0, RUN)
+
+
+def reply_to(request: Request, world: WorldState) -> Reply:
+    position = tuple(float(v) for v in world.positions[request.receiver])
+    return Reply(SCHEMA, RUN, request.step, request.receiver, request.sender, request.nonce, position)
+
+
+def test_a_poll_sends_two_requests_and_commands_after_both_replies() -> None:
+    node, world = make_node()
+    out = node.handle(world.measurement(2))
+    assert [destination for destination, _ in out] == ["r1", "r3"]
+    first, second = (message for _, message in out)
+    assert isinstance(first, Request) and isinstance(second, Request)
+    assert (first.step, first.sender, first.receiver) == (1, 2, 1)
+    assert (second.step, second.sender, second.receiver) == (1, 2, 3)
+    assert first.nonce != second.nonce
+    assert node.trigger == Trigger.START and node.polls == 1
+    assert node.handle(reply_to(first, world)) == []
+    (destination, command), = node.handle(reply_to(second, world))
+    assert destination == "world" and isinstance(command, Command)
+    assert (command.step, command.robot, command.trigger) == (1, 2, int(Trigger.START))
+
+
+def test_replies_in_either_order_give_the_same_command() -> None:
+    commands = []
+    for order in ((0, 1), (1, 0)):
+        node, world = make_node()
+        requests = [message for _, message in node.handle(world.measurement(2))]
+        for index in order:
+            out = node.handle(reply_to(requests[index], world))
+        commands.append(out[0][1])
+    assert commands[0] == commands[1]
+
+
+def test_stale_forged_or_unasked_replies_are_ignored() -> None:
+    node, world = make_node()
+    request, _ = (message for _, message in node.handle(world.measurement(2)))
+    forged = Reply(SCHEMA, RUN, 1, 1, 2, request.nonce + 1, (0.0, 0.0))
+    unasked = Reply(SCHEMA, RUN, 1, 4, 2, request.nonce, (0.0, 0.0))
+    assert node.handle(forged) == [] and node.handle(unasked) == []
+    assert node.ignored_replies == 2
+    assert node.handle(reply_to(request, world)) == []  # the genuine one still counts
+    assert node.awaiting and 1 not in node.awaiting
+
+
+def test_a_request_from_the_future_waits_for_our_measurement() -> None:
+    node, world = make_node()
+    early = Request(SCHEMA, RUN, 1, 1, 2, 77)
+    assert node.handle(early) == []
+    out = node.handle(world.measurement(2))
+    reply = out[0][1]
+    assert isinstance(reply, Reply) and out[0][0] == "r1"
+    assert reply.nonce == 77 and reply.step == 1
+    assert reply.position == tuple(float(v) for v in world.positions[2])
+
+
+def test_a_reply_describes_the_start_of_the_requested_step() -> None:
+    node, world = make_node()
+    requests = [message for _, message in node.handle(world.measurement(2))]
+    for request in requests:
+        node.handle(reply_to(request, world))
+    start = tuple(float(v) for v in world.positions[2])
+    moved = (start[0] + 0.01, start[1])  # the robot has moved on by step 2
+    node.handle(Measurement(SCHEMA, RUN, 2, 0.1, 2, moved, 1.0))
+    late = node.handle(Request(SCHEMA, RUN, 1, 3, 2, 9))
+    assert late[0][1].step == 1 and late[0][1].position == start
+
+
+def test_without_a_poll_only_a_command_is_sent_and_duplicates_are_dropped() -> None:
+    node, world = make_node(strategy="self")
+    requests = [message for _, message in node.handle(world.measurement(2))]
+    for request in requests:
+        node.handle(reply_to(request, world))
+    quiet = 0
+    for step in range(2, 40):
+        measurement = Measurement(SCHEMA, RUN, step, 0.0, 2, tuple(float(v) for v in world.positions[2]), 1.0)
+        out = node.handle(measurement)
+        if node.trigger == 0:
+            quiet += 1
+            assert len(out) == 1 and out[0][0] == "world"
+        else:
+            for _, request in out:
+                node.handle(reply_to(request, world))
+        assert node.handle(measurement) == []  # a duplicate is ignored
+    assert quiet > 0
+
+
+def test_end_finishes_the_node() -> None:
+    node, _ = make_node()
+    node.handle(End(SCHEMA, RUN, 10, "done", 1.0))
+    assert node.finished
+
+
+def test_unknown_robot_id_is_refused() -> None:
+    scenario = load_scenario("paper-stationary")
+    with pytest.raises(ValueError, match="--id 6: the team has robots 0..5"):
+        RobotNode(6, scenario, RUN)
+
+
+@pytest.mark.parametrize("strategy", ["self", "constant"])
+def test_a_team_of_nodes_equals_the_engine(strategy: str) -> None:
+    """Six nodes exchanging messages through a plain loop (any delivery order) equal the engine."""
+    scenario = load_scenario("paper-stationary", strategy=strategy)
+    world = WorldState(scenario, scenario.seed, RUN)
+    nodes = [RobotNode(robot, scenario, RUN) for robot in range(6)]
+    rng = np.random.default_rng(3)
+    steps = 200
+    triggers = np.zeros((steps, 6), dtype=int)
+    angles = []
+    for step in range(1, steps + 1):
+        angles.append(np.arctan2(*(world.positions - scenario.target).T[::-1]))
+        queue = [(f"r{robot}", world.measurement(robot)) for robot in range(6)]
+        while queue:
+            destination, message = queue.pop(int(rng.integers(len(queue))))  # any order
+            if destination == "world":
+                world.accept(message)
+                continue
+            robot = int(destination[1:])
+            queue.extend(nodes[robot].handle(message))
+        triggers[step - 1] = [node.trigger for node in nodes]
+        world.advance()
+    twin = engine.run(scenario, steps=steps)
+    assert np.array_equal(triggers, twin.triggers[:, 0])
+    assert np.max(np.abs(np.unwrap(np.array(angles), axis=0) - twin.angles[:, 0])) < 1e-9
