@@ -93,7 +93,7 @@ def run_emulator_bench(args: argparse.Namespace) -> int:
     for robots in args.robots:
         scenario = load_scenario("paper-stationary", robots=robots, strategy=args.strategy, max_steps=args.steps)
         err.print(f"running {robots} robots for {args.steps} lockstep steps ...")
-        result = spawn_team(scenario, clock="lockstep", runs=args.runs, dashboard=False)
+        result = spawn_team(scenario, clock="lockstep", runs=args.runs, dashboard=False, quiet=True)
         if result["exit_code"] != 0:
             err.print(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
             return 1

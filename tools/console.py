@@ -9,7 +9,8 @@ from typing import Any
 from rich.console import Console
 
 out = Console()
-err = Console(stderr=True)
+# soft_wrap: a one-line message stays one line whatever the terminal width (errors are grepped).
+err = Console(stderr=True, soft_wrap=True)
 
 
 class UsageError(ValueError):

@@ -11,6 +11,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich import box
 from rich.table import Table
 
 from tools.console import UsageError, err, out, write_json
@@ -180,9 +181,10 @@ def run_stationary(args: argparse.Namespace) -> int:
 
 def results_table(result: dict) -> Table:
     """Mean +- std of Ctime and Com-bar per team size and strategy, with the self / constant ratios."""
-    table = Table(title=f"stationary target, {result['trials']} trials, seeds {result['seed']}..")
-    for column in ("N", "strategy", "converged", "Ctime (steps)", "Com-bar", "Ctime self/const", "Com-bar self/const"):
-        table.add_column(column, justify="right")
+    table = Table(title=f"stationary target, {result['trials']} trials (seeds {result['seed']}..), Ctime in steps, "
+                  "s/c = self / constant", title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime s/c", "Com s/c"):
+        table.add_column(column, justify="right", no_wrap=True)
     ratios = {entry["robots"]: entry for entry in result["ratios"]}
     for entry in result["summary"]:
         ratio = ratios.get(entry["robots"]) if entry["strategy"] == "self" else None

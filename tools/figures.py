@@ -26,7 +26,8 @@ def stationary_comparison(result: dict, path: Path) -> None:
             for axis, key in ((left, "ctime"), (right, "com_bar")):
                 axis.bar(position, [e[f"{key}_mean"] for e in entries], yerr=[e[f"{key}_std"] for e in entries], **style)
         else:
-            robots = [entry["robots"] for entry in entries]
+            dodge = 0.012 * (max(sizes) - min(sizes)) * (-1 if strategy == "constant" else 1)
+            robots = [entry["robots"] + dodge for entry in entries]
             for axis, key in ((left, "ctime"), (right, "com_bar")):
                 axis.errorbar(robots, [e[f"{key}_mean"] for e in entries], yerr=[e[f"{key}_std"] for e in entries],
                               marker="o", **style)
@@ -37,6 +38,7 @@ def stationary_comparison(result: dict, path: Path) -> None:
     else:
         for axis in (left, right):
             axis.set_xlabel("robots N")
+            axis.set_xticks(sizes)
             axis.legend()
         title = f"{result['trials']} random starts per team size"
     left.set_ylabel("Ctime (steps)")

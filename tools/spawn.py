@@ -9,6 +9,7 @@ rest. Completion, Ctrl-C and SIGTERM all end every process within 2 s.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import subprocess
@@ -64,7 +65,7 @@ def run_spawn(args: argparse.Namespace) -> int:
     )
     if args.json:
         write_json(args.json, result)
-    out.print(_summary_line(result), highlight=False)
+    out.print(_summary_line(result), highlight=False, soft_wrap=True)
     return int(result["exit_code"])
 
 
@@ -83,9 +84,11 @@ def spawn_team(
     log_path: Path | None = None,
     dashboard: bool = True,
     until_converged: bool = False,
+    quiet: bool = False,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
-    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``)."""
+    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``); ``quiet``
+    sends the monitor's display to ``RUN_FOLDER/monitor.stdout`` instead of the terminal."""
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -103,8 +106,9 @@ def spawn_team(
                                            "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce), *stop_rule])
                 connect = [flag for endpoint in _announced(announce, supervisor) for flag in ("--connect", endpoint)]
                 monitor_flags = [] if dashboard else ["--no-dashboard"]
-                supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
-                                             "--clock", clock, *monitor_flags], stdout=None)
+                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
+                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
+                                                 "--clock", clock, *monitor_flags], stdout=display)
                 for robot in range(scenario.robots):
                     supervisor.start(f"r{robot}", [*ROLE_COMMAND, "robot", *common, *connect, "--id", str(robot)])
                 supervisor.wait(until_all=False, stall_s=STALL_TIMEOUT_S, watched=log_path)

@@ -7,13 +7,15 @@ message); without one, a plain summary line every few seconds.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from types import TracebackType
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from bus.counting import totals_by_category
+from bus.counting import category_of, totals_by_category
+from bus.keys import robot_index
 from tools.monitor import MonitorReport, MonitorState
 from world.scenario import Scenario
 
@@ -70,6 +72,30 @@ def make_view(console: Console, scenario: Scenario, dashboard: bool = True) -> P
     return ProgressView(console, scenario)
 
 
+def per_robot_table(rows: list) -> Table:
+    """Robot-to-robot messages and bytes each robot sent and received, and its world traffic."""
+    robots = sorted({name for _, source, destination, _, _ in rows for name in (source, destination)
+                     if robot_index(name) is not None}, key=robot_index)
+    table = Table(title="per robot (messages / bytes)")
+    for column in ("robot", "robot-to-robot sent", "robot-to-robot received", "from world", "to world"):
+        table.add_column(column, justify="right")
+    for name in robots:
+        table.add_row(
+            name,
+            _sum(rows, lambda kind, source, _: category_of(kind) == "robot" and source == name),
+            _sum(rows, lambda kind, _, destination: category_of(kind) == "robot" and destination == name),
+            _sum(rows, lambda _, source, destination: source == "world" and destination == name),
+            _sum(rows, lambda _, source, destination: source == name and destination == "world"),
+        )
+    return table
+
+
+def _sum(rows: list, match: Callable[[str, str, str], bool]) -> str:
+    """``"messages / bytes"`` over the traffic rows whose (kind, source, destination) match."""
+    selected = [(count, size) for kind, source, destination, count, size in rows if match(kind, source, destination)]
+    return f"{sum(count for count, _ in selected)} / {sum(size for _, size in selected)}"
+
+
 def print_report(console: Console, report: MonitorReport) -> None:
     """Traffic by category as the monitor saw it and as the senders counted it."""
     table = Table(title="traffic (payload bytes)")
@@ -83,6 +109,7 @@ def print_report(console: Console, report: MonitorReport) -> None:
         table.add_row(category, str(seen["messages"]), str(seen["bytes"]), str(sent["messages"]),
                       str(sent["bytes"]), per_message)
     console.print(table)
+    console.print(per_robot_table(report.received))
     verdict = "equal" if report.consistent() else "DIFFERENT"
     rejected = ", ".join(f"{reason} {count}" for reason, count in report.rejected.items()) or "none"
     ending = f"{report.end.reason} after {report.end.step} steps" if report.end else "no end record"

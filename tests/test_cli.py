@@ -1,0 +1,79 @@
+"""The ``ringtrack`` command line, in-process (no team is started here)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tools.cli import main
+from tools.runlog import history_from_log, read_log
+from world import engine
+from world.scenario import load_scenario
+
+
+def test_simulate_json_summary(tmp_path: Path) -> None:
+    path = tmp_path / "s.json"
+    assert main(["simulate", "paper-stationary", "--json", str(path)]) == 0
+    result = json.loads(path.read_text())
+    assert result["strategy"] == "self" and result["robots"] == 6 and result["seed"] == 0
+    assert result["converged"] is True and result["ctime"] == 712 and result["steps"] == 712
+    assert result["triggers"]["total"] == sum(result["triggers"]["per_robot"])
+    assert 0 < result["com_bar"] < 0.3
+    assert result["cerr_final_deg"] < 0.6
+
+
+def test_simulate_flags_override_the_scenario(tmp_path: Path) -> None:
+    path = tmp_path / "s.json"
+    assert main(["simulate", "--strategy", "constant", "--robots", "8", "--seed", "3", "--steps", "50",
+                 "--json", str(path)]) == 0
+    result = json.loads(path.read_text())
+    assert (result["strategy"], result["robots"], result["seed"], result["steps"]) == ("constant", 8, 3, 50)
+    assert result["triggers"]["per_robot"] == [50] * 8
+
+
+def test_simulate_log_reads_back_as_the_engine_run(tmp_path: Path) -> None:
+    path = tmp_path / "log.jsonl"
+    assert main(["simulate", "--steps", "120", "--log", str(path)]) == 0
+    logged = history_from_log(read_log(path))
+    twin = engine.run(load_scenario("paper-stationary"), steps=120)
+    assert np.max(np.abs(logged.angles - twin.angles)) < 1e-12
+    assert np.array_equal(logged.triggers, twin.triggers)
+    assert np.allclose(logged.cerr_memory, twin.cerr_memory, atol=1e-9)
+
+
+def test_stationary_experiment_json_and_figure(tmp_path: Path) -> None:
+    data, figure = tmp_path / "e.json", tmp_path / "e.png"
+    assert main(["experiment", "stationary", "--robots", "4,6", "--trials", "5", "--seed", "2",
+                 "--json", str(data), "--plot", str(figure)]) == 0
+    result = json.loads(data.read_text())
+    assert len(result["rows"]) == 2 * 2 * 5
+    assert {row["seed"] for row in result["rows"]} == {2, 3, 4, 5, 6}
+    summary = {(entry["robots"], entry["strategy"]): entry for entry in result["summary"]}
+    for robots in (4, 6):
+        rows = [row for row in result["rows"] if row["robots"] == robots and row["strategy"] == "self"]
+        assert summary[robots, "self"]["ctime_mean"] == pytest.approx(np.mean([row["ctime"] for row in rows]))
+        assert summary[robots, "constant"]["com_bar_mean"] == 1.0
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["simulate", "no-such-scenario"], "ringtrack: error: scenario 'no-such-scenario' is neither a file nor a"),
+        (["simulate", "--robots", "2"], "ringtrack: error: team.robots: expected `int` >= 3; fix the value"),
+        (["spawn", "--rate", "0"], "ringtrack: error: --rate 0.0: give a positive factor, e.g. 1 or 10"),
+        (["world", "--listen", "localhost"], "ringtrack: error: --listen 'localhost' is not an endpoint;"),
+        (["robot", "--id", "9"], "ringtrack: error: --id 9: the team has robots 0..5"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_code_2(arguments: list[str], message: str) -> None:
+    completed = subprocess.run([sys.executable, "-m", "tools.cli", *arguments], capture_output=True, text=True,
+                               timeout=60)
+    assert completed.returncode == 2
+    lines = completed.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(message), completed.stderr
