@@ -1,12 +1,21 @@
 """The protocol of one robot, free of I/O: each received message becomes a list of messages to send.
 
-Per step the world sends the robot a :class:`~bus.messages.Measurement`. The robot observes
-(:meth:`agents.controller.MidpointController.observe`); if it does not poll it answers with its
-:class:`~bus.messages.Command` at once. If it polls it sends a :class:`~bus.messages.Request` to each
-ring neighbour and sends its command when both :class:`~bus.messages.Reply` messages are in
-(2 requests + 2 replies per poll, nothing between polls). Replies describe the neighbour's position
-at the *start* of the requested step, so lockstep results do not depend on message timing. A reply
-is accepted only from the neighbour asked, with the nonce of the open request.
+Per step the world sends the robot a :class:`~bus.messages.Measurement` (its exact position and a
+range to the target). The robot finds the point it steers about:
+
+* ``known``: the stationary target of the scenario;
+* ``decentralized``: its own EKF, updated with its own range;
+* ``centralized``: it reports its range to the fusion centre (:class:`~bus.messages.RangeReport`)
+  and waits for the centre's :class:`~bus.messages.Estimate` of the step.
+
+Then it observes (:meth:`agents.controller.MidpointController.observe`). If it does not poll it
+sends its :class:`~bus.messages.Command` at once; if it polls it sends a
+:class:`~bus.messages.Request` to each ring neighbour and commands when both
+:class:`~bus.messages.Reply` messages are in (2 requests + 2 replies per poll, nothing between
+polls); a decentralized robot first fuses the neighbours' beliefs by covariance intersection.
+Replies describe the neighbour at the *start* of the requested step (its position, and its belief
+after that step's update, before any fusion), so lockstep results do not depend on message timing.
+A reply is accepted only from the neighbour asked, with the nonce of the open request.
 """
 
 from __future__ import annotations
@@ -17,13 +26,41 @@ from collections.abc import Callable
 import numpy as np
 
 from agents.controller import MidpointController
-from bus.keys import WORLD, robot_name
-from bus.messages import SCHEMA, Command, End, Measurement, Message, Point, Reply, Request
+from agents.estimation import Estimator
+from bus.keys import FUSION, WORLD, robot_name
+from bus.messages import (
+    SCHEMA,
+    Command,
+    Covariance,
+    End,
+    Estimate,
+    Measurement,
+    Message,
+    Point,
+    RangeReport,
+    Reply,
+    Request,
+)
+from world.geometry import FloatArray
 from world.scenario import Scenario
 
 Outgoing = list[tuple[str, Message]]  # (destination participant, message)
+Belief = tuple[Point, Covariance]
 
-KEPT_STEPS = 16  # own step-start positions remembered to answer late requests
+KEPT_STEPS = 16  # own step-start positions (and beliefs) remembered to answer late requests
+
+
+def pack_point(vector: FloatArray) -> Point:
+    return (float(vector[0]), float(vector[1]))
+
+
+def pack_covariance(matrix: FloatArray) -> Covariance:
+    return (float(matrix[0, 0]), float(matrix[0, 1]), float(matrix[1, 1]))
+
+
+def unpack_covariance(packed: Covariance) -> FloatArray:
+    xx, xy, yy = packed
+    return np.array([[xx, xy], [xy, yy]])
 
 
 class RobotNode:
@@ -36,14 +73,22 @@ class RobotNode:
         self.name = robot_name(robot)
         self.scenario = scenario
         self.run = run
+        self.mode = scenario.estimation.mode
         self.predecessor = (robot - 1) % scenario.robots
         self.successor = (robot + 1) % scenario.robots
         self._nonce = nonce or (lambda: secrets.randbits(32))
         self.controller: MidpointController | None = None
+        self.estimator = (
+            Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
+        )
+        self.centre: FloatArray = scenario.target.copy()
+        self.covariance: Covariance | None = None
+        self.waiting_for_estimate = False
         self.step = 0
-        self.position: np.ndarray | None = None
+        self.position: FloatArray | None = None
         self.trigger = 0
         self.positions: dict[int, Point] = {}
+        self.beliefs: dict[int, Belief] = {}
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
         self.replies: dict[int, Reply] = {}
@@ -60,6 +105,8 @@ class RobotNode:
             return self.on_request(message)
         if isinstance(message, Reply):
             return self.on_reply(message)
+        if isinstance(message, Estimate):
+            return self.on_estimate(message)
         if isinstance(message, End):
             self.finished = True
         return []
@@ -71,21 +118,29 @@ class RobotNode:
         self.position = np.asarray(measurement.position, dtype=float)
         self.positions[self.step] = measurement.position
         self.positions.pop(self.step - KEPT_STEPS, None)
+        measured = np.nan if measurement.range is None else measurement.range
+        if self.estimator is not None:
+            self.estimator.measure(self.position[None, :], [measured])
+            mean, covariance = self.estimator.belief
+            self.beliefs[self.step] = (pack_point(mean), pack_covariance(covariance))
+            self.beliefs.pop(self.step - KEPT_STEPS, None)
+            self.centre, self.covariance = self.estimator.centre, self.beliefs[self.step][1]
         outgoing = self._answer_buffered()
-        if self.controller is None:
-            self.controller = MidpointController(self.scenario.region, self.scenario.control, self.position)
-        self.trigger = int(self.controller.observe(self.step, self.position, self.centre))
         self.awaiting, self.replies = {}, {}
-        if not self.trigger:
-            return [*outgoing, self._command()]
-        self.polls += 1
-        for neighbour in (self.predecessor, self.successor):
-            nonce = self._nonce()
-            self.awaiting[neighbour] = nonce
-            outgoing.append(
-                (robot_name(neighbour), Request(SCHEMA, self.run, self.step, self.robot, neighbour, nonce))
-            )
-        return outgoing
+        if self.mode == "centralized":
+            self.waiting_for_estimate = True
+            report = RangeReport(SCHEMA, self.run, self.step, self.robot, measurement.position, measurement.range)
+            return [*outgoing, (FUSION, report)]
+        return [*outgoing, *self._decide()]
+
+    def on_estimate(self, estimate: Estimate) -> Outgoing:
+        if not self.waiting_for_estimate or estimate.step != self.step:
+            return []  # an estimate of a step this robot has left
+        self.waiting_for_estimate = False
+        margin = self.scenario.estimation.clamp_margin
+        self.centre = self.scenario.region.clamp_interior(np.asarray(estimate.mean), margin)
+        self.covariance = estimate.covariance
+        return self._decide()
 
     def on_request(self, request: Request) -> Outgoing:
         if request.step > self.step:
@@ -101,7 +156,7 @@ class RobotNode:
         self.replies[reply.sender] = reply
         if self.awaiting:
             return []
-        assert self.controller is not None and self.position is not None
+        assert self.controller is not None
         before, after = self.replies[self.predecessor], self.replies[self.successor]
         self.controller.receive(
             before.position,
@@ -109,34 +164,56 @@ class RobotNode:
             predecessor_age=self.step - before.step,
             successor_age=self.step - after.step,
         )
+        beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
+                   if reply.mean is not None and reply.covariance is not None]
+        if self.estimator is not None and beliefs:
+            self.estimator.fuse(beliefs)
+            self.centre = self.estimator.centre
+            self.covariance = pack_covariance(self.estimator.belief[1])
+            self.controller.recentre(self.centre)
         return [self._command()]
 
     # ------------------------------------------------------------------ helpers
-    @property
-    def centre(self) -> np.ndarray:
-        """The point the robot steers about: the known target of a stationary scenario."""
-        return self.scenario.target
+    def _decide(self) -> Outgoing:
+        """Observe the step and either command at once or poll both neighbours."""
+        assert self.position is not None
+        if self.controller is None:
+            self.controller = MidpointController(self.scenario.region, self.scenario.control, self.position)
+        self.trigger = int(self.controller.observe(self.step, self.position, self.centre))
+        if not self.trigger:
+            return [self._command()]
+        self.polls += 1
+        outgoing: Outgoing = []
+        for neighbour in (self.predecessor, self.successor):
+            nonce = self._nonce()
+            self.awaiting[neighbour] = nonce
+            outgoing.append(
+                (robot_name(neighbour), Request(SCHEMA, self.run, self.step, self.robot, neighbour, nonce))
+            )
+        return outgoing
 
     def _command(self) -> tuple[str, Message]:
-        assert self.controller is not None and self.position is not None
-        goal = self.controller.goal()
+        assert self.controller is not None
         command = Command(
             SCHEMA,
             self.run,
             step=self.step,
             robot=self.robot,
-            goal=(float(goal[0]), float(goal[1])),
+            goal=pack_point(self.controller.goal()),
             trigger=self.trigger,
             guaranteed_offset=float(self.controller.guaranteed_offset),
-            centre=(float(self.centre[0]), float(self.centre[1])),
+            centre=pack_point(self.centre),
+            covariance=self.covariance,
         )
         return (WORLD, command)
 
     def _reply(self, request: Request) -> tuple[str, Message]:
-        """Answer with the position at the start of the requested step, or the oldest kept if that
-        step is forgotten (the reply's ``step`` says which)."""
+        """Answer with the position (and belief) at the start of the requested step, or the oldest
+        kept if that step is forgotten (the reply's ``step`` says which)."""
         step = request.step if request.step in self.positions else min(self.positions)
-        reply = Reply(SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step])
+        mean, covariance = self.beliefs.get(step, (None, None))
+        reply = Reply(SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step],
+                      mean, covariance)
         return (robot_name(request.sender), reply)
 
     def _answer_buffered(self) -> Outgoing:

@@ -7,13 +7,11 @@ robot-to-robot message at all. It ends on the world's End, on a signal, or when 
 
 from __future__ import annotations
 
-import asyncio
-
 from bus.config import BusConfig
-from bus.keys import BROADCAST, MONITOR, WORLD, Keys, robot_name
+from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_name
 from bus.messages import End, Measurement
 from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Roster, gather_until, joined
+from bus.runtime import Roster, gather_until, joined, next_events
 from agents.node import RobotNode
 from world.scenario import Scenario
 
@@ -36,6 +34,7 @@ async def run_robot(
         participant.announce("alive")
         needed = {WORLD, robot_name(node.predecessor), robot_name(node.successor)}
         needed |= {MONITOR} if expect_monitor else set()
+        needed |= {FUSION} if node.mode == "centralized" else set()
         roster = Roster()
         joined_team, events = await gather_until(participant, roster, lambda: needed <= roster.alive)
         if not joined_team:
@@ -72,10 +71,4 @@ async def _serve(participant: Participant, node: RobotNode, roster: Roster, even
                 roster.update(event)
         if roster.gone_for_good(WORLD):
             return 1  # the world went away without ending the run
-        if WORLD in roster.alive:
-            events = await participant.events()
-            continue
-        try:  # the world is gone: wait a little for its End
-            events = await asyncio.wait_for(participant.events(), 0.5)
-        except TimeoutError:
-            events = []
+        events = await next_events(participant, roster)

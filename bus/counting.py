@@ -11,7 +11,8 @@ Link = tuple[str, str, str]  # (kind, source, destination)
 
 
 def category_of(kind: str) -> str:
-    """"robot" (robot-to-robot traffic the strategies try to save), "world" or "monitoring"."""
+    """"robot" (robot-to-robot traffic the strategies try to save), "world", "estimation" (ranges
+    to and estimates from the fusion centre) or "monitoring"."""
     message_type = KINDS.get(kind)
     return message_type.category if message_type else "unknown"
 

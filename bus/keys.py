@@ -1,7 +1,7 @@
 """Key expressions of one run. Every key lives under ``ringtrack/<run>`` so two runs never meet.
 
 Data keys read ``ringtrack/<run>/<destination>/<source>/<kind>`` with participants named ``world``,
-``monitor``, ``all`` (broadcast) and ``r<i>`` (robot i), so the monitor learns the link of every
+``monitor``, ``fusion`` (the centralized estimator), ``all`` (broadcast) and ``r<i>`` (robot i), so the monitor learns the link of every
 message from its key alone. Liveliness tokens live under ``ringtrack/<run>/alive/<name>`` (the
 process is up) and ``ringtrack/<run>/ready/<name>`` (it has seen everyone it talks to).
 """
@@ -16,6 +16,7 @@ from functools import cached_property, lru_cache
 ROOT = "ringtrack"
 WORLD = "world"
 MONITOR = "monitor"
+FUSION = "fusion"
 BROADCAST = "all"
 
 ROBOT_NAME = re.compile(r"^r(0|[1-9][0-9]{0,5})$")

@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import msgspec
 
-from bus.keys import MONITOR, WORLD, Route, robot_index, robot_name
+from bus.keys import FUSION, MONITOR, WORLD, Route, robot_index, robot_name
 
 SCHEMA = 1
 
@@ -25,7 +25,7 @@ class Message(msgspec.Struct, array_like=True, frozen=True, tag=True):
     schema: int
     run: int
     kind: ClassVar[str] = ""
-    category: ClassVar[str] = ""  # "robot" (robot-to-robot), "world" or "monitoring"
+    category: ClassVar[str] = ""  # "robot" (robot-to-robot), "world", "estimation" or "monitoring"
 
 
 class Measurement(Message, tag=1):
@@ -122,10 +122,32 @@ class Stats(Message, tag=7):
     category: ClassVar[str] = "monitoring"
 
 
+class RangeReport(Message, tag=8):
+    """Robot -> fusion centre (centralized estimation): its position and measured range (None:
+    beyond the sensing range) at the start of ``step``."""
+
+    step: int
+    robot: int
+    position: Point
+    range: float | None
+    kind: ClassVar[str] = "range"
+    category: ClassVar[str] = "estimation"
+
+
+class Estimate(Message, tag=9):
+    """Fusion centre -> every robot: the centralized estimate of the target after ``step``'s ranges."""
+
+    step: int
+    mean: Point
+    covariance: Covariance
+    kind: ClassVar[str] = "estimate"
+    category: ClassVar[str] = "estimation"
+
+
 KINDS: dict[str, type[Message]] = {
-    cls.kind: cls for cls in (Measurement, Command, Request, Reply, Tick, End, Stats)
+    cls.kind: cls for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate)
 }
-AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats
+AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats | RangeReport | Estimate
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(AnyMessage)
@@ -183,4 +205,17 @@ def endpoints(message: Message) -> tuple[str, str | None]:
         return robot_name(message.robot), WORLD
     if isinstance(message, Stats):
         return message.name, MONITOR
+    if isinstance(message, RangeReport):
+        return robot_name(message.robot), FUSION
+    if isinstance(message, Estimate):
+        return FUSION, None
     return WORLD, None
+
+
+def poll_bytes(with_belief: bool) -> int:
+    """Payload bytes of one poll (2 requests + 2 replies) with typical field sizes (a step in the
+    thousands, a 32-bit nonce; floats are always 9 bytes), for counts the engine only infers."""
+    request = Request(SCHEMA, 2**31, 1000, 1, 2, 2**31)
+    belief = ((0.0, 0.0), (0.0, 0.0, 0.0)) if with_belief else (None, None)
+    reply = Reply(SCHEMA, 2**31, 1000, 2, 1, 2**31, (0.0, 0.0), *belief)
+    return 2 * len(encode(request)) + 2 * len(encode(reply))

@@ -19,7 +19,7 @@ from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 
 from bus.config import BusConfig, open_session
-from bus.keys import Keys
+from bus.keys import WORLD, Keys
 from bus.participant import Event, Interrupt, Participant, Presence
 
 
@@ -102,3 +102,14 @@ async def gather_until(
             else:
                 held.append(event)
     return True, held
+
+
+async def next_events(participant: Participant, roster: Roster, watched: str = WORLD) -> list[Event]:
+    """The next batch of events; once ``watched`` has gone, wake at least every half second so the
+    caller can give up when it is gone for good (``Roster.gone_for_good``)."""
+    if watched in roster.alive:
+        return await participant.events()
+    try:
+        return await asyncio.wait_for(participant.events(), 0.5)
+    except TimeoutError:
+        return []

@@ -20,7 +20,7 @@ RUN = 0x51
 def make_node(robot: int = 2, **overrides: object) -> tuple[RobotNode, WorldState]:
     scenario = load_scenario("paper-stationary", **overrides)
     counter = itertools.count(1000)
-    return RobotNode(robot, scenario, RUN, nonce=lambda: next(counter)), WorldState(scenario, 0, RUN)
+    return RobotNode(robot, scenario, RUN, nonce=lambda: next(counter)), WorldState(scenario, 0, RUN, 100)
 
 
 def reply_to(request: Request, world: WorldState) -> Reply:
@@ -124,7 +124,7 @@ def test_unknown_robot_id_is_refused() -> None:
 def test_a_team_of_nodes_equals_the_engine(strategy: str) -> None:
     """Six nodes exchanging messages through a plain loop (any delivery order) equal the engine."""
     scenario = load_scenario("paper-stationary", strategy=strategy)
-    world = WorldState(scenario, scenario.seed, RUN)
+    world = WorldState(scenario, scenario.seed, RUN, 200)
     nodes = [RobotNode(robot, scenario, RUN) for robot in range(6)]
     rng = np.random.default_rng(3)
     steps = 200

@@ -16,7 +16,9 @@ from rich.table import Table
 
 from tools.console import UsageError, err, out, write_json
 from world import engine
+from bus.messages import poll_bytes
 from world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
+from world.target import Circle
 
 STRATEGIES = ("constant", "self")
 
@@ -40,6 +42,23 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--json", type=Path, metavar="PATH", help="write per-trial rows and means")
     stationary.add_argument("--plot", type=Path, metavar="PNG", help="draw the comparison figure")
     stationary.set_defaults(handler=run_stationary)
+
+    moving = kinds.add_parser(
+        "moving",
+        help="moving target: constant/self-triggered with centralized/decentralized EKFs (Cerr, Terr)",
+        description="The paper's moving-target comparison on a circling target: constant + centralized, "
+        "self-triggered + centralized and self-triggered + decentralized (CI) at v = 1.0 m/s, w = 0.6 rad/s, "
+        "then constant + centralized against self-triggered + decentralized at (v, w) = (0.6, 0.6), "
+        "(1.0, 0.6), (1.0, 0.4), (1.0, 0.8). --plot PNG also writes PNG-velocities.png.",
+    )
+    moving.add_argument("scenario", nargs="?", default="gazebo-moving", help="base scenario (a circling target)")
+    moving.add_argument("--trials", type=int, default=5, help="random starts per run (default 5)")
+    moving.add_argument("--seed", type=int, default=0, help="seed of trial 0 (default 0)")
+    moving.add_argument("--steps", type=int, help="steps per run (default: control.max_steps)")
+    moving.add_argument("--settle", type=int, default=300, help="means are taken from this step on (default 300)")
+    moving.add_argument("--json", type=Path, metavar="PATH", help="write the table and the Cerr/Terr series")
+    moving.add_argument("--plot", type=Path, metavar="PNG", help="draw Cerr and Terr over time")
+    moving.set_defaults(handler=run_moving)
 
 
 def robot_list(text: str) -> list[int]:
@@ -202,3 +221,143 @@ def results_table(result: dict) -> Table:
 
 def _mean_std(mean: float | None, std: float | None, spec: str) -> str:
     return "-" if mean is None else f"{mean:{spec}} ± {std:{spec}}"
+
+
+# ---------------------------------------------------------------------------- moving target
+MAIN_SETTING = (1.0, 0.6)  # (v_o m/s, w_o rad/s) of the paper's three-strategy comparison
+VELOCITY_SETTINGS = ((0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8))
+MAIN_STRATEGIES = (("constant", "centralized"), ("self", "centralized"), ("self", "decentralized"))
+VELOCITY_STRATEGIES = (("constant", "centralized"), ("self", "decentralized"))
+SERIES_STRIDE = 5  # steps between the points of the Cerr/Terr series written to JSON
+
+
+def moving_scenario(base: str, strategy: str, mode: str, speed: float, angular_speed: float,
+                    steps: int | None) -> Scenario:
+    """The base scenario's circling target at ``speed`` (m/s) and ``angular_speed`` (rad/s), with the
+    given communication strategy and estimation mode."""
+    text, label = read_scenario_text(base)
+    spec = parse_scenario(text, label)
+    if not isinstance(spec.target, Circle):
+        raise UsageError(f"{label}: experiment moving needs target.motion = 'circle'")
+    spec = msgspec.structs.replace(
+        spec,
+        target=msgspec.structs.replace(spec.target, speed=speed, angular_speed=angular_speed),
+        estimation=msgspec.structs.replace(spec.estimation, mode=mode),
+    )
+    return resolve(apply_overrides(spec, strategy=strategy, max_steps=steps), label)
+
+
+def moving_experiment(
+    base: str,
+    trials: int,
+    seed: int,
+    steps: int | None = None,
+    settle: int = 300,
+    on_step: Callable[[str, int], None] | None = None,
+) -> dict:
+    """Run the comparison and the velocity settings; returns the JSON-ready result with, per run,
+    means from step ``settle`` on and the trial-mean Cerr (true, degrees) and Terr (metres) series."""
+    if trials < 1:
+        raise UsageError(f"--trials {trials}: give at least 1 trial")
+    plan = [("comparison", MAIN_SETTING, strategy) for strategy in MAIN_STRATEGIES]
+    plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS for strategy in VELOCITY_STRATEGIES]
+    seeds = list(range(seed, seed + trials))
+    histories: dict[tuple, engine.History] = {}
+    runs: list[dict] = []
+    started = time.perf_counter()
+    for group, (speed, angular_speed), (strategy, mode) in plan:
+        key = (speed, angular_speed, strategy, mode)
+        scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps)
+        if settle >= scenario.max_steps:
+            raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
+        if key not in histories:  # the velocity setting (1.0, 0.6) repeats two comparison runs
+            label = f"v={speed} w={angular_speed} {strategy}+{mode}"
+            report = None if on_step is None else (lambda k, text=label: on_step(text, k))
+            histories[key] = engine.run(scenario, seeds, record_positions=False, on_step=report)
+        history = histories[key]
+        polls = float((history.triggers != 0).mean())
+        robots = scenario.robots
+        runs.append(
+            {
+                "group": group,
+                "speed": speed,
+                "angular_speed": angular_speed,
+                "radius": speed / angular_speed,
+                "strategy": strategy,
+                "estimation": mode,
+                "cerr_mean_deg": float(history.cerr_true[settle:].mean()),
+                "terr_mean": float(history.terr[settle:].mean()),
+                "poll_rate": polls,
+                "robot_messages_per_step": 4 * polls * robots,
+                "robot_bytes_per_step": polls * robots * poll_bytes(mode == "decentralized"),
+                "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
+                "cerr_series_deg": history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
+                "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
+            }
+        )
+    any_scenario = moving_scenario(base, "self", "decentralized", *MAIN_SETTING, steps)
+    return {
+        "experiment": "moving",
+        "scenario": base,
+        "trials": trials,
+        "seed": seed,
+        "steps": any_scenario.max_steps,
+        "dt": any_scenario.control.dt,
+        "settle": settle,
+        "series_stride": SERIES_STRIDE,
+        "wall_s": time.perf_counter() - started,
+        "runs": runs,
+    }
+
+
+def run_moving(args: argparse.Namespace) -> int:
+    steps = moving_scenario(args.scenario, "self", "decentralized", *MAIN_SETTING, args.steps).max_steps
+    distinct = len(MAIN_STRATEGIES) + len(VELOCITY_SETTINGS) * len(VELOCITY_STRATEGIES) - 2
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=err) as progress:
+        task = progress.add_task("moving-target runs", total=distinct * steps)
+        done: dict[str, int] = {}
+
+        def on_step(label: str, step: int) -> None:
+            done[label] = step
+            if step % 50 == 0 or step == steps:
+                progress.update(task, completed=sum(done.values()), description=label)
+
+        result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step)
+    out.print(moving_table(result))
+    if args.json:
+        write_json(args.json, result)
+    if args.plot:
+        from tools.figures import moving_comparison, moving_velocities
+
+        moving_comparison(result, args.plot)
+        moving_velocities(result, args.plot.with_name(f"{args.plot.stem}-velocities{args.plot.suffix}"))
+    return 0
+
+
+RUN_LABELS = {
+    ("constant", "centralized"): "constant, central",
+    ("self", "centralized"): "self, central",
+    ("self", "decentralized"): "self, decentral",
+}
+
+
+def moving_table(result: dict) -> Table:
+    """Means from step ``settle`` on, per run (the velocity setting equal to the main one is shown once)."""
+    table = Table(title=f"moving target, {result['trials']} trials, means from step {result['settle']} of "
+                  f"{result['steps']}; msg and B: robot-to-robot traffic", title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "B/step"):
+        table.add_column(column, justify="right", no_wrap=True)
+    for run in result["runs"]:
+        if run["group"] == "velocities" and (run["speed"], run["angular_speed"]) == MAIN_SETTING:
+            continue
+        table.add_row(
+            f"{run['speed']:g}, {run['angular_speed']:g}",
+            RUN_LABELS[run["strategy"], run["estimation"]],
+            f"{run['cerr_mean_deg']:.1f}",
+            f"{run['terr_mean']:.3f}",
+            f"{run['poll_rate']:.3f}",
+            f"{run['robot_messages_per_step']:.2f}",
+            f"{run['robot_bytes_per_step']:.0f}",
+        )
+    return table

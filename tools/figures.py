@@ -50,3 +50,59 @@ def stationary_comparison(result: dict, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
     plt.close(figure)
+
+
+RUN_STYLES = {
+    ("constant", "centralized"): {"color": "tab:blue", "linestyle": "--", "label": "constant, centralized EKF"},
+    ("self", "centralized"): {"color": "tab:orange", "label": "self-triggered, centralized EKF"},
+    ("self", "decentralized"): {"color": "tab:green", "label": "self-triggered, decentralized EKF + CI"},
+}
+
+
+def _time_axis(result: dict, run: dict) -> list[float]:
+    stride = result["series_stride"] * result["dt"]
+    return [index * stride for index in range(len(run["cerr_series_deg"]))]
+
+
+def moving_comparison(result: dict, path: Path) -> None:
+    """Cerr and Terr over time (trial means) of the three strategies at the main setting."""
+    runs = [run for run in result["runs"] if run["group"] == "comparison"]
+    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
+    for run in runs:
+        style = RUN_STYLES[run["strategy"], run["estimation"]]
+        times = _time_axis(result, run)
+        left.plot(times, run["cerr_series_deg"], linewidth=1.2, **style)
+        right.plot(times, run["terr_series"], linewidth=1.2, **style)
+    left.set_xlabel("time (s)")
+    left.set_ylabel("Cerr (deg, true)")
+    left.set_title("(a) convergence error")
+    right.set_xlabel("time (s)")
+    right.set_ylabel("Terr (m)")
+    right.set_yscale("log")
+    right.set_title("(b) target estimate error")
+    left.legend(fontsize=8)
+    speed, angular = runs[0]["speed"], runs[0]["angular_speed"]
+    figure.suptitle(f"Moving target (v = {speed} m/s, w = {angular} rad/s), mean of {result['trials']} trials")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def moving_velocities(result: dict, path: Path) -> None:
+    """Cerr over time for each target velocity: constant + centralized vs self-triggered + decentralized."""
+    runs = [run for run in result["runs"] if run["group"] == "velocities"]
+    settings = sorted({(run["speed"], run["angular_speed"]) for run in runs}, key=lambda pair: (pair[0], -pair[1]))
+    figure, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.4), sharey=True,
+                                constrained_layout=True)
+    for axis, (speed, angular) in zip(axes, settings, strict=True):
+        for run in (run for run in runs if (run["speed"], run["angular_speed"]) == (speed, angular)):
+            axis.plot(_time_axis(result, run), run["cerr_series_deg"], linewidth=1.0,
+                      **RUN_STYLES[run["strategy"], run["estimation"]])
+        axis.set_title(f"v = {speed}, w = {angular} (r = {speed / angular:.2f} m)", fontsize=9)
+        axis.set_xlabel("time (s)")
+    axes[0].set_ylabel("Cerr (deg, true)")
+    axes[0].legend(fontsize=7)
+    figure.suptitle(f"Cerr against target velocity and radius, mean of {result['trials']} trials")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from bus.config import BusConfig
 from bus.counting import TrafficCounter, totals_by_category
-from bus.keys import MONITOR, WORLD, Keys, robot_index, robot_name
+from bus.keys import FUSION, MONITOR, WORLD, Keys, robot_name
 from bus.messages import Command, End, Reply, Request, Stats, Tick, Traffic
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined
@@ -59,16 +59,17 @@ class Recorder:
     reach the monitor after the world's tick for k + 5: completeness, not arrival order, decides.
     """
 
-    def __init__(self, writer: LogWriter, robots: int) -> None:
+    def __init__(self, writer: LogWriter, scenario: Scenario) -> None:
         self.writer = writer
-        self.robots = robots
+        self.scenario = scenario
+        self.robots = scenario.robots
         self.pending: dict[int, PendingStep] = {}
         self.next_step = 1
         self.latest_tick = 0
         self.tick_seen_at: dict[int, float] = {}
         self.late = 0
-        self.polls = [0] * robots
-        self.last_trigger = [0] * robots
+        self.polls = [0] * self.robots
+        self.last_trigger = [0] * self.robots
 
     def on_delivery(self, delivery: Delivery) -> None:
         message = delivery.message
@@ -127,6 +128,12 @@ class Recorder:
         )
 
 
+def participants(scenario: Scenario) -> set[str]:
+    """Everyone who sends in a run of ``scenario`` (the monitor only listens)."""
+    fusion = {FUSION} if scenario.estimation.mode == "centralized" else set()
+    return {WORLD} | {robot_name(i) for i in range(scenario.robots)} | fusion
+
+
 @dataclass
 class MonitorReport:
     """What the monitor saw, and whether it matches what the senders counted."""
@@ -145,9 +152,9 @@ class MonitorReport:
         return totals_by_category(self.received)
 
     def consistent(self) -> bool:
-        """Robot-to-robot and world traffic seen equals what the senders say they sent."""
+        """Robot-to-robot, world and estimation traffic seen equals what the senders say they sent."""
         mine, theirs = self.monitor_totals(), self.sender_totals()
-        return all(mine.get(category) == theirs.get(category) for category in ("robot", "world"))
+        return all(mine.get(category) == theirs.get(category) for category in ("robot", "world", "estimation"))
 
 
 View = Callable[["MonitorState"], None]
@@ -185,14 +192,14 @@ async def run_monitor(
         participant.watch("alive")
         participant.announce("alive")
         roster = Roster()
-        everyone = {WORLD} | {robot_name(i) for i in range(robots)}
+        everyone = participants(scenario)
         started, held = await gather_until(participant, roster, lambda: everyone <= roster.alive)
         if not started:
             return 130, None
         participant.announce("ready")
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
-            recorder = Recorder(writer, robots)
+            recorder = Recorder(writer, scenario)
             code, report = await _watch(participant, recorder, roster, held, steps, view)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
@@ -230,7 +237,7 @@ async def _watch(
     last_view = 0.0
     loop = asyncio.get_running_loop()
     last_event_at = loop.time()
-    senders = {WORLD} | {robot_name(i) for i in range(recorder.robots)}
+    senders = participants(recorder.scenario)
     while True:
         for event in events:
             if isinstance(event, Delivery):

@@ -28,6 +28,10 @@ def register(commands: argparse._SubParsersAction) -> None:
     robot.add_argument("--id", type=int, required=True, help="robot index 0..N-1 in counter-clockwise order")
     robot.set_defaults(handler=run_robot_role)
 
+    fusion = commands.add_parser("fusion", help="run the fusion centre of centralized estimation")
+    _common(fusion)
+    fusion.set_defaults(handler=run_fusion_role)
+
     monitor = commands.add_parser("monitor", help="tally a team's messages live and write its run log")
     _common(monitor)
     monitor.add_argument("--log", type=Path, required=True, metavar="PATH", help="run log to write (JSON lines)")
@@ -93,6 +97,16 @@ def run_robot_role(args: argparse.Namespace) -> int:
     return asyncio.run(
         run_robot(args.id, scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent)
     )
+
+
+def run_fusion_role(args: argparse.Namespace) -> int:
+    from agents.centre import run_fusion
+
+    scenario = scenario_from_arguments(args)
+    if scenario.estimation.mode != "centralized":
+        raise UsageError(f"the scenario's estimation.mode is {scenario.estimation.mode!r}; a fusion centre serves "
+                         "only 'centralized'")
+    return asyncio.run(run_fusion(scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent))
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:

@@ -132,18 +132,18 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     sent = robot_to_robot_sent(polled)
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
-        target = scenario.target.tolist()
+        assert history.estimates is not None
         for row in range(history.steps):
             writer.write(
                 step_record(
                     step=row + 1,
                     time=row * scenario.control.dt,
                     positions=history.positions[row, trial],
-                    target=target,
+                    target=history.targets[row, trial],
                     live=list(range(robots)),
                     trigger=history.triggers[row, trial].tolist(),
                     offset=history.offsets[row, trial].tolist(),
-                    centre=[target] * robots,
+                    centre=history.estimates[row, trial].tolist(),
                     sent_messages=sent[row].tolist(),
                     sent_bytes=None,
                 )
@@ -220,6 +220,8 @@ def history_from_log(log: RunLog) -> History:
     targets = np.array([record["target"] for record in log.steps], dtype=float)[:, None]
     triggers = np.array([[value or 0 for value in record["trigger"]] for record in log.steps], dtype=np.uint8)
     offsets = np.array([[value or 0.0 for value in record["offset"]] for record in log.steps], dtype=float)
+    missing = [np.nan, np.nan]
+    estimates = np.array([[centre or missing for centre in record["centre"]] for record in log.steps])[:, None]
     angles = angle_of(positions, targets[..., None, :])
     return History(
         scenario=scenario,
@@ -229,4 +231,7 @@ def history_from_log(log: RunLog) -> History:
         triggers=triggers[:, None],
         offsets=offsets[:, None],
         cerr_true=convergence_error(true_offsets(positions, targets)),
+        targets=targets,
+        terr=np.nanmean(np.linalg.norm(estimates - targets[..., None, :], axis=-1), axis=-1),
+        estimates=estimates,
     )

@@ -12,7 +12,6 @@ import argparse
 import contextlib
 import datetime
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -109,6 +108,8 @@ def spawn_team(
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
                                                  "--clock", clock, *monitor_flags], stdout=display)
+                if scenario.estimation.mode == "centralized":
+                    supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 for robot in range(scenario.robots):
                     supervisor.start(f"r{robot}", [*ROLE_COMMAND, "robot", *common, *connect, "--id", str(robot)])
                 supervisor.wait(until_all=False, stall_s=STALL_TIMEOUT_S, watched=log_path)

@@ -1,9 +1,9 @@
 """The in-process engine: a whole team, or a batch of trials, stepped with no processes and no bus.
 
-It runs exactly the per-robot sequence of a robot process (:class:`agents.controller.MidpointController`)
-for every robot at once, with neighbour replies read straight from the true step-start positions,
-and the world's motion step (:meth:`world.geometry.ConvexRegion.move_along`). Arrays are indexed
-``[step - 1, trial, robot]``.
+It runs exactly the per-robot sequence of a robot process for every robot at once: measure and
+estimate (:mod:`agents.estimation`), observe and poll (:class:`agents.controller.MidpointController`)
+with neighbour replies read straight from the true step-start positions and beliefs, fuse, move
+(:meth:`world.geometry.ConvexRegion.move_along`). Arrays are indexed ``[step - 1, trial, robot]``.
 """
 
 from __future__ import annotations
@@ -15,9 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agents.controller import MidpointController
+from agents.estimation import Estimator
 from world.geometry import FloatArray, angle_of
 from world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
 from world.scenario import Scenario
+from world.sensing import RangeSensor
 
 
 @dataclass
@@ -27,7 +29,9 @@ class History:
     ``angles`` are radians about the true target, unwrapped along time; ``positions`` metres (or
     ``None`` when not recorded); ``triggers`` the :class:`agents.laws.Trigger` masks; ``offsets`` each
     robot's ``gV - theta`` (radians) from memory before polling; ``cerr_true`` degrees (see
-    :mod:`world.metrics`).
+    :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
+    over robots of the distance from the estimate each steered by to the target); ``estimates`` those
+    estimates (or ``None`` when not recorded).
     """
 
     scenario: Scenario
@@ -37,6 +41,9 @@ class History:
     triggers: NDArray[np.uint8]  # (K, T, N)
     offsets: FloatArray  # (K, T, N)
     cerr_true: FloatArray  # (K, T)
+    targets: FloatArray  # (K, T, 2)
+    terr: FloatArray  # (K, T)
+    estimates: FloatArray | None  # (K, T, N, 2)
 
     @property
     def steps(self) -> int:
@@ -71,6 +78,51 @@ class History:
 StepObserver = Callable[[int], None]
 
 
+class TeamEstimate:
+    """The estimators of a batch of teams, exactly as the processes hold them: none ("known": the
+    robots steer about the true stationary target), one per trial (the fusion centre), or one per
+    robot (decentralized)."""
+
+    def __init__(self, scenario: Scenario, seeds: list[int], paths: FloatArray) -> None:
+        self.mode = scenario.estimation.mode
+        self.robots = scenario.robots
+        sensing = scenario.spec.sensing
+        self.sensors = [RangeSensor(sensing.range_sigma, sensing.range, seed) for seed in seeds]
+        count = {"known": 0, "centralized": 1, "decentralized": scenario.robots}[self.mode]
+        self.estimators = [
+            [Estimator(scenario.estimation, scenario.region, paths[trial, 0]) for _ in range(count)]
+            for trial in range(len(seeds))
+        ]
+
+    def measure(self, positions: FloatArray, targets: FloatArray) -> FloatArray:
+        """Measure ranges and update every filter; returns the centres to steer about (T, N, 2)."""
+        if self.mode == "known":
+            return np.repeat(targets[:, None, :], self.robots, axis=1)
+        centres = np.empty_like(positions)
+        for trial, (sensor, estimators) in enumerate(zip(self.sensors, self.estimators, strict=True)):
+            ranges = sensor.measure(positions[trial], targets[trial])
+            if self.mode == "centralized":
+                estimators[0].measure(positions[trial], ranges)
+                centres[trial] = estimators[0].centre
+            else:
+                for robot, estimator in enumerate(estimators):
+                    estimator.measure(positions[trial, robot : robot + 1], ranges[robot : robot + 1])
+                    centres[trial, robot] = estimator.centre
+        return centres
+
+    def fuse(self, polled: NDArray[np.bool_], centres: FloatArray) -> None:
+        """Decentralized robots that polled fuse both neighbours' beliefs (as they were before anyone
+        fused this step) and steer by the result; ``centres`` is updated in place."""
+        if self.mode != "decentralized":
+            return
+        for trial, estimators in enumerate(self.estimators):
+            beliefs = [estimator.belief for estimator in estimators]
+            for robot in np.flatnonzero(polled[trial]):
+                neighbours = [beliefs[(robot - 1) % self.robots], beliefs[(robot + 1) % self.robots]]
+                estimators[robot].fuse(neighbours)
+                centres[trial, robot] = estimators[robot].centre
+
+
 def run(
     scenario: Scenario,
     seeds: Sequence[int] | int | None = None,
@@ -86,32 +138,44 @@ def run(
     """
     seeds = [scenario.seed] if seeds is None else [seeds] if isinstance(seeds, int) else list(seeds)
     steps = scenario.max_steps if steps is None else steps
-    region, params, target = scenario.region, scenario.control, scenario.target
+    region, params = scenario.region, scenario.control
     threshold_deg = np.rad2deg(scenario.threshold)
     max_move = None if scenario.v_max is None else scenario.v_max * params.dt
 
+    paths = np.stack([scenario.target_path(seed, steps) for seed in seeds])  # (T, K, 2)
     positions = np.stack([scenario.start_positions(seed) for seed in seeds])
     trials, robots = positions.shape[:2]
+    team = TeamEstimate(scenario, seeds, paths)
     controller = MidpointController(region, params, positions)
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
     offsets = np.empty((steps, trials, robots))
     cerr_true = np.empty((steps, trials))
+    terr = np.empty((steps, trials))
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
+    estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
     converged = np.zeros(trials, dtype=bool)
 
     for k in range(1, steps + 1):
         row = k - 1
+        targets = paths[:, row]
         if recorded is not None:
             recorded[row] = positions
-        angles[row] = angle_of(positions, target)
-        cerr_true[row] = convergence_error(true_offsets(positions, target))
-        reasons = controller.observe(k, positions, target)
+        angles[row] = angle_of(positions, targets[:, None, :])
+        cerr_true[row] = convergence_error(true_offsets(positions, targets))
+        centres = team.measure(positions, targets)
+        reasons = controller.observe(k, positions, centres)
         triggers[row] = reasons
         polled = reasons != 0
         controller.receive(np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1), polled, polled)
+        if team.mode == "decentralized":
+            team.fuse(polled, centres)
+            controller.recentre(centres)
         goal = controller.goal()
         offsets[row] = controller.guaranteed_offset
+        terr[row] = np.linalg.norm(centres - targets[:, None, :], axis=-1).mean(axis=-1)
+        if estimates is not None:
+            estimates[row] = centres
         positions = region.move_along(positions, goal, max_move)
         if on_step is not None:
             on_step(k)
@@ -129,6 +193,9 @@ def run(
         triggers=triggers[:steps],
         offsets=offsets[:steps],
         cerr_true=cerr_true[:steps],
+        targets=np.swapaxes(paths[:, :steps], 0, 1),
+        terr=terr[:steps],
+        estimates=None if estimates is None else estimates[:steps],
     )
 
 
@@ -154,4 +221,7 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "triggers": {"total": int(polled.sum()), "per_robot": polled.tolist()},
         "cerr_final_deg": float(history.cerr[-1, trial]),
         "cerr_true_final_deg": float(history.cerr_true[-1, trial]),
+        "estimation": scenario.estimation.mode,
+        "terr_mean": float(history.terr[:, trial].mean()),
+        "terr_final": float(history.terr[-1, trial]),
     }

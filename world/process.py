@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Literal
 
 from bus.config import BusConfig, listening_locators
-from bus.keys import BROADCAST, MONITOR, WORLD, Keys, robot_index, robot_name
+from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import SCHEMA, Command, End
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined
@@ -67,11 +67,12 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
             _announce(participant, options.announce)
         team = {robot_name(i) for i in range(scenario.robots)}
         needed = team | ({MONITOR} if options.expect_monitor else set())
+        needed |= {FUSION} if scenario.estimation.mode == "centralized" else set()
         roster = Roster()
         started, _ = await gather_until(participant, roster, lambda: needed <= roster.ready)
         if not started:
             return 130
-        world = WorldState(scenario, seed, run)
+        world = WorldState(scenario, seed, run, options.steps)
         began = time.perf_counter()
         step_once = _lockstep if options.clock == "lockstep" else _realtime
         reason, code = "done", 0

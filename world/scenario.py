@@ -7,7 +7,7 @@ A scenario file looks like::
     [region]
     vertices = [[3, 7], [8, 17], [5, 26], [1, 22]]   # metres, either orientation
     [target]
-    position = [4, 20]                               # metres, inside the region
+    position = [4, 20]          # metres, inside the region; or motion = "circle" | "random_walk" | "waypoints"
     [team]
     robots = 6
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
@@ -19,6 +19,17 @@ A scenario file looks like::
     sigma_deg = 0.06           # trigger tolerance, deg
     threshold_deg = 0.6        # convergence threshold on Cerr, deg (default 0.1 N)
     max_steps = 3000
+    [sensing]
+    range_sigma = 0.2          # m, noise of the measured ranges
+    range = 30.0               # m, sensing range r_s (default: unlimited)
+    [estimation]
+    mode = "known"             # "known" (robots know the stationary target) | "centralized" | "decentralized"
+    range_sigma = 0.2          # m, the filters' model of the range noise
+    process_noise = 0.2        # m^2 per step, Q = q I
+    prior = "truth"            # "truth" | "trilateration" (centralized) | [x, y]
+    prior_variance = 1.0       # m^2, P0 = p I
+    fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
+    criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
 
 Every problem is reported as one :class:`ScenarioError` line naming the key and the fix.
 """
@@ -35,42 +46,31 @@ from typing import Annotated, Any, Literal, get_args, get_origin, get_type_hints
 import msgspec
 import numpy as np
 
+from agents.estimation import EstimationParams
 from agents.laws import ControlParams
 from agents.ring import ring_gaps
 from world.geometry import ConvexRegion, FloatArray, RegionError
-
-# msgspec bounds must be finite; these also refuse NaN and infinities, reported as "a finite number".
-HUGE = 1e300
-Finite = Annotated[float, msgspec.Meta(ge=-HUGE, le=HUGE)]
-Positive = Annotated[float, msgspec.Meta(gt=0.0, le=HUGE)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=HUGE)]
-Point = tuple[Finite, Finite]
+from world.schema import Finite, NonNegative, Point, Positive, Spec
+from world.target import Stationary, TargetSpec
 
 MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
+TARGET_MARGIN = 1e-6  # fraction of D_out a target path must stay inside the region
 
 
 class ScenarioError(ValueError):
     """A scenario cannot be used; the message is one line naming the key and the fix."""
 
 
-class _Spec(msgspec.Struct, forbid_unknown_fields=True, kw_only=True, frozen=True, omit_defaults=True):
-    pass
-
-
-class RegionSpec(_Spec):
+class RegionSpec(Spec):
     vertices: list[Point]
 
 
-class TargetSpec(_Spec):
-    position: Point
-
-
-class TeamSpec(_Spec):
+class TeamSpec(Spec):
     robots: Annotated[int, msgspec.Meta(ge=3)] = 6
     angles_deg: list[Finite] | None = None
 
 
-class ControlSpec(_Spec):
+class ControlSpec(Spec):
     strategy: Literal["self", "constant"] = "self"
     law: Literal["prop", "deadbeat"] = "prop"
     dt: Positive = 0.1
@@ -81,13 +81,30 @@ class ControlSpec(_Spec):
     max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
 
 
-class ScenarioSpec(_Spec, kw_only=True):
+class SensingSpec(Spec):
+    range_sigma: NonNegative = 0.0
+    range: Positive | None = None
+
+
+class EstimationSpec(Spec):
+    mode: Literal["known", "centralized", "decentralized"] = "known"
+    range_sigma: Positive = 0.2
+    process_noise: NonNegative = 0.2
+    prior: Literal["truth", "trilateration"] | Point = "truth"
+    prior_variance: Positive = 1.0
+    fusion: Literal["ci", "sequential"] = "ci"
+    criterion: Literal["trace", "det"] = "trace"
+
+
+class ScenarioSpec(Spec, kw_only=True):
     region: RegionSpec
     target: TargetSpec
     name: str = "scenario"
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0
     team: TeamSpec = TeamSpec()
     control: ControlSpec = ControlSpec()
+    sensing: SensingSpec = SensingSpec()
+    estimation: EstimationSpec = EstimationSpec()
 
 
 DEFAULT_OMEGA_MAX_DEG = 1.0
@@ -95,12 +112,16 @@ DEFAULT_OMEGA_MAX_DEG = 1.0
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario with everything in SI units (metres, seconds, radians)."""
+    """A validated scenario with everything in SI units (metres, seconds, radians).
+
+    ``target`` is the target's position at step 1; :meth:`target_path` gives every step's.
+    """
 
     spec: ScenarioSpec
     region: ConvexRegion
     target: FloatArray
     control: ControlParams
+    estimation: EstimationParams
     threshold: float  # rad, convergence threshold on Cerr
     v_max: float | None  # m/s cap on boundary speed in the world, None: no cap
 
@@ -119,6 +140,15 @@ class Scenario:
     @property
     def max_steps(self) -> int:
         return self.spec.control.max_steps
+
+    @property
+    def moving(self) -> bool:
+        return not isinstance(self.spec.target, Stationary)
+
+    def target_path(self, seed: int, steps: int) -> FloatArray:
+        """Target positions (metres) at steps 1..``steps``, shape (steps, 2)."""
+        margin = TARGET_MARGIN * self.region.outer_diameter
+        return self.spec.target.path(steps, self.control.dt, self.region, seed, margin)
 
     def start_angles(self, seed: int) -> FloatArray:
         """Initial angles (radians about the target, CCW ring order): the scenario's explicit
@@ -176,11 +206,16 @@ def load_scenario(name_or_path: str, **overrides: Any) -> Scenario:
 def parse_scenario(text: bytes | str, label: str = "scenario") -> ScenarioSpec:
     """Decode and type-check TOML into a :class:`ScenarioSpec`."""
     try:
-        return msgspec.toml.decode(text, type=ScenarioSpec)
-    except msgspec.ValidationError as error:
-        raise ScenarioError(f"{label}: {_explain_validation(str(error))}") from None
+        raw = msgspec.toml.decode(text)
     except msgspec.DecodeError as error:
         raise ScenarioError(f"{label}: not valid TOML ({error}); fix the syntax") from None
+    target = raw.get("target")
+    if isinstance(target, dict):
+        target.setdefault("motion", "stationary")
+    try:
+        return msgspec.convert(raw, ScenarioSpec)
+    except msgspec.ValidationError as error:
+        raise ScenarioError(f"{label}: {_explain_validation(str(error), raw)}") from None
 
 
 OVERRIDABLE = {
@@ -221,20 +256,21 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
         assert section is not None
         replaced[section] = msgspec.structs.replace(getattr(spec, section), **values)
     merged = msgspec.structs.replace(spec, **replaced)
+    raw = msgspec.to_builtins(merged)
     try:
-        return msgspec.convert(msgspec.to_builtins(merged), ScenarioSpec)
+        return msgspec.convert(raw, ScenarioSpec)
     except msgspec.ValidationError as error:
-        raise ScenarioError(_explain_validation(str(error))) from None
+        raise ScenarioError(_explain_validation(str(error), raw)) from None
 
 
 def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
     """Check the cross-field rules of a spec and build the :class:`Scenario`."""
     try:
         region = ConvexRegion.from_vertices(spec.region.vertices)
-        target = np.asarray(spec.target.position, dtype=float)
-        region.require_interior(target, "target.position")
+        spec.target.check(region, TARGET_MARGIN * region.outer_diameter)
     except RegionError as error:
         raise ScenarioError(f"{label}: {error}") from None
+    target = spec.target.path(1, spec.control.dt, region, spec.seed, 0.0)[0]
     team = spec.team
     if team.angles_deg is not None:
         if len(team.angles_deg) != team.robots:
@@ -263,25 +299,51 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         strategy=control.strategy,
         law=control.law,
     )
+    estimation = spec.estimation
+    if estimation.mode == "known" and not isinstance(spec.target, Stationary):
+        raise ScenarioError(
+            f"{label}: estimation.mode = 'known' needs a stationary target; use 'centralized' or 'decentralized'"
+        )
+    if estimation.prior == "trilateration" and estimation.mode != "centralized":
+        raise ScenarioError(
+            f"{label}: estimation.prior = 'trilateration' needs the centralized mode (one robot has one range);"
+            " use 'truth' or [x, y]"
+        )
+    if not isinstance(estimation.prior, str):
+        try:
+            region.require_interior(estimation.prior, "estimation.prior")
+        except RegionError as error:
+            raise ScenarioError(f"{label}: {error}") from None
     return Scenario(
         spec=spec,
         region=region,
         target=target,
         control=params,
+        estimation=EstimationParams(
+            mode=estimation.mode,
+            range_sigma=estimation.range_sigma,
+            process_noise=estimation.process_noise,
+            prior=estimation.prior if isinstance(estimation.prior, str) else tuple(estimation.prior),
+            prior_variance=estimation.prior_variance,
+            fusion=estimation.fusion,
+            criterion=estimation.criterion,
+            clamp_margin=TARGET_MARGIN * region.outer_diameter,
+        ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,
     )
 
 
 # ---------------------------------------------------------------------------- error text
-def _explain_validation(message: str) -> str:
-    """Turn msgspec's message into ``section.key: problem; fix``."""
+def _explain_validation(message: str, raw: Any) -> str:
+    """Turn msgspec's message into ``section.key: problem; fix`` (``raw`` is the decoded TOML, which
+    says which variant of a tagged section such as ``[target]`` was meant)."""
     where = re.search(r" - at `\$\.?(.*)`$", message)
     path = where.group(1) if where else ""
     body = message[: where.start()] if where else message
     unknown = re.match(r"Object contains unknown field `(.+)`", body)
     if unknown:
-        allowed = ", ".join(_fields_at(path))
+        allowed = ", ".join(_fields_at(path, raw))
         place = f"[{path}]" if path else "top level"
         return f"unknown key {unknown.group(1)!r} in {place}; allowed keys: {allowed}"
     missing = re.match(r"Object missing required field `(.+)`", body)
@@ -292,32 +354,55 @@ def _explain_validation(message: str) -> str:
     if body.startswith("Expected `float`") and ("e+300" in body or body.endswith("0.0")):
         sign = " > 0" if "> 0.0" in body else " >= 0" if ">= 0.0" in body else ""
         return f"{key}: expected a finite number{sign}; fix the value"
-    if body.startswith("Invalid enum value"):
-        choices = ", ".join(repr(choice) for choice in _literal_choices(path))
+    if body.startswith(("Invalid enum value", "Invalid value")):
+        choices = ", ".join(repr(choice) for choice in _choices_at(path, raw))
         return f"{key}: {body[0].lower()}{body[1:]}; use one of {choices}"
     return f"{key}: {body[0].lower()}{body[1:]}; fix the value"
 
 
-def _type_at(path: str) -> Any:
-    """The annotation found at a dotted path of the spec (``""``: :class:`ScenarioSpec`)."""
+def _structs(annotation: Any) -> list[type[Spec]]:
+    return [c for c in (annotation, *get_args(annotation)) if isinstance(c, type) and issubclass(c, Spec)]
+
+
+def _struct_for(annotation: Any, section: Any) -> type[Spec] | None:
+    """The struct an annotation names; for a tagged union, the member the raw ``section`` is tagged as."""
+    members = _structs(annotation)
+    for member in members:
+        config = member.__struct_config__
+        if config.tag_field and isinstance(section, dict) and section.get(config.tag_field) == config.tag:
+            return member
+    return members[0] if members else None
+
+
+def _type_at(path: str, raw: Any) -> tuple[Any, Any]:
+    """The annotation at a dotted path of the spec and the raw value there."""
     found: Any = ScenarioSpec
+    section = raw
     for part in filter(None, re.sub(r"\[\d+\]", "", path).split(".")):
-        candidates = [found, *get_args(found)]
-        owner = next((c for c in candidates if isinstance(c, type) and issubclass(c, _Spec)), None)
+        owner = _struct_for(found, section)
         if owner is None:
-            return None
+            return None, None
         found = get_type_hints(owner).get(part)
-    return found
+        section = section.get(part) if isinstance(section, dict) else None
+    return found, section
 
 
-def _fields_at(path: str) -> list[str]:
-    """Field names of the spec struct found at a dotted path."""
-    found = _type_at(path)
-    owner = next((c for c in [found, *get_args(found)] if isinstance(c, type) and issubclass(c, _Spec)), None)
-    return list(owner.__struct_fields__) if owner else []
+def _fields_at(path: str, raw: Any) -> list[str]:
+    """Keys allowed in the section at a dotted path (with its tag key, for a tagged section)."""
+    owner = _struct_for(*_type_at(path, raw))
+    if owner is None:
+        return []
+    tag_field = owner.__struct_config__.tag_field
+    return ([tag_field] if tag_field else []) + list(owner.__struct_fields__)
 
 
-def _literal_choices(path: str) -> list[Any]:
-    """The allowed values of a ``Literal`` key at a dotted path."""
-    found = _type_at(path)
-    return list(get_args(found)) if get_origin(found) is Literal else []
+def _choices_at(path: str, raw: Any) -> list[Any]:
+    """Allowed values at a dotted path: the strings of a ``Literal`` (also inside a union) or, for
+    a tag key, the variants' tags."""
+    parent, _, key = path.rpartition(".")
+    owner_annotation, section = _type_at(parent, raw)
+    tagged = [member.__struct_config__ for member in _structs(owner_annotation)]
+    if any(config.tag_field == key for config in tagged):
+        return [config.tag for config in tagged]
+    found, _ = _type_at(path, raw)
+    return [value for option in (found, *get_args(found)) if get_origin(option) is Literal for value in get_args(option)]

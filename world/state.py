@@ -12,17 +12,23 @@ from bus.messages import SCHEMA, Command, Measurement, Tick
 from world.geometry import FloatArray
 from world.metrics import convergence_error, true_offsets
 from world.scenario import Scenario
+from world.sensing import RangeSensor
 
 
 class WorldState:
-    """Positions of ``scenario.robots`` robots started from ``seed``, and the goals commanded for the
-    current step."""
+    """Positions of ``scenario.robots`` robots started from ``seed``, the target on its path for
+    ``steps`` steps, the ranges measured at the start of the current step, and the goals commanded
+    for it."""
 
-    def __init__(self, scenario: Scenario, seed: int, run: int) -> None:
+    def __init__(self, scenario: Scenario, seed: int, run: int, steps: int) -> None:
         self.scenario = scenario
         self.run = run
         self.positions: FloatArray = scenario.start_positions(seed)
-        self.target: FloatArray = scenario.target.copy()
+        self.path = scenario.target_path(seed, steps)
+        self.target: FloatArray = self.path[0]
+        sensing = scenario.spec.sensing
+        self.sensor = RangeSensor(sensing.range_sigma, sensing.range, seed)
+        self.ranges: FloatArray = self.sensor.measure(self.positions, self.target)
         self.goals: FloatArray = self.positions.copy()
         self.offsets: FloatArray = np.zeros(scenario.robots)  # gV - theta each robot reported, rad
         self.commanded: set[int] = set()
@@ -35,11 +41,13 @@ class WorldState:
         return (self.step - 1) * self.scenario.control.dt
 
     def measurement(self, robot: int) -> Measurement:
-        """Robot ``robot``'s exact position and its range to the target at the start of the step."""
+        """Robot ``robot``'s exact position and its measured range to the target (None beyond the
+        sensing range) at the start of the step."""
         position = self.positions[robot]
-        distance = float(np.hypot(*(self.target - position)))
+        measured = self.ranges[robot]
         return Measurement(
-            SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])), distance
+            SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
+            None if np.isnan(measured) else float(measured),
         )
 
     def tick(self, live: list[int]) -> Tick:
@@ -79,3 +87,5 @@ class WorldState:
         self.positions = self.scenario.region.move_along(self.positions, self.goals, self.max_move)
         self.commanded.clear()
         self.step += 1
+        self.target = self.path[min(self.step, len(self.path)) - 1]
+        self.ranges = self.sensor.measure(self.positions, self.target)

@@ -1,0 +1,177 @@
+"""Range-only estimation of the target position (ALGORITHMS.md section 7).
+
+State ``x = o`` (metres, 2-D), random-walk model ``x(k) = x(k-1) + w``, ``w ~ N(0, q I)`` per step,
+and ranges ``z_j = ||o - p_j|| + v_j``, ``v_j ~ N(0, sigma_z^2)`` from robots at ``p_j``. Naming
+follows filterpy (and not the paper, which swaps them): ``Q`` is the process noise, ``R`` the
+measurement noise. The filter is filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`, with
+the shape care the spec lists: ``z`` as a column, ``h(x)`` as a column, an explicit ``(m, m)`` R for
+``m`` ranges, and ``predict()`` then ``update()``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from numpy.typing import ArrayLike, NDArray
+
+from agents.fusion import Criterion, covariance_intersection, sequential_intersection
+from world.geometry import ConvexRegion
+
+FloatArray = NDArray[np.float64]
+
+SINGULAR_DISTANCE = 1e-9  # m: a robot this close to the estimate gives no usable bearing (0/0 Jacobian)
+
+
+def _ranges(x: FloatArray, positions: FloatArray) -> FloatArray:
+    """``h(x)``: distances (column, m) from the robots at ``positions`` to the state ``x`` (2, 1)."""
+    return np.linalg.norm(x[:, 0] - positions, axis=1).reshape(-1, 1)
+
+
+def _jacobian(x: FloatArray, positions: FloatArray) -> FloatArray:
+    """``H``: rows ``(x - p_j)^T / ||x - p_j||`` (m, 2)."""
+    offsets = x[:, 0] - positions
+    return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+
+
+class RangeFilter:
+    """One range-only EKF: a robot's own (one range per step) or a fusion centre's (all ranges).
+
+    ``mean`` (metres) and ``covariance`` (m^2) are the prior; ``process_noise`` is ``q`` in
+    ``Q = q I`` (m^2 per step); ``range_sigma`` is ``sigma_z`` (metres).
+    """
+
+    def __init__(self, mean: ArrayLike, covariance: ArrayLike, process_noise: float, range_sigma: float) -> None:
+        self.ekf = ExtendedKalmanFilter(dim_x=2, dim_z=1)
+        self.ekf.F = np.eye(2)
+        self.ekf.Q = process_noise * np.eye(2)
+        self.range_sigma = range_sigma
+        self.adopt(mean, covariance)
+
+    @property
+    def mean(self) -> FloatArray:
+        return self.ekf.x[:, 0].copy()
+
+    @property
+    def covariance(self) -> FloatArray:
+        """``P`` made exactly symmetric (the Joseph update leaves rounding asymmetry), so a belief
+        sent as ``(xx, xy, yy)`` is the very matrix the sender holds."""
+        return 0.5 * (self.ekf.P + self.ekf.P.T)
+
+    def adopt(self, mean: ArrayLike, covariance: ArrayLike) -> None:
+        """Replace the estimate (a prior, or the result of fusing with the neighbours' beliefs)."""
+        self.ekf.x = np.array(mean, dtype=float).reshape(2, 1)
+        self.ekf.P = np.array(covariance, dtype=float).reshape(2, 2)
+
+    def step(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+        """Predict one step, then update with the ranges measured from ``positions`` (m, 2).
+
+        Missing ranges (NaN: beyond the sensing range) and robots within ``SINGULAR_DISTANCE`` of
+        the predicted estimate are skipped; with none left the step is prediction only.
+        """
+        self.ekf.predict()
+        positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+        ranges = np.asarray(ranges, dtype=float).reshape(-1)
+        distances = np.linalg.norm(self.ekf.x[:, 0] - positions, axis=1)
+        usable = np.isfinite(ranges) & (distances > SINGULAR_DISTANCE)
+        if not usable.any():
+            return
+        positions, ranges = positions[usable], ranges[usable]
+        noise = self.range_sigma**2 * np.eye(len(ranges))
+        self.ekf.update(ranges.reshape(-1, 1), _jacobian, _ranges, R=noise, args=(positions,), hx_args=(positions,))
+
+
+def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, refinements: int = 5,
+                inflation: float = 10.0) -> tuple[FloatArray, FloatArray]:
+    """Target position from ranges of three or more non-collinear robots, and a covariance for it.
+
+    Linear least squares on ``2 (p_j - p_0)^T o = z_0^2 - z_j^2 + ||p_j||^2 - ||p_0||^2``, refined by
+    ``refinements`` Gauss-Newton steps; covariance ``inflation * sigma_z^2 (H^T H)^{-1}`` (m^2).
+    """
+    positions = np.asarray(positions, dtype=float)
+    ranges = np.asarray(ranges, dtype=float)
+    usable = np.isfinite(ranges)
+    positions, ranges = positions[usable], ranges[usable]
+    if len(ranges) < 3:
+        raise ValueError(f"trilateration needs ranges from at least 3 robots, got {len(ranges)}")
+    first, rest = positions[0], positions[1:]
+    system = 2.0 * (rest - first)
+    rhs = ranges[0] ** 2 - ranges[1:] ** 2 + np.sum(rest**2, axis=1) - np.sum(first**2)
+    estimate, *_ = np.linalg.lstsq(system, rhs, rcond=None)
+    for _ in range(refinements):
+        x = estimate.reshape(2, 1)
+        jacobian = _jacobian(x, positions)
+        residual = ranges - _ranges(x, positions)[:, 0]
+        estimate = estimate + np.linalg.lstsq(jacobian, residual, rcond=None)[0]
+    jacobian = _jacobian(estimate.reshape(2, 1), positions)
+    covariance = inflation * range_sigma**2 * np.linalg.inv(jacobian.T @ jacobian)
+    return estimate, covariance
+
+
+# ---------------------------------------------------------------------------- configured estimators
+Mode = Literal["known", "centralized", "decentralized"]
+
+
+@dataclass(frozen=True)
+class EstimationParams:
+    """How the team estimates the target (section ``[estimation]`` of a scenario).
+
+    ``range_sigma`` (m) and ``process_noise`` (m^2 per step) model the filters' R and Q;
+    ``prior`` is "truth" (the target's position at step 1, as the authors), "trilateration"
+    (centralized) or a point; ``prior_variance`` (m^2) sets P0; decentralized robots fuse their
+    neighbours' beliefs with joint CI ("ci") or pairwise ("sequential"), minimising "trace" or
+    "det"; estimates are clamped ``clamp_margin`` metres inside the region before steering by them.
+    """
+
+    mode: Mode = "known"
+    range_sigma: float = 0.2
+    process_noise: float = 0.2
+    prior: str | tuple[float, float] = "truth"
+    prior_variance: float = 1.0
+    fusion: Literal["ci", "sequential"] = "ci"
+    criterion: Criterion = "trace"
+    clamp_margin: float = 0.0
+
+
+class Estimator:
+    """The belief about the target of one decentralized robot or of the fusion centre.
+
+    Every step: :meth:`measure` (predict, then update with the ranges it has); a decentralized robot
+    that polled then :meth:`fuse` its neighbours' beliefs; :attr:`centre` is the estimate clamped
+    into the region, the point it steers about.
+    """
+
+    def __init__(self, params: EstimationParams, region: ConvexRegion, truth_at_start: ArrayLike) -> None:
+        self.params = params
+        self.region = region
+        prior = truth_at_start if params.prior in ("truth", "trilateration") else params.prior
+        self.filter = RangeFilter(prior, params.prior_variance * np.eye(2), params.process_noise, params.range_sigma)
+        self.started = False
+
+    @property
+    def belief(self) -> tuple[FloatArray, FloatArray]:
+        """``(mean, covariance)`` of the filter (metres, m^2)."""
+        return self.filter.mean, self.filter.covariance
+
+    @property
+    def centre(self) -> FloatArray:
+        return self.region.clamp_interior(self.filter.mean, self.params.clamp_margin)
+
+    def measure(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+        """Fold in one step's ranges from robots at ``positions`` (NaN: no range). A trilateration
+        prior is computed from the first step's ranges instead of updating with them."""
+        if not self.started and self.params.prior == "trilateration":
+            self.filter.adopt(*trilaterate(positions, ranges, self.params.range_sigma))
+        else:
+            self.filter.step(positions, ranges)
+        self.started = True
+
+    def fuse(self, beliefs: list[tuple[ArrayLike, ArrayLike]]) -> None:
+        """Covariance-intersect the own belief with neighbours' ``(mean, covariance)`` and adopt it."""
+        means = [self.filter.mean, *(mean for mean, _ in beliefs)]
+        covariances = [self.filter.covariance, *(covariance for _, covariance in beliefs)]
+        combine = covariance_intersection if self.params.fusion == "ci" else sequential_intersection
+        fused = combine(means, covariances, self.params.criterion)
+        self.filter.adopt(fused.mean, fused.covariance)

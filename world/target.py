@@ -1,0 +1,114 @@
+"""Target motion models, which are also the ``[target]`` section of a scenario (tagged by ``motion``).
+
+Where the target is at each step (metres; step k at time ``(k - 1) dt``):
+
+* ``stationary``: ``o(k) = position``;
+* ``circle``: centre ``c``, linear speed ``v`` (m/s), angular speed ``w`` (rad/s, CCW positive),
+  radius ``v / |w|``, ``o(k) = c + r (cos(phi0 + w t), sin(phi0 + w t))``, ``phi0`` = ``phase_deg``;
+* ``random_walk``: ``o(k+1) = o(k) + N(0, (speed_std dt)^2 I)`` from a seeded stream; a step that
+  would leave the region is redrawn, so the walk stays inside by construction;
+* ``waypoints``: along the polyline at ``speed`` (m/s), back to the first waypoint if ``loop``.
+
+Paths are computed for the whole run at once, so the engine and the world process read the same
+array. A circle or waypoints that leave the region are refused with a :class:`RegionError`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import msgspec
+import numpy as np
+
+from world.geometry import ConvexRegion, FloatArray, RegionError
+from world.schema import Finite, NonNegative, Point, Positive, Spec
+
+TARGET_STREAM = 2  # random-walk draws: numpy.random.default_rng([seed, TARGET_STREAM])
+REDRAWS = 100
+
+
+class Stationary(Spec, tag_field="motion", tag="stationary"):
+    position: Point
+
+    def path(self, steps: int, dt: float, region: ConvexRegion, seed: int, margin: float) -> FloatArray:
+        return np.tile(np.asarray(self.position, dtype=float), (steps, 1))
+
+    def check(self, region: ConvexRegion, margin: float) -> None:
+        _require_inside(region, self.position, "target.position", margin)
+
+
+class Circle(Spec, tag_field="motion", tag="circle"):
+    centre: Point
+    speed: Positive
+    angular_speed: Finite  # rad/s, counter-clockwise positive
+    phase_deg: Finite = 0.0
+
+    @property
+    def radius(self) -> float:
+        return self.speed / abs(self.angular_speed)
+
+    def path(self, steps: int, dt: float, region: ConvexRegion, seed: int, margin: float) -> FloatArray:
+        angle = math.radians(self.phase_deg) + self.angular_speed * dt * np.arange(steps)
+        return np.asarray(self.centre) + self.radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+
+    def check(self, region: ConvexRegion, margin: float) -> None:
+        if self.angular_speed == 0:
+            raise RegionError("target.angular_speed is 0 (an infinite circle); give a nonzero rad/s")
+        _require_inside(region, self.centre, "target.centre", margin)
+        room = float(region.heights(self.centre).min())
+        if room - self.radius <= margin:
+            raise RegionError(
+                f"target circle of radius {self.radius:.4g} m (speed / angular_speed) about {list(self.centre)} "
+                f"leaves the region ({room:.4g} m of room); lower target.speed or raise target.angular_speed"
+            )
+
+
+class RandomWalk(Spec, tag_field="motion", tag="random_walk"):
+    position: Point
+    speed_std: NonNegative  # m/s
+
+    def path(self, steps: int, dt: float, region: ConvexRegion, seed: int, margin: float) -> FloatArray:
+        rng = np.random.default_rng([seed, TARGET_STREAM])
+        points = np.empty((steps, 2))
+        points[0] = self.position
+        scale = self.speed_std * dt
+        for k in range(1, steps):
+            candidate = points[k - 1]  # boxed in: stay
+            for _ in range(REDRAWS):
+                step = points[k - 1] + rng.normal(0.0, scale, 2)
+                if region.is_interior(step, margin):
+                    candidate = step
+                    break
+            points[k] = candidate
+        return points
+
+    def check(self, region: ConvexRegion, margin: float) -> None:
+        _require_inside(region, self.position, "target.position", margin)
+
+
+class Waypoints(Spec, tag_field="motion", tag="waypoints"):
+    waypoints: Annotated[list[Point], msgspec.Meta(min_length=2)]
+    speed: Positive
+    loop: bool = True
+
+    def path(self, steps: int, dt: float, region: ConvexRegion, seed: int, margin: float) -> FloatArray:
+        corners = np.asarray(self.waypoints, dtype=float)
+        if self.loop:
+            corners = np.vstack([corners, corners[:1]])
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(corners, axis=0), axis=1))])
+        travelled = self.speed * dt * np.arange(steps)
+        travelled = np.mod(travelled, along[-1]) if self.loop and along[-1] > 0 else np.minimum(travelled, along[-1])
+        return np.stack([np.interp(travelled, along, corners[:, axis]) for axis in (0, 1)], axis=1)
+
+    def check(self, region: ConvexRegion, margin: float) -> None:
+        for index, point in enumerate(self.waypoints):  # convex region: the legs stay inside too
+            _require_inside(region, point, f"target.waypoints[{index}]", margin)
+
+
+TargetSpec = Stationary | Circle | RandomWalk | Waypoints
+
+
+def _require_inside(region: ConvexRegion, point: Point, field: str, margin: float) -> None:
+    if not bool(region.is_interior(point, margin)):
+        raise RegionError(f"{field} {list(point)} is not inside the region; move it inside the polygon")
