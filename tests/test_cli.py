@@ -77,3 +77,30 @@ def test_bad_input_is_one_line_and_exit_code_2(arguments: list[str], message: st
     assert completed.returncode == 2
     lines = completed.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(message), completed.stderr
+
+
+def test_moving_experiment_json_and_figures(tmp_path: Path) -> None:
+    data, figure = tmp_path / "m.json", tmp_path / "m.png"
+    assert main(["experiment", "moving", "--trials", "2", "--steps", "120", "--settle", "20",
+                 "--json", str(data), "--plot", str(figure)]) == 0
+    result = json.loads(data.read_text())
+    comparison = [run for run in result["runs"] if run["group"] == "comparison"]
+    assert [(run["strategy"], run["estimation"]) for run in comparison] == [
+        ("constant", "centralized"), ("self", "centralized"), ("self", "decentralized")]
+    assert {(run["speed"], run["angular_speed"]) for run in comparison} == {(1.0, 0.6)}
+    settings = {(run["speed"], run["angular_speed"]) for run in result["runs"] if run["group"] == "velocities"}
+    assert settings == {(0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8)}
+    for run in result["runs"]:
+        assert len(run["cerr_series_deg"]) == len(run["terr_series"]) == 120 // result["series_stride"]
+        assert run["robot_messages_per_step"] == pytest.approx(4 * 6 * run["poll_rate"])
+    constant = comparison[0]
+    assert constant["poll_rate"] == 1.0 and constant["estimation_messages_per_step"] == 7
+    for path in (figure, tmp_path / "m-velocities.png"):
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_moving_experiment_needs_a_circling_target() -> None:
+    completed = subprocess.run([sys.executable, "-m", "tools.cli", "experiment", "moving", "paper-stationary"],
+                               capture_output=True, text=True, timeout=60)
+    assert completed.returncode == 2
+    assert completed.stderr.strip() == "ringtrack: error: paper-stationary.toml: experiment moving needs target.motion = 'circle'"

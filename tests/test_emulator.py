@@ -206,3 +206,29 @@ def test_a_team_assembled_by_hand_from_the_role_commands(tmp_path: Path) -> None
     monitor_output = processes[1].stdout.read().decode()
     assert "monitor vs senders: equal" in monitor_output
     assert "ringtrack.world: run done after 120 steps" in processes[0].stderr.read().decode()
+
+
+@pytest.mark.parametrize("estimation", ["decentralized", "centralized"])
+def test_moving_target_lockstep_equals_the_engine(tmp_path: Path, estimation: str) -> None:
+    from tools.runlog import history_from_log
+    from world.scenario import load_scenario
+
+    moving = load_scenario("authors-moving", estimation=estimation, max_steps=STEPS)
+    result, log = lockstep_run(moving, tmp_path)
+    logged, twin = history_from_log(log), engine_twin(log)
+    assert np.max(np.abs(logged.angles - twin.angles)) < 1e-9
+    assert np.array_equal(logged.triggers, twin.triggers)
+    assert np.max(np.abs(logged.estimates - twin.estimates)) < 1e-9
+    assert np.max(np.abs(logged.terr - twin.terr)) < 1e-9
+    kinds = result["by_kind"]
+    polls = int((logged.triggers != 0).sum())
+    assert kinds["request"]["messages"] == kinds["reply"]["messages"] == 2 * polls
+    if estimation == "decentralized":
+        # replies carry the neighbour's belief: position, mean and covariance (7 floats of 9 bytes)
+        assert kinds["reply"]["bytes"] / kinds["reply"]["messages"] > 7 * 9
+        assert "estimation" not in result["messages"]
+    else:
+        # every robot reports its range and the fusion centre broadcasts one estimate per step
+        assert kinds["range"]["messages"] == 6 * STEPS and kinds["estimate"]["messages"] == STEPS
+        assert "fusion" in result["pids"] and len(set(result["pids"].values())) == 9
+    assert result["monitor_equals_senders"] is True

@@ -47,15 +47,17 @@ def register(commands: argparse._SubParsersAction) -> None:
         "moving",
         help="moving target: constant/self-triggered with centralized/decentralized EKFs (Cerr, Terr)",
         description="The paper's moving-target comparison on a circling target: constant + centralized, "
-        "self-triggered + centralized and self-triggered + decentralized (CI) at v = 1.0 m/s, w = 0.6 rad/s, "
-        "then constant + centralized against self-triggered + decentralized at (v, w) = (0.6, 0.6), "
-        "(1.0, 0.6), (1.0, 0.4), (1.0, 0.8). --plot PNG also writes PNG-velocities.png.",
+        "self-triggered + centralized and self-triggered + decentralized at the scenario's circle (gazebo-moving: "
+        "v = 1.0 m/s, w = 0.6 rad/s), then constant + centralized against self-triggered + decentralized at "
+        "(v, w) = (0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8). --plot PNG also writes PNG-velocities.png.",
     )
     moving.add_argument("scenario", nargs="?", default="gazebo-moving", help="base scenario (a circling target)")
     moving.add_argument("--trials", type=int, default=5, help="random starts per run (default 5)")
     moving.add_argument("--seed", type=int, default=0, help="seed of trial 0 (default 0)")
     moving.add_argument("--steps", type=int, help="steps per run (default: control.max_steps)")
     moving.add_argument("--settle", type=int, default=300, help="means are taken from this step on (default 300)")
+    moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
+    moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
     moving.add_argument("--json", type=Path, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=Path, metavar="PNG", help="draw Cerr and Terr over time")
     moving.set_defaults(handler=run_moving)
@@ -224,27 +226,32 @@ def _mean_std(mean: float | None, std: float | None, spec: str) -> str:
 
 
 # ---------------------------------------------------------------------------- moving target
-MAIN_SETTING = (1.0, 0.6)  # (v_o m/s, w_o rad/s) of the paper's three-strategy comparison
 VELOCITY_SETTINGS = ((0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8))
 MAIN_STRATEGIES = (("constant", "centralized"), ("self", "centralized"), ("self", "decentralized"))
 VELOCITY_STRATEGIES = (("constant", "centralized"), ("self", "decentralized"))
 SERIES_STRIDE = 5  # steps between the points of the Cerr/Terr series written to JSON
 
 
+def circle_of(base: str) -> tuple[float, float]:
+    """``(speed, angular_speed)`` of the base scenario's circling target."""
+    text, label = read_scenario_text(base)
+    target = parse_scenario(text, label).target
+    if not isinstance(target, Circle):
+        raise UsageError(f"{label}: experiment moving needs target.motion = 'circle'")
+    return target.speed, target.angular_speed
+
+
 def moving_scenario(base: str, strategy: str, mode: str, speed: float, angular_speed: float,
-                    steps: int | None) -> Scenario:
+                    steps: int | None, fusion: str | None = None) -> Scenario:
     """The base scenario's circling target at ``speed`` (m/s) and ``angular_speed`` (rad/s), with the
-    given communication strategy and estimation mode."""
+    given communication strategy, estimation mode and (decentralized) fusion rule."""
     text, label = read_scenario_text(base)
     spec = parse_scenario(text, label)
-    if not isinstance(spec.target, Circle):
-        raise UsageError(f"{label}: experiment moving needs target.motion = 'circle'")
-    spec = msgspec.structs.replace(
-        spec,
-        target=msgspec.structs.replace(spec.target, speed=speed, angular_speed=angular_speed),
-        estimation=msgspec.structs.replace(spec.estimation, mode=mode),
-    )
-    return resolve(apply_overrides(spec, strategy=strategy, max_steps=steps), label)
+    circle_of(base)
+    target = msgspec.structs.replace(spec.target, speed=speed, angular_speed=angular_speed)
+    estimation = msgspec.structs.replace(spec.estimation, fusion=fusion or spec.estimation.fusion)
+    spec = msgspec.structs.replace(spec, target=target, estimation=estimation)
+    return resolve(apply_overrides(spec, strategy=strategy, estimation=mode, max_steps=steps), label)
 
 
 def moving_experiment(
@@ -254,23 +261,29 @@ def moving_experiment(
     steps: int | None = None,
     settle: int = 300,
     on_step: Callable[[str, int], None] | None = None,
+    velocities: bool = True,
+    fusion: str | None = None,
 ) -> dict:
-    """Run the comparison and the velocity settings; returns the JSON-ready result with, per run,
-    means from step ``settle`` on and the trial-mean Cerr (true, degrees) and Terr (metres) series."""
+    """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
+    settings; returns the JSON-ready result with, per run, means from step ``settle`` on and the
+    trial-mean Cerr (true, degrees) and Terr (metres) series."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
-    plan = [("comparison", MAIN_SETTING, strategy) for strategy in MAIN_STRATEGIES]
-    plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS for strategy in VELOCITY_STRATEGIES]
+    main = circle_of(base)
+    plan = [("comparison", main, strategy) for strategy in MAIN_STRATEGIES]
+    if velocities:
+        plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS
+                 for strategy in VELOCITY_STRATEGIES]
     seeds = list(range(seed, seed + trials))
     histories: dict[tuple, engine.History] = {}
     runs: list[dict] = []
     started = time.perf_counter()
     for group, (speed, angular_speed), (strategy, mode) in plan:
         key = (speed, angular_speed, strategy, mode)
-        scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps)
+        scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
         if settle >= scenario.max_steps:
             raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
-        if key not in histories:  # the velocity setting (1.0, 0.6) repeats two comparison runs
+        if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
             label = f"v={speed} w={angular_speed} {strategy}+{mode}"
             report = None if on_step is None else (lambda k, text=label: on_step(text, k))
             histories[key] = engine.run(scenario, seeds, record_positions=False, on_step=report)
@@ -285,6 +298,7 @@ def moving_experiment(
                 "radius": speed / angular_speed,
                 "strategy": strategy,
                 "estimation": mode,
+                "fusion": scenario.estimation.fusion if mode == "decentralized" else None,
                 "cerr_mean_deg": float(history.cerr_true[settle:].mean()),
                 "terr_mean": float(history.terr[settle:].mean()),
                 "poll_rate": polls,
@@ -295,7 +309,7 @@ def moving_experiment(
                 "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
             }
         )
-    any_scenario = moving_scenario(base, "self", "decentralized", *MAIN_SETTING, steps)
+    any_scenario = moving_scenario(base, "self", "decentralized", *main, steps)
     return {
         "experiment": "moving",
         "scenario": base,
@@ -311,8 +325,10 @@ def moving_experiment(
 
 
 def run_moving(args: argparse.Namespace) -> int:
-    steps = moving_scenario(args.scenario, "self", "decentralized", *MAIN_SETTING, args.steps).max_steps
-    distinct = len(MAIN_STRATEGIES) + len(VELOCITY_SETTINGS) * len(VELOCITY_STRATEGIES) - 2
+    main = circle_of(args.scenario)
+    steps = moving_scenario(args.scenario, "self", "decentralized", *main, args.steps).max_steps
+    settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
+    distinct = len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err) as progress:
         task = progress.add_task("moving-target runs", total=distinct * steps)
@@ -323,7 +339,8 @@ def run_moving(args: argparse.Namespace) -> int:
             if step % 50 == 0 or step == steps:
                 progress.update(task, completed=sum(done.values()), description=label)
 
-        result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step)
+        result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step,
+                                   velocities=not args.no_velocities, fusion=args.fusion)
     out.print(moving_table(result))
     if args.json:
         write_json(args.json, result)
@@ -331,7 +348,8 @@ def run_moving(args: argparse.Namespace) -> int:
         from tools.figures import moving_comparison, moving_velocities
 
         moving_comparison(result, args.plot)
-        moving_velocities(result, args.plot.with_name(f"{args.plot.stem}-velocities{args.plot.suffix}"))
+        if not args.no_velocities:
+            moving_velocities(result, args.plot.with_name(f"{args.plot.stem}-velocities{args.plot.suffix}"))
     return 0
 
 
@@ -348,8 +366,9 @@ def moving_table(result: dict) -> Table:
                   f"{result['steps']}; msg and B: robot-to-robot traffic", title_justify="left", box=box.SIMPLE_HEAD)
     for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "B/step"):
         table.add_column(column, justify="right", no_wrap=True)
+    main = {(run["speed"], run["angular_speed"]) for run in result["runs"] if run["group"] == "comparison"}
     for run in result["runs"]:
-        if run["group"] == "velocities" and (run["speed"], run["angular_speed"]) == MAIN_SETTING:
+        if run["group"] == "velocities" and (run["speed"], run["angular_speed"]) in main:
             continue
         table.add_row(
             f"{run['speed']:g}, {run['angular_speed']:g}",

@@ -10,7 +10,7 @@ DEFAULT_SCENARIO = "paper-stationary"
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> None:
-    """``[SCENARIO] --strategy --law --robots --seed --steps --sigma-deg``."""
+    """``[SCENARIO] --strategy --law --robots --seed --steps --sigma-deg --estimation``."""
     parser.add_argument(
         "scenario",
         nargs="?",
@@ -27,6 +27,8 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
     parser.add_argument("--seed", type=int, help="random seed (starts, noise, faults)")
     parser.add_argument("--steps", type=int, help=steps_help)
     parser.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
+    parser.add_argument("--estimation", choices=["known", "centralized", "decentralized"],
+                        help="how the robots estimate the target")
 
 
 def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
@@ -39,4 +41,5 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
         seed=args.seed,
         max_steps=args.steps,
         sigma_deg=args.sigma_deg,
+        estimation=args.estimation,
     )

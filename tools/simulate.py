@@ -53,6 +53,9 @@ def summary_table(result: dict) -> Table:
         ("triggers", f"{result['triggers']['total']}  per robot {result['triggers']['per_robot']}"),
         ("final Cerr", f"{result['cerr_final_deg']:.4f} deg (true {result['cerr_true_final_deg']:.4f} deg)"),
     ]
+    if result["estimation"] != "known":
+        rows.append(("Terr", f"mean {result['terr_mean']:.3f} m, final {result['terr_final']:.3f} m "
+                             f"({result['estimation']} estimation)"))
     for name, value in rows:
         table.add_row(name, value)
     return table

@@ -218,18 +218,20 @@ def parse_scenario(text: bytes | str, label: str = "scenario") -> ScenarioSpec:
         raise ScenarioError(f"{label}: {_explain_validation(str(error), raw)}") from None
 
 
-OVERRIDABLE = {
-    "strategy": "control",
-    "law": "control",
-    "dt": "control",
-    "omega_max_deg": "control",
-    "v_max": "control",
-    "sigma_deg": "control",
-    "threshold_deg": "control",
-    "max_steps": "control",
-    "robots": "team",
-    "seed": None,
-    "name": None,
+# Override name -> (section or None for the top level, key).
+OVERRIDABLE: dict[str, tuple[str | None, str]] = {
+    "strategy": ("control", "strategy"),
+    "law": ("control", "law"),
+    "dt": ("control", "dt"),
+    "omega_max_deg": ("control", "omega_max_deg"),
+    "v_max": ("control", "v_max"),
+    "sigma_deg": ("control", "sigma_deg"),
+    "threshold_deg": ("control", "threshold_deg"),
+    "max_steps": ("control", "max_steps"),
+    "robots": ("team", "robots"),
+    "estimation": ("estimation", "mode"),
+    "seed": (None, "seed"),
+    "name": (None, "name"),
 }
 
 
@@ -241,12 +243,13 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     seeded random start (``start_angles``).
     """
     sections: dict[str | None, dict[str, Any]] = {}
-    for key, value in overrides.items():
+    for name, value in overrides.items():
         if value is None:
             continue
-        if key not in OVERRIDABLE:
-            raise ScenarioError(f"unknown override {key!r}; use one of {', '.join(OVERRIDABLE)}")
-        sections.setdefault(OVERRIDABLE[key], {})[key] = value
+        if name not in OVERRIDABLE:
+            raise ScenarioError(f"unknown override {name!r}; use one of {', '.join(OVERRIDABLE)}")
+        section, key = OVERRIDABLE[name]
+        sections.setdefault(section, {})[key] = value
     team = sections.get("team", {})
     angles = spec.team.angles_deg
     if "robots" in team and angles is not None and len(angles) != team["robots"]:
