@@ -87,6 +87,7 @@ class RobotNode:
         self.step = 0
         self.position: FloatArray | None = None
         self.trigger = 0
+        self.ages = (0, 0)  # memory ages (steps) when the robot last decided
         self.positions: dict[int, Point] = {}
         self.beliefs: dict[int, Belief] = {}
         self.buffered: list[Request] = []
@@ -180,6 +181,7 @@ class RobotNode:
         if self.controller is None:
             self.controller = MidpointController(self.scenario.region, self.scenario.control, self.position)
         self.trigger = int(self.controller.observe(self.step, self.position, self.centre))
+        self.ages = (int(self.controller.predecessor_age), int(self.controller.successor_age))
         if not self.trigger:
             return [self._command()]
         self.polls += 1
@@ -202,6 +204,7 @@ class RobotNode:
             goal=pack_point(self.controller.goal()),
             trigger=self.trigger,
             guaranteed_offset=float(self.controller.guaranteed_offset),
+            ages=self.ages,
             centre=pack_point(self.centre),
             covariance=self.covariance,
         )

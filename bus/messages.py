@@ -43,8 +43,10 @@ class Measurement(Message, tag=1):
 class Command(Message, tag=2):
     """Robot -> world: where to move this step, why it polled (a Trigger mask), and its view.
 
-    ``guaranteed_offset`` is ``gV - theta`` (radians) before polling, ``centre`` the point it steers
-    about (the known target or its estimate) with ``covariance`` when it estimates.
+    ``guaranteed_offset`` is ``gV - theta`` (radians) and ``ages`` the ages (steps) of its memory of
+    its predecessor and successor, both as they were when it decided whether to poll; ``centre`` is
+    the point it steers about (the known target or its estimate) with ``covariance`` when it
+    estimates.
     """
 
     step: int
@@ -52,6 +54,7 @@ class Command(Message, tag=2):
     goal: Point
     trigger: int
     guaranteed_offset: float
+    ages: tuple[int, int]
     centre: Point
     covariance: Covariance | None = None
     kind: ClassVar[str] = "command"

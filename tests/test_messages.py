@@ -41,8 +41,8 @@ def messages() -> st.SearchStrategy:
     return st.one_of(
         st.builds(lambda s, t, r, p, z: Measurement(SCHEMA, RUN, s, t, r, p, z), steps, finite, robots, points,
                   st.one_of(st.none(), finite)),
-        st.builds(lambda s, r, g, m, o, c, v: Command(SCHEMA, RUN, s, r, g, m, o, c, v), steps, robots, points,
-                  st.integers(0, 31), finite, points, covariance),
+        st.builds(lambda s, r, g, m, o, a, c, v: Command(SCHEMA, RUN, s, r, g, m, o, a, c, v), steps, robots, points,
+                  st.integers(0, 31), finite, st.tuples(steps, steps), points, covariance),
         st.builds(lambda s, a, b, n: Request(SCHEMA, RUN, s, a, b, n), steps, robots, robots, nonces),
         st.builds(lambda s, a, b, n, p, m, v: Reply(SCHEMA, RUN, s, a, b, n, p, m, v), steps, robots, robots, nonces,
                   points, st.one_of(st.none(), points), covariance),

@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import statistics
 import time
 from importlib import metadata
 from pathlib import Path
 
 from rich.table import Table
 
-from tools.console import err, out, write_json
+from tools.console import UsageError, err, out, write_json
 from tools.experiment import robot_list, stationary_experiment
 from world import engine
 from world.scenario import load_scenario
@@ -36,6 +37,10 @@ def register(commands: argparse._SubParsersAction) -> None:
     emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
     emulator_parser.add_argument("--steps", type=int, default=1000)
     emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self")
+    emulator_parser.add_argument("--repeat", type=int, default=1, help="runs per configuration; medians reported")
+    emulator_parser.add_argument("--dashboard", choices=["off", "on", "compare"], default="off",
+                                 help="draw the dashboard (to RUN_FOLDER/monitor.stdout), or alternate runs "
+                                 "without and with it to measure what it costs")
     emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
     emulator_parser.add_argument("--json", type=Path, metavar="PATH")
     emulator_parser.set_defaults(handler=run_emulator_bench)
@@ -89,35 +94,50 @@ def run_engine_bench(args: argparse.Namespace) -> int:
 def run_emulator_bench(args: argparse.Namespace) -> int:
     from tools.spawn import spawn_team
 
+    if args.repeat < 1:
+        raise UsageError(f"--repeat {args.repeat}: give at least 1")
+    modes = [False, True] if args.dashboard == "compare" else [args.dashboard == "on"]
     rows = []
     for robots in args.robots:
         scenario = load_scenario("paper-stationary", robots=robots, strategy=args.strategy, max_steps=args.steps)
-        err.print(f"running {robots} robots for {args.steps} lockstep steps ...")
-        result = spawn_team(scenario, clock="lockstep", runs=args.runs, dashboard=False, quiet=True)
-        if result["exit_code"] != 0:
-            err.print(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
-            return 1
+        speeds: dict[bool, list[float]] = {mode: [] for mode in modes}
+        for attempt in range(args.repeat):
+            for dashboard in modes:
+                err.print(f"{robots} robots, {args.steps} lockstep steps, dashboard {'on' if dashboard else 'off'} "
+                          f"(run {attempt + 1}/{args.repeat}) ...")
+                result = spawn_team(scenario, clock="lockstep", runs=args.runs, dashboard=dashboard, quiet=True)
+                if result["exit_code"] != 0:
+                    err.print(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
+                    return 1
+                speeds[dashboard].append(result["steps_per_s"])
         by_kind = result["by_kind"]
         robot_rss = [kib for name, kib in result["rss_kib"].items() if name.startswith("r")]
-        rows.append(
-            {
-                "robots": robots,
-                "steps": result["steps"],
-                "steps_per_s": result["steps_per_s"],
-                "bytes_per_message": {
-                    kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(by_kind.items()) if entry["messages"]
-                },
-                "robot_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
-                "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
-                "run_folder": result["folder"],
-            }
-        )
+        row = {
+            "robots": robots,
+            "steps": result["steps"],
+            "steps_per_s": statistics.median(speeds[modes[0]]),
+            "runs_steps_per_s": speeds[modes[0]],
+            "bytes_per_message": {
+                kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(by_kind.items()) if entry["messages"]
+            },
+            "robot_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
+            "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
+            "run_folder": result["folder"],
+        }
+        if args.dashboard == "compare":
+            row["runs_steps_per_s_with_dashboard"] = speeds[True]
+            row["steps_per_s_with_dashboard"] = statistics.median(speeds[True])
+            row["dashboard_cost"] = 1.0 - row["steps_per_s_with_dashboard"] / row["steps_per_s"]
+        rows.append(row)
     results = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy, "rows": rows}
     if len(rows) == 1:
         results["steps_per_s"] = rows[0]["steps_per_s"]
     table = Table(title=f"lockstep emulator ({results['machine']['cores']} cores, {args.strategy} strategy)")
     for column in ("robots", "steps/s", "request B", "reply B", "measurement B", "command B", "robot RSS MiB"):
         table.add_column(column, justify="right")
+    if args.dashboard == "compare":
+        table.add_column("with dashboard", justify="right")
+        table.add_column("cost", justify="right")
     for row in rows:
         size = row["bytes_per_message"]
         table.add_row(
@@ -125,6 +145,8 @@ def run_emulator_bench(args: argparse.Namespace) -> int:
             f"{row['steps_per_s']:.0f}",
             *(f"{size.get(kind, 0):.1f}" for kind in ("request", "reply", "measurement", "command")),
             f"{row['robot_rss_mib']:.1f}" if row["robot_rss_mib"] else "-",
+            *([f"{row['steps_per_s_with_dashboard']:.0f}", f"{row['dashboard_cost']:+.1%}"]
+              if args.dashboard == "compare" else []),
         )
     out.print(table)
     if args.json:

@@ -7,13 +7,14 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from tools import bench, experiment, roles, simulate, spawn
+from tools import bench, experiment, plot, replay, roles, simulate, spawn
 from tools.console import UsageError, err
 from bus.config import BusError
+from tools.runlog import LogError
 from world.geometry import RegionError
 from world.scenario import ScenarioError
 
-COMMANDS = (simulate, spawn, roles, experiment, bench)
+COMMANDS = (simulate, spawn, roles, replay, plot, experiment, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,7 +34,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     try:
         return int(args.handler(args) or 0)
-    except (ScenarioError, RegionError, UsageError, BusError) as error:
+    except (ScenarioError, RegionError, UsageError, BusError, LogError) as error:
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
         return 2
     except KeyboardInterrupt:

@@ -12,15 +12,17 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from bus.config import BusConfig
 from bus.counting import TrafficCounter, totals_by_category
 from bus.keys import FUSION, MONITOR, WORLD, Keys, robot_name
-from bus.messages import Command, End, Reply, Request, Stats, Tick, Traffic
+from bus.messages import Command, End, Estimate, Measurement, RangeReport, Reply, Request, Stats, Tick, Traffic
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined
+from tools.dashboard import TeamModel
 from tools.runlog import LogWriter, step_record
 from world.scenario import Scenario
 
@@ -33,22 +35,27 @@ END_AFTER_INTERRUPT_S = 0.5  # a stopped monitor waits this long for the world's
 
 @dataclass
 class PendingStep:
-    """What the monitor has seen of one step so far."""
+    """What the monitor has seen of one step so far: per robot, robot-to-robot messages and bytes sent
+    and received; per category, every message stamped with the step."""
 
     tick: Tick | None = None
     commands: dict[int, Command] = field(default_factory=dict)
-    sent_messages: dict[int, int] = field(default_factory=dict)
-    sent_bytes: dict[int, int] = field(default_factory=dict)
-
-    def robot_to_robot_seen(self) -> int:
-        return sum(self.sent_messages.values())
+    sent_messages: Counter[int] = field(default_factory=Counter)
+    sent_bytes: Counter[int] = field(default_factory=Counter)
+    received_messages: Counter[int] = field(default_factory=Counter)
+    received_bytes: Counter[int] = field(default_factory=Counter)
+    traffic_messages: Counter[str] = field(default_factory=Counter)
+    traffic_bytes: Counter[str] = field(default_factory=Counter)
 
     def complete(self) -> bool:
         """Tick and every live robot's command are in, and all 4 messages of every poll."""
         if self.tick is None or not set(self.tick.live) <= set(self.commands):
             return False
         polls = sum(1 for command in self.commands.values() if command.trigger)
-        return self.robot_to_robot_seen() >= 4 * polls
+        return self.sent_messages.total() >= 4 * polls
+
+
+STEPPED = (Tick, Measurement, Command, Request, Reply, RangeReport, Estimate)
 
 
 class Recorder:
@@ -59,35 +66,39 @@ class Recorder:
     reach the monitor after the world's tick for k + 5: completeness, not arrival order, decides.
     """
 
-    def __init__(self, writer: LogWriter, scenario: Scenario) -> None:
+    def __init__(self, writer: LogWriter, scenario: Scenario,
+                 on_record: Callable[[dict], None] | None = None) -> None:
         self.writer = writer
         self.scenario = scenario
         self.robots = scenario.robots
+        self.on_record = on_record
         self.pending: dict[int, PendingStep] = {}
         self.next_step = 1
         self.latest_tick = 0
         self.tick_seen_at: dict[int, float] = {}
         self.late = 0
-        self.polls = [0] * self.robots
-        self.last_trigger = [0] * self.robots
 
     def on_delivery(self, delivery: Delivery) -> None:
         message = delivery.message
-        if isinstance(message, (Tick, Command, Request, Reply)) and message.step < self.next_step:
+        if not isinstance(message, STEPPED):
+            return
+        if message.step < self.next_step:
             self.late += 1  # its step record is already written
             return
+        entry = self._pending(message.step)
+        entry.traffic_messages[message.category] += 1
+        entry.traffic_bytes[message.category] += delivery.size
         if isinstance(message, Tick):
-            self._pending(message.step).tick = message
+            entry.tick = message
             self.tick_seen_at[message.step] = time.monotonic()
             self.latest_tick = max(self.latest_tick, message.step)
         elif isinstance(message, Command):
-            self._pending(message.step).commands[message.robot] = message
-            self.last_trigger[message.robot] = message.trigger
-            self.polls[message.robot] += bool(message.trigger)
+            entry.commands[message.robot] = message
         elif isinstance(message, (Request, Reply)):
-            entry = self._pending(message.step)
-            entry.sent_messages[message.sender] = entry.sent_messages.get(message.sender, 0) + 1
-            entry.sent_bytes[message.sender] = entry.sent_bytes.get(message.sender, 0) + delivery.size
+            entry.sent_messages[message.sender] += 1
+            entry.sent_bytes[message.sender] += delivery.size
+            entry.received_messages[message.receiver] += 1
+            entry.received_bytes[message.receiver] += delivery.size
 
     def _pending(self, step: int) -> PendingStep:
         return self.pending.setdefault(step, PendingStep())
@@ -112,20 +123,24 @@ class Recorder:
         assert tick is not None
         robots = range(self.robots)
         commands = entry.commands
-        self.writer.write(
-            step_record(
-                step=step,
-                time=tick.time,
-                positions=tick.positions,
-                target=tick.target,
-                live=list(tick.live),
-                trigger=[commands[r].trigger if r in commands else None for r in robots],
-                offset=[commands[r].guaranteed_offset if r in commands else None for r in robots],
-                centre=[list(commands[r].centre) if r in commands else None for r in robots],
-                sent_messages=[entry.sent_messages.get(r, 0) for r in robots],
-                sent_bytes=[entry.sent_bytes.get(r, 0) for r in robots],
-            )
+        record = step_record(
+            step=step,
+            time=tick.time,
+            positions=tick.positions,
+            target=tick.target,
+            live=list(tick.live),
+            trigger=[commands[r].trigger if r in commands else None for r in robots],
+            offset=[commands[r].guaranteed_offset if r in commands else None for r in robots],
+            ages=[list(commands[r].ages) if r in commands else None for r in robots],
+            centre=[list(commands[r].centre) if r in commands else None for r in robots],
+            sent=([entry.sent_messages[r] for r in robots], [entry.sent_bytes[r] for r in robots]),
+            received=([entry.received_messages[r] for r in robots], [entry.received_bytes[r] for r in robots]),
+            traffic={category: [entry.traffic_messages[category], entry.traffic_bytes[category]]
+                     for category in ("robot", "world", "estimation")},
         )
+        self.writer.write(record)
+        if self.on_record is not None:
+            self.on_record(record)
 
 
 def participants(scenario: Scenario) -> set[str]:
@@ -157,20 +172,7 @@ class MonitorReport:
         return all(mine.get(category) == theirs.get(category) for category in ("robot", "world", "estimation"))
 
 
-View = Callable[["MonitorState"], None]
-
-
-@dataclass
-class MonitorState:
-    """A snapshot for views: progress, per-robot polls and the traffic so far."""
-
-    step: int
-    steps: int
-    polls: list[int]
-    last_trigger: list[int]
-    counter: TrafficCounter
-    alive: set[str]
-    finished: bool = False
+Refresh = Callable[[bool], None]  # redraw the display; True once at the end
 
 
 async def run_monitor(
@@ -181,10 +183,12 @@ async def run_monitor(
     log_path: Path,
     steps: int,
     clock: str,
-    view: View | None = None,
+    model: TeamModel | None = None,
+    refresh: Refresh | None = None,
     exit_with_parent: bool = False,
 ) -> tuple[int, MonitorReport | None]:
-    """Monitor one run; returns the exit code and the report (None when stopped before the start)."""
+    """Monitor one run, feeding every step record to ``model`` and calling ``refresh`` a few times
+    per second; returns the exit code and the report (None when stopped before the start)."""
     keys = Keys(run)
     robots = scenario.robots
     async with joined(bus, keys, MONITOR, robots, exit_with_parent) as participant:
@@ -199,8 +203,8 @@ async def run_monitor(
         participant.announce("ready")
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
-            recorder = Recorder(writer, scenario)
-            code, report = await _watch(participant, recorder, roster, held, steps, view)
+            recorder = Recorder(writer, scenario, None if model is None else model.add)
+            code, report = await _watch(participant, recorder, roster, held, model, refresh)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
             writer.write(
@@ -225,8 +229,8 @@ async def _watch(
     recorder: Recorder,
     roster: Roster,
     events: list,
-    steps: int,
-    view: View | None,
+    model: TeamModel | None,
+    refresh: Refresh | None,
 ) -> tuple[int, MonitorReport]:
     """Record until the run has ended and everything every sender says it sent has been seen (or
     nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died)."""
@@ -266,13 +270,15 @@ async def _watch(
             code = 1  # the world went away without ending the run
             break
         now = time.monotonic()
-        if view is not None and now - last_view >= VIEW_PERIOD_S:
-            view(_state(recorder, participant, roster, steps))
+        if refresh is not None and now - last_view >= VIEW_PERIOD_S:
+            refresh(False)
             last_view = now
         await asyncio.sleep(DRAIN_PERIOD_S)
         events = participant.drain()
-    if view is not None:
-        view(_state(recorder, participant, roster, steps, finished=True))
+    if model is not None:
+        model.status = end.reason if end is not None else "stopped" if code == 130 else "world lost"
+    if refresh is not None:
+        refresh(True)
     report = MonitorReport(
         received=participant.counter.received_table(),
         senders={name: stats.sent for name, stats in finals.items()},
@@ -292,16 +298,3 @@ def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:
         if seen < said:
             return False
     return True
-
-
-def _state(recorder: Recorder, participant: Participant, roster: Roster, steps: int,
-           finished: bool = False) -> MonitorState:
-    return MonitorState(
-        step=recorder.latest_tick,
-        steps=steps,
-        polls=list(recorder.polls),
-        last_trigger=list(recorder.last_trigger),
-        counter=participant.counter,
-        alive=set(roster.alive),
-        finished=finished,
-    )

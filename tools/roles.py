@@ -36,7 +36,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     _common(monitor)
     monitor.add_argument("--log", type=Path, required=True, metavar="PATH", help="run log to write (JSON lines)")
     monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
-    monitor.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of a live view")
+    display = monitor.add_mutually_exclusive_group()
+    display.add_argument("--dashboard", action="store_true", help="draw the live dashboard even without a terminal")
+    display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
     monitor.set_defaults(handler=run_monitor_role)
 
 
@@ -110,15 +112,20 @@ def run_fusion_role(args: argparse.Namespace) -> int:
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from tools.dashboard import TeamModel
     from tools.monitor import run_monitor
-    from tools.views import make_view, print_report
+    from tools.views import LiveView, print_report
 
     scenario = scenario_from_arguments(args)
-    view = make_view(out, scenario, dashboard=not args.no_dashboard)
-    with view:
+    model = TeamModel(scenario, args.clock)
+    console = Console(force_terminal=True) if args.dashboard else out
+    dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
+    with LiveView(console, model, dashboard) as view:
         code, report = asyncio.run(
             run_monitor(scenario, scenario.seed, args.run, bus_config(args), args.log, scenario.max_steps,
-                        args.clock, view.update, args.exit_with_parent)
+                        args.clock, model, view.refresh, args.exit_with_parent)
         )
     if report is not None:
         print_report(out, report)

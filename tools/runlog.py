@@ -5,9 +5,11 @@ Records, one per line:
 * ``header``: format version, source ("emulator" or "engine"), run id, the scenario as TOML, seed,
   team size, clock, step limit, library versions, start time (UTC);
 * ``step``: the true state at the start of step k (``positions``, ``target``, ``live``), what each
-  robot decided (``trigger`` mask, ``offset`` = gV - theta in radians before polling, ``centre`` it
-  steered about) and the robot-to-robot traffic each robot sent for that step (``sent_messages``,
-  ``sent_bytes``; bytes are null for the engine, which sends none);
+  robot decided (``trigger`` mask, ``offset`` = gV - theta in radians and ``ages`` of its memory in
+  steps, both before polling, ``centre`` it steered about), the robot-to-robot traffic each robot
+  sent and received for that step (``sent_messages``, ``sent_bytes``, ``received_messages``,
+  ``received_bytes``) and ``traffic`` [messages, bytes] per category of everything stamped with the
+  step (bytes are null for the engine, which sends nothing: its counts follow from the protocol);
 * ``event``: something that happened between steps (faults, crashes);
 * ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
   says it sent, rejected payloads and late messages.
@@ -95,11 +97,15 @@ def step_record(
     live: list[int],
     trigger: list[int | None],
     offset: list[float | None],
+    ages: list[Any],
     centre: list[Any],
-    sent_messages: list[int],
-    sent_bytes: list[int] | None,
+    sent: tuple[list[int], list[int] | None],
+    received: tuple[list[int], list[int] | None],
+    traffic: dict[str, list[int | None]],
 ) -> dict[str, Any]:
-    """A ``step`` record (see the module docstring for the fields)."""
+    """A ``step`` record (see the module docstring for the fields); ``sent`` and ``received`` are
+    (messages, bytes) per robot of robot-to-robot traffic, ``traffic`` [messages, bytes] per category
+    of every message stamped with this step."""
     return {
         "type": "step",
         "step": step,
@@ -109,15 +115,20 @@ def step_record(
         "live": live,
         "trigger": trigger,
         "offset": offset,
+        "ages": ages,
         "centre": centre,
-        "sent_messages": sent_messages,
-        "sent_bytes": sent_bytes,
+        "sent_messages": sent[0],
+        "sent_bytes": sent[1],
+        "received_messages": received[0],
+        "received_bytes": received[1],
+        "traffic": traffic,
     }
 
 
 def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
     """Messages each robot sends in a step of the request/reply protocol: 2 requests when it polls,
-    and one reply to each ring neighbour that polls it. ``polled`` is boolean with robots last."""
+    and one reply to each ring neighbour that polls it. ``polled`` is boolean with robots last.
+    By symmetry each robot also receives exactly as many."""
     polled = polled.astype(np.int64)
     return 2 * polled + np.roll(polled, 1, axis=-1) + np.roll(polled, -1, axis=-1)
 
@@ -130,6 +141,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     robots = scenario.robots
     polled = history.triggers[:, trial] != 0
     sent = robot_to_robot_sent(polled)
+    estimation_messages = robots + 1 if scenario.estimation.mode == "centralized" else 0
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
         assert history.estimates is not None
@@ -143,9 +155,12 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                     live=list(range(robots)),
                     trigger=history.triggers[row, trial].tolist(),
                     offset=history.offsets[row, trial].tolist(),
+                    ages=history.ages[row, trial].tolist(),
                     centre=history.estimates[row, trial].tolist(),
-                    sent_messages=sent[row].tolist(),
-                    sent_bytes=None,
+                    sent=(sent[row].tolist(), None),
+                    received=(sent[row].tolist(), None),
+                    traffic={"robot": [int(sent[row].sum()), None], "world": [2 * robots + 1, None],
+                             "estimation": [estimation_messages, None]},
                 )
             )
         writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
@@ -220,6 +235,7 @@ def history_from_log(log: RunLog) -> History:
     targets = np.array([record["target"] for record in log.steps], dtype=float)[:, None]
     triggers = np.array([[value or 0 for value in record["trigger"]] for record in log.steps], dtype=np.uint8)
     offsets = np.array([[value or 0.0 for value in record["offset"]] for record in log.steps], dtype=float)
+    ages = np.array([[value or [0, 0] for value in record["ages"]] for record in log.steps], dtype=np.int32)
     missing = [np.nan, np.nan]
     estimates = np.array([[centre or missing for centre in record["centre"]] for record in log.steps])[:, None]
     angles = angle_of(positions, targets[..., None, :])
@@ -230,6 +246,7 @@ def history_from_log(log: RunLog) -> History:
         positions=positions,
         triggers=triggers[:, None],
         offsets=offsets[:, None],
+        ages=ages[:, None],
         cerr_true=convergence_error(true_offsets(positions, targets)),
         targets=targets,
         terr=np.nanmean(np.linalg.norm(estimates - targets[..., None, :], axis=-1), axis=-1),

@@ -45,7 +45,10 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--log", type=Path, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
-    parser.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of a live view")
+    display = parser.add_mutually_exclusive_group()
+    display.add_argument("--dashboard", action="store_true",
+                         help="draw the live dashboard even without a terminal (the default on a terminal)")
+    display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
     parser.set_defaults(handler=run_spawn)
 
 
@@ -59,7 +62,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         rate=args.rate,
         runs=args.runs,
         log_path=args.log,
-        dashboard=not args.no_dashboard,
+        dashboard=True if args.dashboard else False if args.no_dashboard else None,
         until_converged=args.steps is None,
     )
     if args.json:
@@ -81,13 +84,14 @@ def spawn_team(
     rate: float = 1.0,
     runs: Path = Path("runs"),
     log_path: Path | None = None,
-    dashboard: bool = True,
+    dashboard: bool | None = None,
     until_converged: bool = False,
     quiet: bool = False,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
-    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``); ``quiet``
-    sends the monitor's display to ``RUN_FOLDER/monitor.stdout`` instead of the terminal."""
+    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
+    monitor draws its dashboard when ``dashboard`` is True, summary lines when False, and decides by
+    its terminal when None; ``quiet`` sends its display to ``RUN_FOLDER/monitor.stdout``."""
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -104,7 +108,7 @@ def spawn_team(
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, "--clock", clock, "--rate", str(rate),
                                            "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce), *stop_rule])
                 connect = [flag for endpoint in _announced(announce, supervisor) for flag in ("--connect", endpoint)]
-                monitor_flags = [] if dashboard else ["--no-dashboard"]
+                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
                                                  "--clock", clock, *monitor_flags], stdout=display)

@@ -1,7 +1,7 @@
 """What the monitor shows while a team runs, and its end-of-run report.
 
-On a terminal a rich progress bar (refreshed a few times per second by the monitor, never per
-message); without one, a plain summary line every few seconds.
+On a terminal the live dashboard (:mod:`tools.dashboard`), refreshed a few times per second by the
+monitor and never per message; without one, a plain summary line every few seconds.
 """
 
 from __future__ import annotations
@@ -11,65 +11,46 @@ from collections.abc import Callable
 from types import TracebackType
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.live import Live
 from rich.table import Table
 
-from bus.counting import category_of, totals_by_category
+from bus.counting import category_of
 from bus.keys import robot_index
-from tools.monitor import MonitorReport, MonitorState
-from world.scenario import Scenario
+from tools.dashboard import Dashboard, TeamModel
+from tools.monitor import MonitorReport
 
 LINE_PERIOD_S = 2.0
 
 
-class ProgressView:
-    """A progress bar with the traffic so far (terminal), or periodic lines (no terminal)."""
+class LiveView:
+    """The monitor's display of a :class:`~tools.dashboard.TeamModel`: a rich Live dashboard redrawn
+    on :meth:`refresh` (the caller decides how often, never per message), or without a dashboard a
+    plain summary line every ``LINE_PERIOD_S`` seconds and at the end."""
 
-    def __init__(self, console: Console, scenario: Scenario) -> None:
+    def __init__(self, console: Console, model: TeamModel, dashboard: bool) -> None:
         self.console = console
-        self.scenario = scenario
-        self.progress: Progress | None = None
-        self.task = None
+        self.model = model
+        self.live = Live(Dashboard(model), console=console, auto_refresh=False) if dashboard else None
         self.last_line = 0.0
 
-    def __enter__(self) -> "ProgressView":
-        if self.console.is_terminal:
-            self.progress = Progress(
-                TextColumn("{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("{task.fields[traffic]}"),
-                TimeElapsedColumn(),
-                console=self.console,
-            )
-            self.progress.start()
-            self.task = self.progress.add_task(
-                f"{self.scenario.name} ({self.scenario.robots} robots)", total=self.scenario.max_steps, traffic=""
-            )
+    def __enter__(self) -> "LiveView":
+        if self.live is not None:
+            self.live.start()
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  trace: TracebackType | None) -> None:
-        if self.progress is not None:
-            self.progress.stop()
+        if self.live is not None:
+            self.live.stop()
 
-    def update(self, state: MonitorState) -> None:
-        totals = totals_by_category(state.counter.received_table())
-        robot = totals.get("robot", {"messages": 0})["messages"]
-        world = totals.get("world", {"messages": 0})["messages"]
-        traffic = f"robot-to-robot {robot} msgs, world {world} msgs, polls {sum(state.polls)}"
-        if self.progress is not None:
-            self.progress.update(self.task, completed=state.step, total=state.steps, traffic=traffic)
+    def refresh(self, final: bool = False) -> None:
+        if self.live is not None:
+            self.live.refresh()
             return
         now = time.monotonic()
-        if state.finished or now - self.last_line >= LINE_PERIOD_S:
-            self.console.print(f"step {state.step}/{state.steps}: {traffic}", highlight=False)
+        if final or now - self.last_line >= LINE_PERIOD_S:
+            self.console.print(self.model.summary_line(), highlight=False, soft_wrap=True)
             self.last_line = now
-
-
-def make_view(console: Console, scenario: Scenario, dashboard: bool = True) -> ProgressView:
-    """The live view for a monitor writing to ``console``."""
-    return ProgressView(console, scenario)
 
 
 def per_robot_table(rows: list) -> Table:

@@ -28,7 +28,8 @@ class History:
 
     ``angles`` are radians about the true target, unwrapped along time; ``positions`` metres (or
     ``None`` when not recorded); ``triggers`` the :class:`agents.laws.Trigger` masks; ``offsets`` each
-    robot's ``gV - theta`` (radians) from memory before polling; ``cerr_true`` degrees (see
+    robot's ``gV - theta`` (radians) from memory before polling and ``ages`` its memory ages (steps,
+    predecessor and successor) at that moment; ``cerr_true`` degrees (see
     :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
     over robots of the distance from the estimate each steered by to the target); ``estimates`` those
     estimates (or ``None`` when not recorded).
@@ -40,6 +41,7 @@ class History:
     positions: FloatArray | None  # (K, T, N, 2)
     triggers: NDArray[np.uint8]  # (K, T, N)
     offsets: FloatArray  # (K, T, N)
+    ages: NDArray[np.int32]  # (K, T, N, 2)
     cerr_true: FloatArray  # (K, T)
     targets: FloatArray  # (K, T, 2)
     terr: FloatArray  # (K, T)
@@ -150,6 +152,7 @@ def run(
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
     offsets = np.empty((steps, trials, robots))
+    ages = np.empty((steps, trials, robots, 2), dtype=np.int32)
     cerr_true = np.empty((steps, trials))
     terr = np.empty((steps, trials))
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
@@ -166,6 +169,7 @@ def run(
         centres = team.measure(positions, targets)
         reasons = controller.observe(k, positions, centres)
         triggers[row] = reasons
+        ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
         controller.receive(np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1), polled, polled)
         if team.mode == "decentralized":
@@ -192,6 +196,7 @@ def run(
         positions=None if recorded is None else recorded[:steps],
         triggers=triggers[:steps],
         offsets=offsets[:steps],
+        ages=ages[:steps],
         cerr_true=cerr_true[:steps],
         targets=np.swapaxes(paths[:, :steps], 0, 1),
         terr=terr[:steps],

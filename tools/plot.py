@@ -1,0 +1,106 @@
+"""``ringtrack plot LOG -o PNG``: a run's trajectories, errors, polls and traffic in one figure."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from bus.counting import category_of
+from tools.console import UsageError, out
+from tools.runlog import RunLog, history_from_log, read_log
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser("plot", help="draw a run log: trajectories, Cerr/Terr, polls, traffic per link")
+    parser.add_argument("log", type=Path, help="a run log (RUN_FOLDER/log.jsonl, or simulate --log)")
+    parser.add_argument("-o", "--output", type=Path, required=True, metavar="PNG", help="figure to write")
+    parser.set_defaults(handler=run_plot)
+
+
+def run_plot(args: argparse.Namespace) -> int:
+    if not args.log.is_file():
+        raise UsageError(f"{args.log}: no such run log; give RUN_FOLDER/log.jsonl")
+    log = read_log(args.log)
+    if not log.steps:
+        raise UsageError(f"{args.log}: the log has no steps to draw")
+    plot_run(log, args.output)
+    out.print(f"wrote {args.output}", highlight=False)
+    return 0
+
+
+def plot_run(log: RunLog, path: Path) -> None:
+    """Four panels: (a) trajectories on the region, (b) Cerr and Terr over time, (c) polls per robot
+    over time, (d) robot-to-robot messages and bytes per link."""
+    from tools.figures import plt
+
+    history = history_from_log(log)
+    scenario = history.scenario
+    assert history.positions is not None
+    positions = history.positions[:, 0]
+    seconds = np.arange(history.steps) * scenario.control.dt
+    figure, axes = plt.subplots(2, 2, figsize=(12, 9), constrained_layout=True)
+    trajectories, errors, polls, links = axes.flat
+
+    outline = np.vstack([scenario.region.vertices, scenario.region.vertices[:1]])
+    trajectories.plot(outline[:, 0], outline[:, 1], color="black", linewidth=1)
+    colours = plt.cm.tab10(np.arange(scenario.robots) % 10)
+    for robot in range(scenario.robots):
+        path_xy = positions[:, robot]
+        trajectories.plot(path_xy[:, 0], path_xy[:, 1], color=colours[robot], linewidth=1.5, label=f"r{robot}")
+        trajectories.plot(*path_xy[0], "o", color=colours[robot], markerfacecolor="white")
+        trajectories.plot(*path_xy[-1], "o", color=colours[robot])
+    targets = history.targets[:, 0]
+    trajectories.plot(targets[:, 0], targets[:, 1], color="red", linewidth=1, label="target")
+    trajectories.plot(*targets[-1], "x", color="red", markersize=8)
+    if scenario.estimation.mode != "known" and history.estimates is not None:
+        mean_estimate = np.nanmean(history.estimates[:, 0], axis=1)
+        trajectories.plot(mean_estimate[:, 0], mean_estimate[:, 1], color="goldenrod", linewidth=0.8,
+                          label="estimate (mean)")
+    trajectories.set_aspect("equal")
+    trajectories.set_title("(a) trajectories (open: start, filled: end)")
+    trajectories.legend(fontsize=7, ncols=2)
+
+    errors.plot(seconds, history.cerr_true[:, 0], label="Cerr, true positions")
+    errors.plot(seconds, history.cerr_memory[:, 0], label="Cerr, robots' memory", linewidth=0.8)
+    errors.axhline(np.rad2deg(scenario.threshold), color="grey", linestyle=":", label="threshold")
+    errors.set_yscale("log")
+    errors.set_xlabel("time (s)")
+    errors.set_ylabel("Cerr (deg)")
+    errors.set_title("(b) convergence and target errors")
+    if scenario.estimation.mode != "known":
+        terr = errors.twinx()
+        terr.plot(seconds, history.terr[:, 0], color="tab:green", linewidth=0.8, label="Terr")
+        terr.set_ylabel("Terr (m)", color="tab:green")
+    errors.legend(fontsize=7, loc="upper right")
+
+    steps, robots = np.nonzero(history.triggers[:, 0])
+    polls.scatter(steps * scenario.control.dt, robots, marker="|", s=40, color=colours[robots])
+    polls.set_yticks(range(scenario.robots), [f"r{robot}" for robot in range(scenario.robots)])
+    polls.set_xlabel("time (s)")
+    polls.set_title(f"(c) polls per robot over time ({len(steps)} in all)")
+
+    rows = [row for row in (log.end or {}).get("traffic", []) if category_of(row[0]) == "robot"]
+    per_link: dict[str, list[float]] = {}
+    for _kind, source, destination, messages, size in rows:
+        entry = per_link.setdefault(f"{source}>{destination}", [0, 0])
+        entry[0] += messages
+        entry[1] += size or 0
+    names = sorted(per_link, key=lambda name: [int(part[1:]) for part in name.split(">")])
+    if names:
+        spots = np.arange(len(names))
+        links.bar(spots - 0.2, [per_link[name][0] for name in names], width=0.4, label="messages")
+        links.set_xticks(spots, names, rotation=60, fontsize=7)
+        links.set_ylabel("messages")
+        if any(per_link[name][1] for name in names):
+            sizes = links.twinx()
+            sizes.bar(spots + 0.2, [per_link[name][1] for name in names], width=0.4, color="tab:orange",
+                      label="bytes")
+            sizes.set_ylabel("bytes", color="tab:orange")
+    links.set_title("(d) robot-to-robot traffic per link (sender>receiver)")
+    figure.suptitle(f"{scenario.name}: {scenario.robots} robots, {scenario.control.strategy} strategy, "
+                    f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)

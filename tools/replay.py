@@ -1,0 +1,62 @@
+"""``ringtrack replay LOG``: watch any run again, from its log, on the live dashboard."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from rich.console import Console
+
+from tools.console import UsageError, out
+from tools.dashboard import TeamModel
+from tools.runlog import read_log
+from tools.views import LiveView
+
+FRAME_S = 0.1  # at most ten redraws per wall second
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser("replay", help="watch a run again from its log on the dashboard")
+    parser.add_argument("log", type=Path, help="a run log (RUN_FOLDER/log.jsonl, or simulate --log)")
+    parser.add_argument("--speed", type=float, default=10.0,
+                        help="simulated seconds per wall second (default 10; 1e9 shows the end at once)")
+    display = parser.add_mutually_exclusive_group()
+    display.add_argument("--dashboard", action="store_true", help="draw the dashboard even without a terminal")
+    display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead")
+    parser.set_defaults(handler=run_replay)
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    if not args.speed > 0:
+        raise UsageError(f"--speed {args.speed}: give a positive factor, e.g. 10")
+    if not args.log.is_file():
+        raise UsageError(f"{args.log}: no such run log; give RUN_FOLDER/log.jsonl")
+    log = read_log(args.log)
+    model = TeamModel(log.scenario, log.header["clock"], replay_speed=args.speed)
+    model.steps = log.header["steps"]
+    console = Console(force_terminal=True) if args.dashboard else out
+    dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
+    with LiveView(console, model, dashboard) as view:
+        replay(model, log.steps, args.speed, view.refresh)
+        model.status = log.end["reason"] if log.end else "log ends here (the run was stopped)"
+        view.refresh(True)
+    return 0
+
+
+def replay(model: TeamModel, records: list[dict], speed: float, refresh) -> None:
+    """Feed ``records`` to ``model`` at ``speed`` simulated seconds per wall second, redrawing at most
+    every ``FRAME_S``."""
+    if not records:
+        return
+    started, first = time.monotonic(), records[0]["time"]
+    last_frame = 0.0
+    for record in records:
+        wait = (record["time"] - first) / speed - (time.monotonic() - started)
+        if wait > 0:
+            time.sleep(wait)
+        model.add(record)
+        now = time.monotonic()
+        if now - last_frame >= FRAME_S:
+            refresh(False)
+            last_frame = now
