@@ -129,6 +129,9 @@ def test_replay_and_plot_of_an_engine_log(tmp_path: Path, capsys: pytest.Capture
     assert main(["replay", str(log), "--speed", "1e9", "--no-dashboard"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1].startswith("step 60/60: robot-to-robot") and "Terr" in lines[-1]
+    assert main(["replay", str(log), "--final"]) == 0
+    final = capsys.readouterr().out
+    assert "step 60/60" in final and "centralized target" in final and "Terr" in final and "replay" not in final
     assert main(["plot", str(log), "-o", str(figure)]) == 0
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

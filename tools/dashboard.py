@@ -71,10 +71,11 @@ class RobotStatus:
 class TeamModel:
     """Everything the dashboard shows, updated one step record at a time."""
 
-    def __init__(self, scenario: Scenario, clock: str, replay_speed: float | None = None) -> None:
+    def __init__(self, scenario: Scenario, clock: str, replay_speed: float | None = None, live: bool = True) -> None:
         self.scenario = scenario
         self.clock = clock
-        self.replay_speed = replay_speed  # None: live, the rate shown is steps per wall second
+        self.replay_speed = replay_speed  # shown instead of the live rate when replaying
+        self.live = live  # live: the rate shown is steps per wall second
         self.robots = [RobotStatus() for _ in range(scenario.robots)]
         self.step = 0
         self.time = 0.0
@@ -268,7 +269,7 @@ class Dashboard:
         scenario = model.scenario
         width = options.max_width
         control = scenario.control
-        rate = model.steps_per_second()
+        rate = model.steps_per_second() if model.live else 0.0
         pace = f"replay x{model.replay_speed:g}" if model.replay_speed else f"{rate:.0f} steps/s" if rate else ""
         header = Text.assemble(
             ("ringtrack ", "bold"),

@@ -9,7 +9,7 @@ from pathlib import Path
 from rich.console import Console
 
 from tools.console import UsageError, out
-from tools.dashboard import TeamModel
+from tools.dashboard import Dashboard, TeamModel
 from tools.runlog import read_log
 from tools.views import LiveView
 
@@ -24,6 +24,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     display = parser.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the dashboard even without a terminal")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead")
+    display.add_argument("--final", action="store_true",
+                         help="print only the dashboard of the last step, once, as text (for reports)")
     parser.set_defaults(handler=run_replay)
 
 
@@ -33,8 +35,15 @@ def run_replay(args: argparse.Namespace) -> int:
     if not args.log.is_file():
         raise UsageError(f"{args.log}: no such run log; give RUN_FOLDER/log.jsonl")
     log = read_log(args.log)
-    model = TeamModel(log.scenario, log.header["clock"], replay_speed=args.speed)
+    model = TeamModel(log.scenario, log.header["clock"], replay_speed=args.speed, live=False)
     model.steps = log.header["steps"]
+    if args.final:
+        for record in log.steps:
+            model.add(record)
+        model.status = log.end["reason"] if log.end else "log ends here (the run was stopped)"
+        model.replay_speed = None
+        out.print(Dashboard(model))
+        return 0
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     with LiveView(console, model, dashboard) as view:
