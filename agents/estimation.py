@@ -100,6 +100,8 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
         raise ValueError(f"trilateration needs ranges from at least 3 robots, got {len(ranges)}")
     first, rest = positions[0], positions[1:]
     system = 2.0 * (rest - first)
+    if np.linalg.matrix_rank(system) < 2:
+        raise ValueError("trilateration needs robots that are not all on one line")
     rhs = ranges[0] ** 2 - ranges[1:] ** 2 + np.sum(rest**2, axis=1) - np.sum(first**2)
     estimate, *_ = np.linalg.lstsq(system, rhs, rcond=None)
     for _ in range(refinements):

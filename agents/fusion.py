@@ -22,8 +22,9 @@ treat two). With information matrices ``I_k = P_k^{-1}`` and ``M(w) = sum_k w_k 
 * determinant: maximise ``w^T D w``; stationary where ``D w = lambda 1``, ``w = b / sum b``.
 
 Every face of the simplex (each non-empty subset of the estimates) is solved this way, infeasible
-candidates (a negative weight) are dropped, and the best remaining candidate wins; the vertices are
-the single estimates. With two estimates this is exactly the candidate set of section 8.
+candidates (a negative weight) are dropped, and the best remaining candidate wins (the mean of the
+best ones when several tie, which keeps CI symmetric in its inputs); the vertices are the single
+estimates. With two estimates this is exactly the candidate set of section 8.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 Criterion = Literal["trace", "det"]
+TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
 FloatArray = NDArray[np.float64]
 
 
@@ -61,14 +63,19 @@ def covariance_intersection(
     determinants = 0.5 * (np.outer(traces, traces) - products)
     np.fill_diagonal(determinants, np.linalg.det(information))
     count = len(means)
-    best_weights, best_value = None, np.inf
-    for size in range(1, count + 1):
-        for face in combinations(range(count), size):
-            for weights in _face_candidates(np.array(face), traces, determinants, criterion, count):
-                value = _objective(weights, traces, determinants, criterion)
-                if value < best_value:
-                    best_weights, best_value = weights, value
-    assert best_weights is not None
+    candidates = [
+        weights
+        for size in range(1, count + 1)
+        for face in combinations(range(count), size)
+        for weights in _face_candidates(np.array(face), traces, determinants, criterion, count)
+    ]
+    values = np.array([_objective(weights, traces, determinants, criterion) for weights in candidates])
+    best_value = values.min()
+    # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
+    # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
+    tied = [weights for weights, value in zip(candidates, values, strict=True)
+            if value <= best_value * (1.0 + TIE_TOLERANCE)]
+    best_weights = np.mean(tied, axis=0)
     combined = np.einsum("k,kab->ab", best_weights, information)
     covariance = np.linalg.inv(combined)
     covariance = 0.5 * (covariance + covariance.T)
@@ -109,7 +116,7 @@ def _face_candidates(
     a = np.linalg.solve(sub, traces[face])
     b = np.linalg.solve(sub, np.ones(len(face)))
     if criterion == "det":
-        solutions = [b / b.sum()]
+        solutions = [b / b.sum()] if b.sum() != 0 else []
     else:
         roots = np.roots([b.sum(), a.sum() - traces[face] @ b, -(traces[face] @ a)])
         solutions = []

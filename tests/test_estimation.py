@@ -1,0 +1,364 @@
+"""agents/estimation.py against ALGORITHMS.md section 7 and oracles 14, 15.
+
+The reference EKF below is written from the spec (random-walk predict, stacked range update,
+Joseph-form covariance), independently of filterpy, so the tests catch shape or convention slips
+(R/Q swapped, broadcasting, sequential instead of stacked updates) as well as numeric ones.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from agents.estimation import SINGULAR_DISTANCE, EstimationParams, Estimator, RangeFilter, trilaterate
+from agents.fusion import covariance_intersection, sequential_intersection
+from tests.strategies import AUTHORS_TARGET, AUTHORS_VERTICES, region_with_points, ring_angles
+from world.geometry import ConvexRegion
+from world.ranges import uniform_ring
+from world.scenario import load_scenario
+
+AUTHORS = ConvexRegion.from_vertices(AUTHORS_VERTICES)
+TARGET = np.array(AUTHORS_TARGET)
+SIGMA = 0.2  # m, authors' range noise: R = 0.04 I
+
+
+def exact_ranges(positions: np.ndarray, target: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(np.asarray(positions, dtype=float) - target, axis=-1)
+
+
+def reference_step(x, P, q, sigma, positions, ranges):
+    """One spec EKF round: x- = x, P- = P + q I; then, with the usable ranges (finite, robot farther
+    than 1e-9 from x-), the stacked update K = P H^T (H P H^T + sigma^2 I)^-1 and the Joseph form."""
+    x = np.array(x, dtype=float)
+    P = np.array(P, dtype=float) + q * np.eye(2)
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    ranges = np.asarray(ranges, dtype=float).reshape(-1)
+    offsets = x - positions
+    distance = np.hypot(offsets[:, 0], offsets[:, 1])
+    keep = np.isfinite(ranges) & (distance > 1e-9)
+    if not keep.any():
+        return x, P
+    H = offsets[keep] / distance[keep, None]
+    R = sigma**2 * np.eye(int(keep.sum()))
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    x = x + K @ (ranges[keep] - distance[keep])
+    A = np.eye(2) - K @ H
+    P = A @ P @ A.T + K @ R @ K.T
+    return x, P
+
+
+def offset(length: float, angle: float) -> np.ndarray:
+    return length * np.array([math.cos(angle), math.sin(angle)])
+
+
+# ---------------------------------------------------------------------------- the filter is the spec's EKF
+@given(
+    case=region_with_points(2),
+    robots=st.integers(1, 8),
+    seed=st.integers(0, 2**32 - 1),
+    q=st.sampled_from([0.0, 1e-3, 0.2]),
+    sigma=st.sampled_from([0.05, 0.2, 1.0]),
+)
+def test_filter_matches_the_spec_ekf(case, robots, seed, q, sigma):
+    region, (target, prior) = case
+    rng = np.random.default_rng(seed)
+    angles = np.sort(rng.uniform(0.0, 2.0 * math.pi, robots))
+    positions = region.boundary_point(angles, target)
+    scale = region.outer_diameter
+    covariance = (0.1 * scale) ** 2 * np.eye(2)
+    filt = RangeFilter(prior, covariance, q, sigma)
+    for _ in range(15):
+        ranges = exact_ranges(positions, target) + sigma * rng.normal(size=robots)
+        ranges[rng.random(robots) < 0.2] = np.nan  # some robots out of range
+        # step by step from the filter's own state (rounding differences compound over a run)
+        before_mean, before_covariance = filt.ekf.x[:, 0].copy(), filt.ekf.P.copy()
+        filt.step(positions, ranges)
+        x, P = reference_step(before_mean, before_covariance, q, sigma, positions, ranges)
+        np.testing.assert_allclose(filt.mean, x, rtol=0, atol=1e-9 * scale)
+        np.testing.assert_allclose(filt.covariance, P, rtol=0, atol=1e-9 * np.trace(P))
+        np.testing.assert_array_equal(filt.covariance, filt.covariance.T)
+        assert filt.mean.shape == (2,) and filt.covariance.shape == (2, 2)
+
+
+def test_centralized_update_is_stacked_not_sequential():
+    """Section 7: the fusion centre updates once with all N ranges; sequential scalar updates
+    relinearize and differ from a poor prior. The filter must agree with the stacked reference."""
+    positions = uniform_ring(AUTHORS, TARGET, 6)
+    ranges = exact_ranges(positions, TARGET)
+    prior = TARGET + np.array([2.5, -1.5])
+    filt = RangeFilter(prior, np.eye(2), 0.2, SIGMA)
+    filt.step(positions, ranges)
+    stacked, _ = reference_step(prior, np.eye(2), 0.2, SIGMA, positions, ranges)
+    x, P = prior, np.eye(2)
+    for index in range(6):
+        x, P = reference_step(x, P, 0.2 if index == 0 else 0.0, SIGMA, positions[index : index + 1], ranges[index : index + 1])
+    assert np.linalg.norm(stacked - x) > 1e-3  # the two variants really differ here
+    np.testing.assert_allclose(filt.mean, stacked, rtol=0, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------- oracle 14
+@given(distance=st.floats(0.0, 3.0), direction=st.floats(0.0, 2.0 * math.pi), rotation=st.floats(0.0, 2.0 * math.pi))
+def test_oracle14_noiseless_converges_with_authors_process_noise(distance, direction, rotation):
+    positions = uniform_ring(AUTHORS, TARGET, 6, rotation)
+    ranges = exact_ranges(positions, TARGET)
+    filt = RangeFilter(TARGET + offset(distance, direction), np.eye(2), 0.2, SIGMA)
+    for _ in range(30):
+        filt.step(positions, ranges)
+    assert np.linalg.norm(filt.mean - TARGET) < 1e-9
+
+
+@given(distance=st.floats(0.0, 3.0), direction=st.floats(0.0, 2.0 * math.pi), rotation=st.floats(0.0, 2.0 * math.pi))
+def test_oracle14_noiseless_converges_with_small_process_noise(distance, direction, rotation):
+    positions = uniform_ring(AUTHORS, TARGET, 6, rotation)
+    ranges = exact_ranges(positions, TARGET)
+    filt = RangeFilter(TARGET + offset(distance, direction), np.eye(2), 1e-3, SIGMA)
+    for _ in range(100):
+        filt.step(positions, ranges)
+    assert np.linalg.norm(filt.mean - TARGET) < 1e-6
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_oracle14_noiseless_converges_from_scenario_starts(seed):
+    """The same with the robots where authors-moving starts them (seeded random boundary points)."""
+    positions = load_scenario("authors-moving").start_positions(seed)
+    ranges = exact_ranges(positions, TARGET)
+    rng = np.random.default_rng(seed)
+    for _ in range(5):
+        filt = RangeFilter(TARGET + offset(3.0, rng.uniform(0, 2 * math.pi)), np.eye(2), 0.2, SIGMA)
+        for _ in range(30):
+            filt.step(positions, ranges)
+        assert np.linalg.norm(filt.mean - TARGET) < 1e-9
+
+
+def test_oracle14_noisy_filter_is_consistent():
+    """sigma_z = 0.2, Q = 0, R = 0.04 I, x0 ~ N(o, I), P0 = I: the mean NEES e^T P^-1 e at the end of
+    each of 200 runs (20 rounds of 6 stacked ranges) is 2 (chi^2 with 2 dof) within [1.6, 2.4]."""
+    positions = uniform_ring(AUTHORS, TARGET, 6)
+    truth = exact_ranges(positions, TARGET)
+    rng = np.random.default_rng(0)
+    nees = []
+    for _ in range(200):
+        filt = RangeFilter(TARGET + rng.normal(size=2), np.eye(2), 0.0, SIGMA)
+        for _ in range(20):
+            filt.step(positions, truth + SIGMA * rng.normal(size=6))
+        error = filt.mean - TARGET
+        nees.append(error @ np.linalg.solve(filt.covariance, error))
+    assert 1.6 <= np.mean(nees) <= 2.4
+    # the covariance really is the posterior of 20 rounds of 6 ranges: about (sigma^2 / (20 * 3)) I
+    # for the angle-uniform ring (J = N / (2 sigma^2) I per round, section 12)
+    np.testing.assert_allclose(filt.covariance, SIGMA**2 / (20 * 3) * np.eye(2), rtol=0.05, atol=2e-5)
+
+
+# ---------------------------------------------------------------------------- one range is rank-1
+def test_decentralized_single_range_leaves_the_tangential_error():
+    """Section 7: one static robot, noiseless ranges: the range residual goes to ~0 while the
+    position error stays (the tangential direction is unobservable, its variance grows by q a step)."""
+    robot = np.array([[7.0, 20.0]])
+    ranges = exact_ranges(robot, TARGET)
+    q, rounds = 0.2, 500
+    filt = RangeFilter(TARGET + np.array([0.0, 2.5]), np.eye(2), q, SIGMA)
+    for _ in range(rounds):
+        filt.step(robot, ranges)
+    residual = abs(np.linalg.norm(filt.mean - robot[0]) - ranges[0])
+    assert residual < 1e-12
+    assert np.linalg.norm(filt.mean - TARGET) > 1.0
+    largest = np.linalg.eigvalsh(filt.covariance)[-1]
+    assert largest == pytest.approx(1.0 + rounds * q, rel=1e-3)
+
+
+# ---------------------------------------------------------------------------- skipped measurements
+def test_nan_range_is_skipped():
+    positions = uniform_ring(AUTHORS, TARGET, 3)
+    ranges = exact_ranges(positions, TARGET)
+    prior = TARGET + np.array([1.0, 0.5])
+    with_nan = RangeFilter(prior, np.eye(2), 0.2, SIGMA)
+    with_nan.step(positions, np.array([ranges[0], np.nan, ranges[2]]))
+    without = RangeFilter(prior, np.eye(2), 0.2, SIGMA)
+    without.step(positions[[0, 2]], ranges[[0, 2]])
+    np.testing.assert_array_equal(with_nan.mean, without.mean)
+    np.testing.assert_array_equal(with_nan.covariance, without.covariance)
+    assert np.all(np.isfinite(with_nan.mean)) and np.all(np.isfinite(with_nan.covariance))
+
+
+@pytest.mark.parametrize("gap", [0.0, 0.5 * SINGULAR_DISTANCE])
+def test_robot_at_the_estimate_is_skipped(gap):
+    prior = TARGET + np.array([1.0, 0.5])
+    positions = np.vstack([uniform_ring(AUTHORS, TARGET, 3), prior + np.array([gap, 0.0])])
+    ranges = exact_ranges(positions, TARGET)
+    singular = RangeFilter(prior, np.eye(2), 0.2, SIGMA)
+    singular.step(positions, ranges)  # the predicted estimate is the prior itself (F = I)
+    without = RangeFilter(prior, np.eye(2), 0.2, SIGMA)
+    without.step(positions[:3], ranges[:3])
+    np.testing.assert_array_equal(singular.mean, without.mean)
+    np.testing.assert_array_equal(singular.covariance, without.covariance)
+
+
+@pytest.mark.parametrize(
+    ("positions", "ranges"),
+    [
+        pytest.param(np.array([[7.0, 20.0], [1.5, 21.0]]), np.array([np.nan, np.nan]), id="all-out-of-range"),
+        pytest.param(np.array([[4.5, 19.5]]), np.array([0.3]), id="robot-at-estimate"),
+        pytest.param(np.zeros((0, 2)), np.zeros(0), id="no-robots"),
+    ],
+)
+def test_no_usable_range_is_prediction_only(positions, ranges):
+    prior, covariance = np.array([4.5, 19.5]), np.array([[1.0, 0.2], [0.2, 0.5]])
+    filt = RangeFilter(prior, covariance, 0.2, SIGMA)
+    filt.step(positions, ranges)
+    np.testing.assert_array_equal(filt.mean, prior)
+    np.testing.assert_allclose(filt.covariance, covariance + 0.2 * np.eye(2), rtol=0, atol=1e-15)
+    filt.step(positions, ranges)
+    np.testing.assert_allclose(filt.covariance, covariance + 0.4 * np.eye(2), rtol=0, atol=1e-15)
+
+
+# ---------------------------------------------------------------------------- oracle 15
+@given(case=region_with_points(1), angles=ring_angles(3, 10))
+def test_oracle15_trilateration_from_boundary_robots(case, angles):
+    region, (target,) = case
+    positions = region.boundary_point(angles, target)
+    bearings = (positions - target) / exact_ranges(positions, target)[:, None]
+    # non-collinear, and not so close to collinear that the geometry itself is ill-posed
+    assume(np.linalg.eigvalsh(bearings.T @ bearings)[0] >= 0.05)
+    centred = positions - positions.mean(axis=0)
+    assume(np.linalg.svd(centred, compute_uv=False)[-1] >= 1e-3 * region.outer_diameter)
+    estimate, covariance = trilaterate(positions, exact_ranges(positions, target), SIGMA)
+    assert np.linalg.norm(estimate - target) <= 1e-9
+    # P0 = 10 sigma^2 (H^T H)^-1 at the estimate, H the unit bearings from the robots
+    expected = 10.0 * SIGMA**2 * np.linalg.inv(bearings.T @ bearings)
+    np.testing.assert_allclose(covariance, expected, rtol=0, atol=1e-6 * np.trace(expected))
+
+
+@given(
+    target=st.tuples(st.floats(-50, 50), st.floats(-50, 50)),
+    robots=st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=3, max_size=8),
+)
+def test_oracle15_trilateration_from_anywhere(target, robots):
+    target, positions = np.array(target), np.array(robots)
+    distances = exact_ranges(positions, target)
+    assume(distances.min() > 0.5)
+    bearings = (positions - target) / distances[:, None]
+    assume(np.linalg.eigvalsh(bearings.T @ bearings)[0] >= 0.05)
+    centred = positions - positions.mean(axis=0)
+    assume(np.linalg.svd(centred, compute_uv=False)[-1] >= 1.0)
+    estimate, _ = trilaterate(positions, distances, SIGMA)
+    assert np.linalg.norm(estimate - target) <= 1e-9
+
+
+def test_oracle15_trilateration_skips_missing_ranges():
+    positions = uniform_ring(AUTHORS, TARGET, 6)
+    ranges = exact_ranges(positions, TARGET)
+    ranges[[1, 4]] = np.nan
+    estimate, covariance = trilaterate(positions, ranges, SIGMA)
+    assert np.linalg.norm(estimate - TARGET) <= 1e-9
+    assert np.all(np.isfinite(covariance))
+
+
+@pytest.mark.parametrize("usable", [0, 1, 2])
+def test_trilateration_needs_three_ranges(usable):
+    positions = uniform_ring(AUTHORS, TARGET, 4)
+    ranges = exact_ranges(positions, TARGET)
+    ranges[usable:] = np.nan
+    with pytest.raises(ValueError) as raised:
+        trilaterate(positions, ranges, SIGMA)
+    assert str(raised.value) == f"trilateration needs ranges from at least 3 robots, got {usable}"
+
+
+# ---------------------------------------------------------------------------- Estimator
+def params(**changes) -> EstimationParams:
+    base = load_scenario("authors-moving").estimation
+    return EstimationParams(**{**base.__dict__, **changes})
+
+
+def test_estimator_prior_truth_and_point():
+    truth = np.array([4.2, 19.7])
+    estimator = Estimator(params(prior="truth", prior_variance=2.5), AUTHORS, truth)
+    mean, covariance = estimator.belief
+    np.testing.assert_array_equal(mean, truth)
+    np.testing.assert_array_equal(covariance, 2.5 * np.eye(2))
+    np.testing.assert_array_equal(estimator.centre, truth)  # inside: not moved
+    estimator = Estimator(params(prior=(5.0, 18.0), prior_variance=1.0), AUTHORS, truth)
+    np.testing.assert_array_equal(estimator.belief[0], [5.0, 18.0])
+    np.testing.assert_array_equal(estimator.belief[1], np.eye(2))
+
+
+def test_estimator_uses_the_configured_noises():
+    estimator = Estimator(params(process_noise=0.05, range_sigma=0.3), AUTHORS, TARGET)
+    positions = uniform_ring(AUTHORS, TARGET, 6)
+    ranges = exact_ranges(positions, TARGET) + np.array([0.1, -0.2, 0.05, 0.0, 0.3, -0.1])
+    estimator.measure(positions, ranges)
+    x, P = reference_step(TARGET, np.eye(2), 0.05, 0.3, positions, ranges)
+    np.testing.assert_allclose(estimator.belief[0], x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(estimator.belief[1], P, rtol=0, atol=1e-12)
+
+
+def test_estimator_trilateration_prior_is_adopted_at_the_first_measure():
+    estimator = Estimator(params(mode="centralized", prior="trilateration"), AUTHORS, TARGET + np.array([1.0, 1.0]))
+    positions = uniform_ring(AUTHORS, TARGET, 6, 0.3)
+    first = exact_ranges(positions, TARGET) + np.array([0.1, -0.05, 0.02, 0.0, -0.1, 0.07])
+    estimator.measure(positions, first)
+    expected_mean, expected_covariance = trilaterate(positions, first, SIGMA)
+    np.testing.assert_array_equal(estimator.belief[0], expected_mean)
+    np.testing.assert_allclose(estimator.belief[1], expected_covariance, rtol=1e-12)
+    assert np.linalg.norm(expected_mean - TARGET) < 0.2  # a fix from these ranges, not the prior
+    # later measures are ordinary filter steps from that prior
+    second = exact_ranges(positions, TARGET)
+    estimator.measure(positions, second)
+    x, P = reference_step(expected_mean, expected_covariance, 0.2, SIGMA, positions, second)
+    np.testing.assert_allclose(estimator.belief[0], x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(estimator.belief[1], P, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(("fusion", "criterion"), [("ci", "trace"), ("ci", "det"), ("sequential", "trace"), ("sequential", "det")])
+def test_estimator_fuse_adopts_the_ci_result(fusion, criterion):
+    estimator = Estimator(params(mode="decentralized", fusion=fusion, criterion=criterion), AUTHORS, TARGET)
+    estimator.measure(np.array([[7.0, 20.0]]), np.array([3.05]))
+    own = estimator.belief
+    neighbours = [
+        (np.array([4.3, 20.4]), np.array([[0.5, 0.1], [0.1, 0.2]])),
+        (np.array([3.8, 19.5]), np.array([[0.15, -0.05], [-0.05, 0.6]])),
+    ]
+    estimator.fuse(neighbours)
+    combine = covariance_intersection if fusion == "ci" else sequential_intersection
+    expected = combine([own[0], *(m for m, _ in neighbours)], [own[1], *(c for _, c in neighbours)], criterion)
+    np.testing.assert_allclose(estimator.belief[0], expected.mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(estimator.belief[1], expected.covariance, rtol=0, atol=1e-12)
+    # the fused belief is smaller than every input (by the criterion) and it is what the robot steers by
+    size = np.trace if criterion == "trace" else np.linalg.det
+    assert size(estimator.belief[1]) <= min(size(own[1]), *(size(c) for _, c in neighbours)) * (1 + 1e-12)
+    np.testing.assert_array_equal(estimator.centre, estimator.belief[0])
+    # the next measure predicts from the fused belief
+    fused_mean, fused_covariance = estimator.belief
+    estimator.measure(np.array([[7.0, 20.0]]), np.array([3.0]))
+    x, P = reference_step(fused_mean, fused_covariance, 0.2, SIGMA, np.array([[7.0, 20.0]]), np.array([3.0]))
+    np.testing.assert_allclose(estimator.belief[0], x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(estimator.belief[1], P, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("outside", [(12.0, 20.0), (-3.0, 30.0), (3.0, 7.0), (4.0, -100.0)])
+def test_estimator_centre_is_clamped_inside(outside):
+    estimator = Estimator(params(prior=tuple(TARGET)), AUTHORS, TARGET)
+    estimator.filter.adopt(np.array(outside), np.eye(2))
+    margin = estimator.params.clamp_margin
+    assert margin == pytest.approx(1e-6 * AUTHORS.outer_diameter, rel=1e-12)
+    centre = estimator.centre
+    np.testing.assert_array_equal(centre, AUTHORS.clamp_interior(np.array(outside), margin))
+    heights = AUTHORS.heights(centre)
+    assert heights.min() >= margin * (1 - 1e-6)  # inside by the margin, and not farther in than needed
+    assert heights.min() <= margin + 1e-9 * AUTHORS.outer_diameter
+    chebyshev, _ = AUTHORS.chebyshev_centre
+    a, b = centre - chebyshev, np.array(outside) - chebyshev
+    assert abs(a[0] * b[1] - a[1] * b[0]) <= 1e-9 * np.linalg.norm(a) * np.linalg.norm(b)  # pulled straight in
+    assert a @ b > 0
+    np.testing.assert_array_equal(estimator.belief[0], outside)  # the belief itself is not changed
+
+
+def test_trilateration_refuses_collinear_robots():
+    positions = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])
+    ranges = np.linalg.norm(positions - np.array([0.5, 2.0]), axis=1)
+    with pytest.raises(ValueError, match="^trilateration needs robots that are not all on one line$"):
+        trilaterate(positions, ranges, 0.2)
