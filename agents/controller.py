@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from agents.laws import ControlParams, Trigger, angular_step, trigger_reasons
+from agents.limits import boundary_stretch, clip_to_range, range_limited_step
 from agents.ring import local_frame, midpoint
 from world.geometry import ConvexRegion, FloatArray, angle_of
 
@@ -49,19 +50,30 @@ class MidpointController:
         self.predecessor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.successor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.guaranteed_offset: FloatArray = np.zeros(shape)
+        # Whether anything is known of each neighbour: not before the first exchange, nor after the
+        # neighbour changed until it answers; a robot polls (UNKNOWN) and holds still meanwhile.
+        self.predecessor_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
+        self.successor_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
         self.centre: FloatArray = np.zeros(2)
         self.theta: FloatArray = np.zeros(shape)
         self.m_minus: FloatArray = np.zeros(shape)
         self.m_plus: FloatArray = np.zeros(shape)
         self.step = 0
 
-    def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike) -> NDArray[np.int64]:
+    def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike,
+                reach: tuple[ArrayLike, ArrayLike] = (True, True)) -> NDArray[np.int64]:
         """Start step ``step`` (1-based) at ``own_position`` seen from ``centre``: age the memory and
         return the :class:`Trigger` mask.
 
         Step 1 always polls (``START``); the constant strategy polls every step (``SCHEDULE``); the
-        self-triggered strategy polls where T1, T2 or T3 holds.
+        self-triggered strategy polls where T1, T2 or T3 holds; any strategy polls while nothing is
+        known of a neighbour that is within ``reach`` (predecessor, successor) (``UNKNOWN``).
         """
+        reasons = self._reasons(step, own_position, centre)
+        unknown = (~self.predecessor_known & np.asarray(reach[0])) | (~self.successor_known & np.asarray(reach[1]))
+        return np.where(unknown & ((reasons & Trigger.START) == 0), reasons | int(Trigger.UNKNOWN), reasons)
+
+    def _reasons(self, step: int, own_position: ArrayLike, centre: ArrayLike) -> NDArray[np.int64]:
         if step > 1:
             self.predecessor_age += step - self.step
             self.successor_age += step - self.step
@@ -106,13 +118,24 @@ class MidpointController:
             fresh = np.asarray(fresh, dtype=bool)
             setattr(self, f"{side}_position", np.where(fresh[..., None], position, getattr(self, f"{side}_position")))
             setattr(self, f"{side}_age", np.where(fresh, age, getattr(self, f"{side}_age")))
+            setattr(self, f"{side}_known", getattr(self, f"{side}_known") | fresh)
         self._remembered_angles()
 
-    def goal(self) -> FloatArray:
+    def forget(self, predecessor: ArrayLike = False, successor: ArrayLike = False) -> None:
+        """Drop what is remembered of a side whose neighbour changed (the ring re-formed around a
+        robot that left, or one that came back): that side is unknown until the new neighbour
+        answers, so the robot polls and holds still meanwhile."""
+        self.predecessor_known = self.predecessor_known & ~np.asarray(predecessor, dtype=bool)
+        self.successor_known = self.successor_known & ~np.asarray(successor, dtype=bool)
+
+    def goal(self, reach: tuple[ArrayLike, ArrayLike] | None = None,
+             communication_range: float | None = None) -> FloatArray:
         """The boundary point (metres) to move to this step: ``phi_centre^{-1}(theta + Delta theta)``.
 
         Memory refreshed this step (both ages 0) takes the fresh-information law, stale memory the
-        guarded law of Algorithm 1 with ``ubd = omega_max (tau_minus + tau_plus) / 4``.
+        guarded law of Algorithm 1 with ``ubd = omega_max (tau_minus + tau_plus) / 4``. With a
+        ``communication_range`` (metres) and ``reach`` (predecessor, successor reachable), the
+        modified strategy of :mod:`agents.limits` applies.
         """
         if self.step == 1:
             self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta
@@ -120,4 +143,15 @@ class MidpointController:
         step = angular_step(
             self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, fresh, self.params
         )
+        reach_minus, reach_plus = (True, True) if reach is None else reach
+        unknown = (~self.predecessor_known & np.asarray(reach_minus)) | (~self.successor_known & np.asarray(reach_plus))
+        step = np.where(unknown, 0.0, step)
+        if communication_range is not None and reach is not None:
+            step = range_limited_step(step, reach_minus, reach_plus, self.params.max_step)
+            per_step = boundary_stretch(self.region, self.centre) * self.params.max_step
+            anchors = [
+                (self.predecessor_position, reach_minus, per_step * (self.predecessor_age + 1)),
+                (self.successor_position, reach_plus, per_step * (self.successor_age + 1)),
+            ]
+            step = clip_to_range(self.region, self.centre, self.theta, step, anchors, communication_range)
         return self.region.boundary_point(self.theta + step, self.centre)

@@ -33,6 +33,7 @@ class Trigger(enum.IntFlag):
     PREDECESSOR = 4  # T3: m_minus + phi_minus >= theta
     SCHEDULE = 8  # constant strategy: every step
     START = 16  # step 1: every robot starts with exact information
+    UNKNOWN = 32  # nothing is known of a reachable neighbour (it changed, or its answer was lost)
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ import numpy as np
 
 from agents.controller import MidpointController
 from agents.estimation import Estimator
+from agents.ring import ring_neighbours
 from bus.keys import FUSION, WORLD, robot_name
 from bus.messages import (
     SCHEMA,
@@ -93,7 +94,10 @@ class RobotNode:
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
         self.replies: dict[int, Reply] = {}
+        self.alive: set[int] = set(range(scenario.robots))
+        self.in_range: set[int] | None = None
         self.polls = 0
+        self.probes = 0
         self.ignored_replies = 0
         self.finished = False
 
@@ -116,6 +120,7 @@ class RobotNode:
         if measurement.robot != self.robot or measurement.step <= self.step:
             return []  # not ours, duplicate or out of date
         self.step = measurement.step
+        self.in_range = None if measurement.in_range is None else set(measurement.in_range)
         self.position = np.asarray(measurement.position, dtype=float)
         self.positions[self.step] = measurement.position
         self.positions.pop(self.step - KEPT_STEPS, None)
@@ -155,24 +160,59 @@ class RobotNode:
             return []
         del self.awaiting[reply.sender]
         self.replies[reply.sender] = reply
+        return self._settle()
+
+    def on_lost(self, neighbour: int) -> Outgoing:
+        """The request to ``neighbour`` or its reply will not come (dropped, out of range, the
+        neighbour left, or too late): go on without it; that side's memory stays stale."""
+        if self.awaiting.pop(neighbour, None) is None:
+            return []
+        return self._settle()
+
+    def set_alive(self, alive: set[int]) -> Outgoing:
+        """The live robots changed (one crashed or came back): re-form the ring around the gap. A
+        neighbour that left while its reply was awaited counts as lost; a side whose neighbour
+        changed is forgotten, so the robot polls its new neighbour at its next step."""
+        self.alive = set(alive)
+        outgoing: Outgoing = []
+        for neighbour in [n for n in self.awaiting if n not in self.alive]:
+            outgoing += self.on_lost(neighbour)
+        if not self.awaiting:
+            self._reform_ring()
+        return outgoing
+
+    def _reform_ring(self) -> None:
+        """Take the neighbours the live set implies, forgetting a side whose neighbour changed."""
+        predecessor, successor = ring_neighbours(self.robot, self.alive | {self.robot})
+        changed = (predecessor != self.predecessor, successor != self.successor)
+        if self.controller is not None and any(changed):
+            self.controller.forget(*changed)
+        self.predecessor, self.successor = predecessor, successor
+
+    def _settle(self) -> Outgoing:
+        """Once no reply is awaited: store what came, fuse beliefs, and command."""
         if self.awaiting:
             return []
         assert self.controller is not None
-        before, after = self.replies[self.predecessor], self.replies[self.successor]
+        before, after = self.replies.get(self.predecessor), self.replies.get(self.successor)
         self.controller.receive(
-            before.position,
-            after.position,
-            predecessor_age=self.step - before.step,
-            successor_age=self.step - after.step,
+            before.position if before else self.controller.predecessor_position,
+            after.position if after else self.controller.successor_position,
+            predecessor_fresh=before is not None,
+            successor_fresh=after is not None,
+            predecessor_age=self.step - before.step if before else 0,
+            successor_age=self.step - after.step if after else 0,
         )
         beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
-                   if reply.mean is not None and reply.covariance is not None]
+                   if reply is not None and reply.mean is not None and reply.covariance is not None]
         if self.estimator is not None and beliefs:
             self.estimator.fuse(beliefs)
             self.centre = self.estimator.centre
             self.covariance = pack_covariance(self.estimator.belief[1])
             self.controller.recentre(self.centre)
-        return [self._command()]
+        command = [self._command()]
+        self._reform_ring()  # a ring change may have arrived during the poll
+        return command
 
     # ------------------------------------------------------------------ helpers
     def _decide(self) -> Outgoing:
@@ -180,28 +220,44 @@ class RobotNode:
         assert self.position is not None
         if self.controller is None:
             self.controller = MidpointController(self.scenario.region, self.scenario.control, self.position)
-        self.trigger = int(self.controller.observe(self.step, self.position, self.centre))
+        if len(self.alive | {self.robot}) < 3:
+            self.trigger = 0  # no ring to spread on: hold position until robots come back
+            return [self._command(hold=True)]
+        reach = (self.reachable(self.predecessor), self.reachable(self.successor))
+        self.trigger = int(self.controller.observe(self.step, self.position, self.centre, reach))
         self.ages = (int(self.controller.predecessor_age), int(self.controller.successor_age))
+        neighbours = (self.predecessor, self.successor)
+        # Every unreachable neighbour gets one request per step: the poll itself or a probe.
+        probed = [n for n in neighbours if not self.reachable(n)] if not self.trigger else []
+        self.probes += len(probed) + sum(1 for n in neighbours if self.trigger and not self.reachable(n))
+        outgoing = [self._request(neighbour) for neighbour in probed]
         if not self.trigger:
-            return [self._command()]
+            return [*outgoing, self._command()]
         self.polls += 1
-        outgoing: Outgoing = []
-        for neighbour in (self.predecessor, self.successor):
-            nonce = self._nonce()
-            self.awaiting[neighbour] = nonce
-            outgoing.append(
-                (robot_name(neighbour), Request(SCHEMA, self.run, self.step, self.robot, neighbour, nonce))
-            )
+        for neighbour in neighbours:
+            request = self._request(neighbour)
+            self.awaiting[neighbour] = request[1].nonce
+            outgoing.append(request)
         return outgoing
 
-    def _command(self) -> tuple[str, Message]:
-        assert self.controller is not None
+    def _request(self, neighbour: int) -> tuple[str, Request]:
+        return robot_name(neighbour), Request(SCHEMA, self.run, self.step, self.robot, neighbour, self._nonce())
+
+    def reachable(self, robot: int) -> bool:
+        """Whether ``robot`` is within communication range this step (always, without a range)."""
+        return self.in_range is None or robot in self.in_range
+
+    def _command(self, hold: bool = False) -> tuple[str, Message]:
+        assert self.controller is not None and self.position is not None
+        limit = self.scenario.communication_range
+        reach = (self.reachable(self.predecessor), self.reachable(self.successor))
+        goal = self.position if hold else self.controller.goal(reach, limit)
         command = Command(
             SCHEMA,
             self.run,
             step=self.step,
             robot=self.robot,
-            goal=pack_point(self.controller.goal()),
+            goal=pack_point(goal),
             trigger=self.trigger,
             guaranteed_offset=float(self.controller.guaranteed_offset),
             ages=self.ages,

@@ -1,19 +1,33 @@
 """The robot process: one :class:`agents.node.RobotNode` driven by messages from the bus.
 
-It waits until the world, both ring neighbours (and the monitor, when one is expected) are up,
-declares itself ready, then reacts to every message; between its polls it sends no
-robot-to-robot message at all. It ends on the world's End, on a signal, or when the world goes away.
+It waits until the world, both ring neighbours (and the monitor, the fusion centre when there is
+one) are up, declares itself ready, then reacts to every message; between its polls it sends no
+robot-to-robot message at all. Its robot-to-robot traffic passes through the fault layer
+(:class:`bus.shim.LinkShim`); a reply that will not come (dropped, out of range, its sender gone,
+or, in realtime, later than ``reply_timeout``) never blocks it. Robots joining or leaving (through
+liveliness) re-form its ring. It ends on the world's End, on a signal, or when the world is gone.
 """
 
 from __future__ import annotations
 
+import asyncio
+from dataclasses import dataclass
+
+from agents.node import Outgoing, RobotNode
 from bus.config import BusConfig
-from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_name
-from bus.messages import End, Measurement
+from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from bus.messages import End, Measurement, Reply
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined, next_events
-from agents.node import RobotNode
+from bus.shim import LinkShim
 from world.scenario import Scenario
+
+
+@dataclass(frozen=True)
+class ReplyDeadline:
+    """Realtime: the replies of the poll of ``step`` are due."""
+
+    step: int
 
 
 async def run_robot(
@@ -23,8 +37,13 @@ async def run_robot(
     bus: BusConfig,
     expect_monitor: bool = False,
     exit_with_parent: bool = False,
+    reply_timeout: float | None = None,
 ) -> int:
-    """Run robot ``robot`` until the run ends; returns the exit code (0 done, 1 world lost, 130 stopped)."""
+    """Run robot ``robot`` until the run ends; returns the exit code (0 done, 1 world lost, 130 stopped).
+
+    ``reply_timeout`` (wall seconds) bounds how long a poll waits in realtime; None (lockstep) waits
+    for every answer or an explicit loss, so results do not depend on timing.
+    """
     node = RobotNode(robot, scenario, run)
     keys = Keys(run)
     async with joined(bus, keys, node.name, scenario.robots, exit_with_parent) as participant:
@@ -40,9 +59,43 @@ async def run_robot(
         if not joined_team:
             return 130
         participant.announce("ready")
-        code = await _serve(participant, node, roster, events)
-        participant.send(MONITOR, participant.stats(final=True))
+        link = RobotLink(participant, node, reply_timeout)
+        code = await _serve(link, roster, events)
+        notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies}
+        participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
         return code
+
+
+class RobotLink:
+    """Connects the node to the bus through the fault layer, turning losses into ``on_lost``."""
+
+    def __init__(self, participant: Participant, node: RobotNode, reply_timeout: float | None) -> None:
+        self.participant = participant
+        self.node = node
+        self.reply_timeout = reply_timeout
+        self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable)
+
+    def send(self, outgoing: Outgoing) -> None:
+        pending = list(outgoing)
+        while pending:
+            destination, message = pending.pop(0)
+            if not self.shim.send(destination, message) and robot_index(destination) is not None:
+                pending += self.node.on_lost(robot_index(destination))
+        if self.reply_timeout is not None and self.node.awaiting:
+            loop = asyncio.get_running_loop()
+            loop.call_later(self.reply_timeout, self.participant.inbox.push, ReplyDeadline(self.node.step))
+
+    def deliver(self, delivery: Delivery) -> None:
+        deliveries, lost = self.shim.receive(delivery)
+        if lost and isinstance(delivery.message, Reply):
+            self.send(self.node.on_lost(delivery.message.sender))
+        for copy in deliveries:
+            self.send(self.node.handle(copy.message))
+
+    def deadline(self, event: ReplyDeadline) -> None:
+        if event.step == self.node.step:
+            for neighbour in list(self.node.awaiting):
+                self.send(self.node.on_lost(neighbour))
 
 
 def _newest_measurement_only(events: list) -> list:
@@ -57,18 +110,26 @@ def _newest_measurement_only(events: list) -> list:
                                               and event.message.step < newest)]
 
 
-async def _serve(participant: Participant, node: RobotNode, roster: Roster, events: list) -> int:
+async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
+    node = link.node
     while True:
         for event in _newest_measurement_only(events):
             if isinstance(event, Delivery):
-                for destination, message in node.handle(event.message):
-                    participant.send(destination, message)
+                link.deliver(event)
                 if isinstance(event.message, End):
                     return 0
+            elif isinstance(event, ReplyDeadline):
+                link.deadline(event)
             elif isinstance(event, Interrupt):
                 return 130
             elif isinstance(event, Presence):
                 roster.update(event)
+                robot = robot_index(event.name)
+                if event.kind == "alive" and robot is not None and robot != node.robot:
+                    # The team starts whole; robots leave (crash) and come back (restart) from there.
+                    alive = node.alive | {robot} if event.up else node.alive - {robot}
+                    if alive != node.alive:
+                        link.send(node.set_alive(alive))
         if roster.gone_for_good(WORLD):
             return 1  # the world went away without ending the run
-        events = await next_events(participant, roster)
+        events = await next_events(link.participant, roster)

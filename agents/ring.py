@@ -48,3 +48,14 @@ def midpoint_errors(angles: ArrayLike) -> FloatArray:
     """``e_i = V_i - theta_i = (d_i^+ - d_i^-) / 4`` (radians) of a whole ring with exact information."""
     gaps = ring_gaps(angles)
     return (gaps - np.roll(gaps, 1, axis=-1)) / 4.0
+
+
+def ring_neighbours(robot: int, alive: set[int] | frozenset[int]) -> tuple[int, int]:
+    """``(predecessor, successor)`` of ``robot`` in the ring of the ``alive`` robots: the nearest
+    alive ids before and after it in cyclic id order (itself when it is alone)."""
+    others = sorted(alive - {robot})
+    if not others:
+        return robot, robot
+    before = [other for other in others if other < robot]
+    after = [other for other in others if other > robot]
+    return (before or others)[-1], (after or others)[0]

@@ -29,13 +29,15 @@ class Message(msgspec.Struct, array_like=True, frozen=True, tag=True):
 
 
 class Measurement(Message, tag=1):
-    """World -> robot: the robot's exact position and a noisy range to the target (None: beyond r_s)."""
+    """World -> robot: the robot's exact position and a noisy range to the target (None: beyond
+    r_s), and with a limited communication range the live robots it can reach this step."""
 
     step: int
     time: float
     robot: int
     position: Point
     range: float | None
+    in_range: list[int] | None = None
     kind: ClassVar[str] = "measurement"
     category: ClassVar[str] = "world"
 
@@ -113,7 +115,9 @@ Traffic = tuple[str, str, str, int, int]  # (kind, source, destination, messages
 
 
 class Stats(Message, tag=7):
-    """Any process -> monitor: what it has sent and received so far, by kind and link."""
+    """Any process -> monitor: what it has sent and received so far, by kind and link, payloads it
+    rejected by reason, what the fault layer did to its robot-to-robot messages, and protocol
+    counters (``notes``: e.g. replies ignored for a wrong nonce, probes of unreachable neighbours)."""
 
     name: str
     final: bool
@@ -121,7 +125,24 @@ class Stats(Message, tag=7):
     received: list[Traffic]
     rejected: dict[str, int]
     rss_kib: int
+    faults: dict[str, int] = {}
+    notes: dict[str, int] = {}
     kind: ClassVar[str] = "stats"
+    category: ClassVar[str] = "monitoring"
+
+
+class FaultNotice(Message, tag=10):
+    """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone),
+    ``duplicated`` or ``delayed`` (by ``delay_s``) the ``subject`` message ``sender -> receiver``."""
+
+    step: int
+    subject: str
+    sender: int
+    receiver: int
+    what: str
+    reason: str
+    delay_s: float
+    kind: ClassVar[str] = "fault"
     category: ClassVar[str] = "monitoring"
 
 
@@ -148,9 +169,10 @@ class Estimate(Message, tag=9):
 
 
 KINDS: dict[str, type[Message]] = {
-    cls.kind: cls for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate)
+    cls.kind: cls
+    for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate, FaultNotice)
 }
-AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats | RangeReport | Estimate
+AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats | RangeReport | Estimate | FaultNotice
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(AnyMessage)
@@ -212,6 +234,8 @@ def endpoints(message: Message) -> tuple[str, str | None]:
         return robot_name(message.robot), FUSION
     if isinstance(message, Estimate):
         return FUSION, None
+    if isinstance(message, FaultNotice):  # faults of a poll are decided by the polling robot
+        return robot_name(message.sender if message.subject == "request" else message.receiver), MONITOR
     return WORLD, None
 
 

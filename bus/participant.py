@@ -38,11 +38,13 @@ class Presence:
 
 @dataclass(frozen=True)
 class Delivery:
-    """A validated message with the route its key named and its payload size in bytes."""
+    """A validated message with the route its key named and its payload size in bytes; ``released``
+    once a fault layer has settled its fate (a delayed or duplicated copy)."""
 
     message: AnyMessage
     route: Route
     size: int
+    released: bool = False
 
 
 @dataclass(frozen=True)
@@ -177,8 +179,9 @@ class Participant:
         self.counter.count_sent((message.kind, self.name, destination), len(payload))
         return len(payload)
 
-    def stats(self, final: bool) -> Stats:
-        """What this participant has sent, received and rejected so far."""
+    def stats(self, final: bool, faults: dict[str, int] | None = None, notes: dict[str, int] | None = None) -> Stats:
+        """What this participant has sent, received and rejected so far, what its fault layer did
+        (``faults``) and protocol counters (``notes``)."""
         return Stats(
             SCHEMA,
             self.keys.run,
@@ -188,6 +191,8 @@ class Participant:
             received=self.counter.received_table(),
             rejected=self.counter.rejected_table(),
             rss_kib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+            faults=faults or {},
+            notes=notes or {},
         )
 
     def close(self) -> None:

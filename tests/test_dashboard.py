@@ -109,7 +109,7 @@ def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path) -> None:
     text = render(model)
     saved = 4 * 6 * 80 - seen["robot"]["messages"]
     assert f"saved vs constant: {saved} robot-to-robot messages" in text
-    assert f"step 80/80" in text or "step 80/" in text
+    assert "step 80/80" in text or "step 80/" in text
     for robot in range(6):
         sent = sum(record["sent_messages"][robot] for record in log.steps)
         assert re.search(rf"^\s*r{robot} {robot}\s+up.*\s{sent}/\d+\s", text, re.MULTILINE)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from agents.estimation import SINGULAR_DISTANCE, EstimationParams, Estimator, RangeFilter, trilaterate

@@ -7,14 +7,14 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from tools import bench, experiment, plot, replay, roles, simulate, spawn
+from tools import bench, check, experiment, plot, replay, roles, simulate, spawn
 from tools.console import UsageError, err
 from bus.config import BusError
 from tools.runlog import LogError
 from world.geometry import RegionError
 from world.scenario import ScenarioError
 
-COMMANDS = (simulate, spawn, roles, replay, plot, experiment, bench)
+COMMANDS = (simulate, spawn, roles, replay, plot, check, experiment, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -36,6 +36,7 @@ REASONS = {
     Trigger.UNCERTAINTY: "T1 ubd",
     Trigger.SUCCESSOR: "T2 order+",
     Trigger.PREDECESSOR: "T3 order-",
+    Trigger.UNKNOWN: "unknown",
 }
 
 

@@ -18,8 +18,20 @@ from pathlib import Path
 
 from bus.config import BusConfig
 from bus.counting import TrafficCounter, totals_by_category
-from bus.keys import FUSION, MONITOR, WORLD, Keys, robot_name
-from bus.messages import Command, End, Estimate, Measurement, RangeReport, Reply, Request, Stats, Tick, Traffic
+from bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from bus.messages import (
+    Command,
+    End,
+    Estimate,
+    FaultNotice,
+    Measurement,
+    RangeReport,
+    Reply,
+    Request,
+    Stats,
+    Tick,
+    Traffic,
+)
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Roster, gather_until, joined
 from tools.dashboard import TeamModel
@@ -46,16 +58,25 @@ class PendingStep:
     received_bytes: Counter[int] = field(default_factory=Counter)
     traffic_messages: Counter[str] = field(default_factory=Counter)
     traffic_bytes: Counter[str] = field(default_factory=Counter)
+    notices: list[FaultNotice] = field(default_factory=list)
 
     def complete(self) -> bool:
-        """Tick and every live robot's command are in, and all 4 messages of every poll."""
+        """Tick and every live robot's command are in, and every message its polls published: 4 per
+        poll, less a request and its answer for each poll request the fault layer dropped before
+        sending, plus both for each duplicated request."""
         if self.tick is None or not set(self.tick.live) <= set(self.commands):
             return False
-        polls = sum(1 for command in self.commands.values() if command.trigger)
-        return self.sent_messages.total() >= 4 * polls
+        polling = {robot for robot, command in self.commands.items() if command.trigger}
+        expected = 4 * len(polling)
+        for notice in self.notices:
+            if notice.subject == "request" and notice.what == "dropped" and notice.sender in polling:
+                expected -= 2
+            elif notice.subject == "request" and notice.what == "duplicated":
+                expected += 2
+        return self.sent_messages.total() >= expected
 
 
-STEPPED = (Tick, Measurement, Command, Request, Reply, RangeReport, Estimate)
+STEPPED = (Tick, Measurement, Command, Request, Reply, RangeReport, Estimate, FaultNotice)
 
 
 class Recorder:
@@ -82,7 +103,7 @@ class Recorder:
         message = delivery.message
         if not isinstance(message, STEPPED):
             return
-        if message.step < self.next_step:
+        if message.step < self.next_step and not isinstance(message, FaultNotice):
             self.late += 1  # its step record is already written
             return
         entry = self._pending(message.step)
@@ -99,6 +120,12 @@ class Recorder:
             entry.sent_bytes[message.sender] += delivery.size
             entry.received_messages[message.receiver] += 1
             entry.received_bytes[message.receiver] += delivery.size
+        elif isinstance(message, FaultNotice):
+            entry.notices.append(message)
+            self.writer.write({"type": "event", "event": message.what, "step": message.step,
+                               "subject": message.subject, "sender": message.sender,
+                               "receiver": message.receiver, "reason": message.reason or None,
+                               "delay_s": message.delay_s or None})
 
     def _pending(self, step: int) -> PendingStep:
         return self.pending.setdefault(step, PendingStep())
@@ -159,6 +186,9 @@ class MonitorReport:
     rss_kib: dict[str, int]
     end: End | None
     late: int
+    faults: Counter[str] = field(default_factory=Counter)  # robots' fault layers, summed
+    notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
+    rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
 
     def sender_totals(self) -> dict[str, dict[str, int]]:
         return totals_by_category([row for rows in self.senders.values() for row in rows])
@@ -219,6 +249,10 @@ async def run_monitor(
                     "late": recorder.late,
                     "rss_kib": report.rss_kib,
                     "consistent": report.consistent(),
+                    "faults": {name: report.faults[name] for name in ("sent", "delivered", "dropped", "duplicated",
+                                                                      "delayed")},
+                    "notes": dict(report.notes),
+                    "rejected_by": report.rejected_by,
                 }
             )
         return code, report
@@ -253,6 +287,10 @@ async def _watch(
                     end = message
             elif isinstance(event, Presence):
                 roster.update(event)
+                if event.kind == "alive" and robot_index(event.name) is not None:
+                    recorder.writer.write({"type": "event", "event": "joined" if event.up else "left",
+                                           "robot": event.name, "step": recorder.latest_tick,
+                                           "wall": time.time()})
             elif isinstance(event, Interrupt) and not code:
                 code, interrupted_at = 130, loop.time()
         if events:
@@ -286,6 +324,9 @@ async def _watch(
         rss_kib={name: stats.rss_kib for name, stats in finals.items()},
         end=end,
         late=recorder.late,
+        faults=sum((Counter(stats.faults) for stats in finals.values()), Counter()),
+        notes=sum((Counter(stats.notes) for stats in finals.values()), Counter()),
+        rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
     )
     return code, report
 

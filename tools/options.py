@@ -29,6 +29,9 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
     parser.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     parser.add_argument("--estimation", choices=["known", "centralized", "decentralized"],
                         help="how the robots estimate the target")
+    parser.add_argument("--drop", type=float, metavar="P", help="drop a share P of robot-to-robot messages")
+    parser.add_argument("--duplicate", type=float, metavar="P", help="duplicate a share P of them")
+    parser.add_argument("--communication-range", type=float, metavar="M", help="r_c in metres")
 
 
 def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
@@ -42,4 +45,7 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
         max_steps=args.steps,
         sigma_deg=args.sigma_deg,
         estimation=args.estimation,
+        drop=args.drop,
+        duplicate=args.duplicate,
+        communication_range=args.communication_range,
     )

@@ -29,7 +29,7 @@ from typing import IO, Any
 import msgspec
 import numpy as np
 
-from world.engine import History
+from world.engine import History, fault_totals
 from world.geometry import angle_of
 from world.metrics import convergence_error, true_offsets
 from world.scenario import Scenario, parse_scenario, resolve
@@ -125,22 +125,13 @@ def step_record(
     }
 
 
-def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
-    """Messages each robot sends in a step of the request/reply protocol: 2 requests when it polls,
-    and one reply to each ring neighbour that polls it. ``polled`` is boolean with robots last.
-    By symmetry each robot also receives exactly as many."""
-    polled = polled.astype(np.int64)
-    return 2 * polled + np.roll(polled, 1, axis=-1) + np.roll(polled, -1, axis=-1)
-
-
 def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     """Write one trial of an engine run in the run-log format (positions must be recorded)."""
     if history.positions is None:
         raise ValueError("the engine run did not record positions; run it with record_positions=True")
     scenario = history.scenario
     robots = scenario.robots
-    polled = history.triggers[:, trial] != 0
-    sent = robot_to_robot_sent(polled)
+    sent, received = history.sent[:, trial], history.received[:, trial]
     estimation_messages = robots + 1 if scenario.estimation.mode == "centralized" else 0
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
@@ -158,13 +149,14 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                     ages=history.ages[row, trial].tolist(),
                     centre=history.estimates[row, trial].tolist(),
                     sent=(sent[row].tolist(), None),
-                    received=(sent[row].tolist(), None),
+                    received=(received[row].tolist(), None),
                     traffic={"robot": [int(sent[row].sum()), None], "world": [2 * robots + 1, None],
                              "estimation": [estimation_messages, None]},
                 )
             )
         writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
-                      "traffic": _engine_traffic(polled), "senders": {}, "rejected": {}, "late": 0})
+                      "traffic": _engine_traffic(history.triggers[:, trial] != 0), "senders": {}, "rejected": {},
+                      "late": 0, "faults": fault_totals(history, trial)})
 
 
 def _engine_traffic(polled: np.ndarray) -> list[list[Any]]:
@@ -251,4 +243,8 @@ def history_from_log(log: RunLog) -> History:
         targets=targets,
         terr=np.nanmean(np.linalg.norm(estimates - targets[..., None, :], axis=-1), axis=-1),
         estimates=estimates,
+        sent=np.array([record["sent_messages"] for record in log.steps], dtype=np.int64)[:, None],
+        received=np.array([record["received_messages"] for record in log.steps], dtype=np.int64)[:, None],
+        faults=np.zeros((len(log.steps), 1, 4), dtype=np.int64),  # per run only: see the end record
+        probes=np.zeros((len(log.steps), 1), dtype=np.int64),
     )

@@ -1,7 +1,8 @@
 """``ringtrack spawn``: start a world, N robots and a monitor as separate OS processes over Zenoh.
 
 Everything of a run goes into one run folder (``runs/<UTC time>-<name>-<run id>/`` by default): the
-resolved scenario, the run log, each process's standard error and the summary JSON. The world
+resolved scenario, ``run.json`` (run id, endpoints: what ``ringtrack robot --join`` needs to restart
+a crashed robot), the run log, each process's standard error and the summary JSON. The world
 listens on a free loopback port and announces it; the others connect to it and gossip links the
 rest. Completion, Ctrl-C and SIGTERM all end every process within 2 s.
 """
@@ -29,6 +30,7 @@ from world.scenario import Scenario
 ANNOUNCE_TIMEOUT_S = 20.0
 STALL_TIMEOUT_S = 60.0
 ROLE_COMMAND = [sys.executable, "-m", "tools.cli"]
+CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -107,7 +109,12 @@ def spawn_team(
                 stop_rule = ["--until-converged"] if until_converged else []
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, "--clock", clock, "--rate", str(rate),
                                            "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce), *stop_rule])
-                connect = [flag for endpoint in _announced(announce, supervisor) for flag in ("--connect", endpoint)]
+                endpoints = _announced(announce, supervisor)
+                connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)]
+                reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
+                write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
+                                                 "reply_timeout": None if clock == "lockstep" else
+                                                 scenario.control.dt / rate})
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
@@ -115,12 +122,10 @@ def spawn_team(
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 for robot in range(scenario.robots):
-                    supervisor.start(f"r{robot}", [*ROLE_COMMAND, "robot", *common, *connect, "--id", str(robot)])
-                supervisor.wait(until_all=False, stall_s=STALL_TIMEOUT_S, watched=log_path)
-                if supervisor.failed():
-                    supervisor.stop()
-                else:
-                    supervisor.wait()
+                    supervisor.start(f"r{robot}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
+                                                   "--id", str(robot)])
+                # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
+                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path)
         except KeyboardInterrupt:
             interrupted = "interrupted (Ctrl-C)"
         except Terminated:
@@ -140,6 +145,8 @@ def spawn_team(
     write_json(folder / "summary.json", result)
     if interrupted:
         err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
+    if result.get("monitor_equals_senders") is False:
+        err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
 
 
@@ -172,6 +179,7 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
     result["bytes"] = {category: entry["bytes"] for category, entry in totals_by_category(traffic).items()}
     result["by_kind"] = totals_by_kind(traffic)
     result["monitor_equals_senders"] = end.get("consistent")
+    result["faults"] = end.get("faults", {})
     result["rejected"] = end.get("rejected", {})
     result["rss_kib"] = end.get("rss_kib", {})
     result["end_reason"] = end.get("reason")

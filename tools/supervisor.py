@@ -63,13 +63,13 @@ class Supervisor:
     def failed(self) -> list[Child]:
         return [child for child in self.children if child.process.poll() not in (None, 0)]
 
-    def wait(self, until_all: bool = True, poll_s: float = 0.05, stall_s: float | None = None,
+    def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
              watched: Path | None = None) -> None:
-        """Wait until every child has exited; return early when one fails (``until_all`` false), or
-        when ``watched`` has not grown for ``stall_s`` seconds (a hung run)."""
+        """Wait until every child has exited; return early when a ``critical`` child fails, and raise
+        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run)."""
         last_size, last_change = -1, time.monotonic()
         while self.running():
-            if not until_all and self.failed():
+            if any(child.name in critical for child in self.failed()):
                 return
             if stall_s is not None and watched is not None:
                 size = watched.stat().st_size if watched.exists() else 0

@@ -18,6 +18,7 @@ from agents.controller import MidpointController
 from agents.estimation import Estimator
 from world.geometry import FloatArray, angle_of
 from world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
+from bus.faults import Fate, FaultPlan
 from world.scenario import Scenario
 from world.sensing import RangeSensor
 
@@ -32,7 +33,8 @@ class History:
     predecessor and successor) at that moment; ``cerr_true`` degrees (see
     :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
     over robots of the distance from the estimate each steered by to the target); ``estimates`` those
-    estimates (or ``None`` when not recorded).
+    estimates (or ``None`` when not recorded); robot-to-robot traffic (``sent``, ``received``), the
+    fault layer's counts (``faults``) and ``probes`` of unreachable neighbours (see :func:`exchange`).
     """
 
     scenario: Scenario
@@ -46,6 +48,10 @@ class History:
     targets: FloatArray  # (K, T, 2)
     terr: FloatArray  # (K, T)
     estimates: FloatArray | None  # (K, T, N, 2)
+    sent: NDArray[np.int64]  # (K, T, N) robot-to-robot messages published by each robot
+    received: NDArray[np.int64]  # (K, T, N) ... addressed to each robot
+    faults: NDArray[np.int64]  # (K, T, 4) FAULT_COLUMNS: sent, delivered, dropped, duplicated
+    probes: NDArray[np.int64]  # (K, T) requests to unreachable neighbours
 
     @property
     def steps(self) -> int:
@@ -112,17 +118,98 @@ class TeamEstimate:
                     centres[trial, robot] = estimator.centre
         return centres
 
-    def fuse(self, polled: NDArray[np.bool_], centres: FloatArray) -> None:
-        """Decentralized robots that polled fuse both neighbours' beliefs (as they were before anyone
-        fused this step) and steer by the result; ``centres`` is updated in place."""
+    def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> None:
+        """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
+        as they were before anyone fused this step) and steer by the result; ``centres`` is updated
+        in place."""
         if self.mode != "decentralized":
             return
         for trial, estimators in enumerate(self.estimators):
             beliefs = [estimator.belief for estimator in estimators]
-            for robot in np.flatnonzero(polled[trial]):
-                neighbours = [beliefs[(robot - 1) % self.robots], beliefs[(robot + 1) % self.robots]]
-                estimators[robot].fuse(neighbours)
+            for robot in np.flatnonzero(fresh_minus[trial] | fresh_plus[trial]):
+                sides = ((fresh_minus, robot - 1), (fresh_plus, robot + 1))
+                received = [beliefs[neighbour % self.robots] for fresh, neighbour in sides if fresh[trial, robot]]
+                estimators[robot].fuse(received)
                 centres[trial, robot] = estimators[robot].centre
+
+
+FAULT_COLUMNS = ("sent", "delivered", "dropped", "duplicated")
+
+
+def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
+    """Messages each robot sends in a step of the request/reply protocol: 2 requests when it polls,
+    and one reply to each ring neighbour that polls it. ``polled`` is boolean with robots last.
+    By symmetry each robot also receives exactly as many."""
+    polled = polled.astype(np.int64)
+    return 2 * polled + np.roll(polled, 1, axis=-1) + np.roll(polled, -1, axis=-1)
+
+
+def fault_totals(history: History, trial: int = 0) -> dict[str, int]:
+    """Robot-to-robot messages sent, delivered, dropped and duplicated over a trial, and probes."""
+    totals = history.faults[:, trial].sum(axis=0)
+    return {**{name: int(value) for name, value in zip(FAULT_COLUMNS, totals, strict=True)},
+            "probes": int(history.probes[:, trial].sum())}
+
+
+@dataclass
+class Exchange:
+    """What the polls and probes of one step achieved, for a batch of teams: which sides came back
+    fresh, robot-to-robot messages published per robot (sent, received), the fault counts per trial
+    (:data:`FAULT_COLUMNS`) and the probes of unreachable neighbours per trial."""
+
+    fresh_minus: NDArray[np.bool_]
+    fresh_plus: NDArray[np.bool_]
+    sent: NDArray[np.int64]
+    received: NDArray[np.int64]
+    faults: NDArray[np.int64]
+    probes: NDArray[np.int64]
+
+
+def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
+             reach_plus: NDArray[np.bool_]) -> Exchange:
+    """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`):
+    a polling robot requests both neighbours; a robot also probes each unreachable neighbour once
+    (its poll request serving as the probe); a request to an unreachable neighbour is dropped, every
+    delivered copy of a request is answered, and each reply meets its own fate."""
+    trials, robots = polled.shape
+    if not plan.active and reach_minus.all() and reach_plus.all():
+        traffic = robot_to_robot_sent(polled)
+        faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
+        faults[:, 0] = faults[:, 1] = traffic.sum(axis=1)
+        return Exchange(polled, polled, traffic, traffic, faults, np.zeros(trials, dtype=np.int64))
+    fresh = {-1: np.zeros_like(polled), 1: np.zeros_like(polled)}
+    sent = np.zeros(polled.shape, dtype=np.int64)
+    received = np.zeros(polled.shape, dtype=np.int64)
+    faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
+    probes = np.zeros(trials, dtype=np.int64)
+    count = {name: index for index, name in enumerate(FAULT_COLUMNS)}
+    for trial, robot in zip(*np.nonzero(polled | ~reach_minus | ~reach_plus), strict=True):
+        for side, reachable in ((-1, reach_minus[trial, robot]), (1, reach_plus[trial, robot])):
+            if reachable and not polled[trial, robot]:
+                continue
+            neighbour = (robot + side) % robots
+            probes[trial] += not reachable
+            faults[trial, count["sent"]] += 1
+            fate = plan.fate("request", robot, neighbour, step) if reachable else Fate(dropped=True, reason="range")
+            if fate.dropped:
+                faults[trial, count["dropped"]] += 1
+                continue
+            copies = fate.copies
+            faults[trial, count["duplicated"]] += copies - 1
+            faults[trial, count["delivered"]] += copies
+            sent[trial, robot] += copies
+            received[trial, neighbour] += copies
+            answer = plan.fate("reply", neighbour, robot, step)
+            faults[trial, count["sent"]] += copies
+            sent[trial, neighbour] += copies
+            received[trial, robot] += copies
+            if answer.dropped:
+                faults[trial, count["dropped"]] += copies
+                continue
+            faults[trial, count["delivered"]] += copies * answer.copies
+            faults[trial, count["duplicated"]] += copies * (answer.copies - 1)
+            fresh[side][trial, robot] = True
+    return Exchange(fresh[-1], fresh[1], sent, received, faults, probes)
 
 
 def run(
@@ -155,6 +242,11 @@ def run(
     ages = np.empty((steps, trials, robots, 2), dtype=np.int32)
     cerr_true = np.empty((steps, trials))
     terr = np.empty((steps, trials))
+    sent = np.empty((steps, trials, robots), dtype=np.int64)
+    received = np.empty((steps, trials, robots), dtype=np.int64)
+    faults = np.empty((steps, trials, len(FAULT_COLUMNS)), dtype=np.int64)
+    probes = np.empty((steps, trials), dtype=np.int64)
+    limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
     converged = np.zeros(trials, dtype=bool)
@@ -167,15 +259,19 @@ def run(
         angles[row] = angle_of(positions, targets[:, None, :])
         cerr_true[row] = convergence_error(true_offsets(positions, targets))
         centres = team.measure(positions, targets)
-        reasons = controller.observe(k, positions, centres)
+        neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
+        reach = tuple(np.linalg.norm(neighbour - positions, axis=-1) <= (limit or np.inf) for neighbour in neighbours)
+        reasons = controller.observe(k, positions, centres, reach)
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
-        controller.receive(np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1), polled, polled)
+        outcome = exchange(scenario.faults, k, polled, *reach)
+        controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
-            team.fuse(polled, centres)
+            team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
-        goal = controller.goal()
+        goal = controller.goal(reach if limit else None, limit)
+        sent[row], received[row], faults[row], probes[row] = outcome.sent, outcome.received, outcome.faults, outcome.probes
         offsets[row] = controller.guaranteed_offset
         terr[row] = np.linalg.norm(centres - targets[:, None, :], axis=-1).mean(axis=-1)
         if estimates is not None:
@@ -201,6 +297,10 @@ def run(
         targets=np.swapaxes(paths[:, :steps], 0, 1),
         terr=terr[:steps],
         estimates=None if estimates is None else estimates[:steps],
+        sent=sent[:steps],
+        received=received[:steps],
+        faults=faults[:steps],
+        probes=probes[:steps],
     )
 
 
@@ -229,4 +329,5 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "estimation": scenario.estimation.mode,
         "terr_mean": float(history.terr[:, trial].mean()),
         "terr_final": float(history.terr[-1, trial]),
+        "faults": fault_totals(history, trial),
     }

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from agents.ring import midpoint_errors
-from world.geometry import FloatArray, angle_of
+from world.geometry import ConvexRegion, FloatArray, angle_of
 
 
 def convergence_error(offsets: ArrayLike) -> FloatArray:
@@ -61,3 +61,12 @@ def range_information(positions: ArrayLike, target: ArrayLike, sigma_z: float) -
     bearing = np.asarray(target)[..., None, :] - np.asarray(positions, dtype=float)
     unit = bearing / np.linalg.norm(bearing, axis=-1, keepdims=True)
     return np.einsum("...ni,...nj->...ij", unit, unit) / sigma_z**2
+
+
+def ring_order_kept(region: ConvexRegion, positions: ArrayLike) -> NDArray[np.bool_]:
+    """Whether the robots along axis -2 of ``positions`` (boundary points) are still in strict
+    counter-clockwise ring order on the boundary (by arc length; the order is the same seen from any
+    interior centre)."""
+    arc = region.arc_length(positions)
+    gaps = np.mod(np.roll(arc, -1, axis=-1) - arc, region.perimeter)
+    return (np.abs(gaps.sum(axis=-1) - region.perimeter) < 1e-9 * region.perimeter) & np.all(gaps > 0, axis=-1)

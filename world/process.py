@@ -8,7 +8,9 @@ Clocks:
   whatever step it was computed for.
 
 The world starts once every robot (and the monitor, when one is expected) is ready, and ends the
-run with an :class:`~bus.messages.End` to everyone. A robot that disappears stops the run.
+run with an :class:`~bus.messages.End` to everyone. A robot that disappears leaves the live set (its
+neighbours re-form the ring around it) and stays where it stopped; one that comes back rejoins,
+placed midway between its live ring neighbours (:meth:`world.state.WorldState.rejoin`).
 """
 
 from __future__ import annotations
@@ -114,29 +116,39 @@ def _announce(participant: Participant, path: Path) -> None:
     temporary.replace(path)
 
 
-def _publish(participant: Participant, world: WorldState, live: list[int]) -> None:
+def _publish(participant: Participant, world: WorldState) -> None:
+    live = sorted(world.live)
     participant.send(MONITOR, world.tick(live))
     for robot in live:
         participant.send(robot_name(robot), world.measurement(robot))
 
 
 def _handle(event: object, world: WorldState, roster: Roster) -> None:
-    """Apply one event to the world; raise :class:`RunStopped` when the run must end."""
+    """Apply one event to the world; raise :class:`RunStopped` when the run must end.
+
+    A robot whose process goes away (a crash: its liveliness token is withdrawn) leaves the live
+    set and stays where it is; one that declares itself ready again (a restart) rejoins."""
     if isinstance(event, Delivery) and isinstance(event.message, Command):
         world.accept(event.message)
     elif isinstance(event, Interrupt):
         raise RunStopped(f"interrupted ({event.reason})")
     elif isinstance(event, Presence):
         roster.update(event)
-        if event.kind == "alive" and not event.up and robot_index(event.name) is not None:
-            raise RunStopped(f"robot {event.name} disappeared at step {world.step}")
+        robot = robot_index(event.name)
+        if robot is None:
+            return
+        if event.kind == "alive" and not event.up and robot in world.live:
+            world.live.discard(robot)
+            log.warning("robot %s left at step %d; %d robots go on", event.name, world.step, len(world.live))
+        elif event.kind == "ready" and event.up and robot not in world.live:
+            world.rejoin(robot)
+            log.info("robot %s rejoined at step %d, placed between its ring neighbours", event.name, world.step)
 
 
 async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
-    """Publish the step and wait for every robot's command for it (no deadline)."""
-    live = list(range(world.scenario.robots))
-    _publish(participant, world, live)
-    while not world.commanded.issuperset(live):
+    """Publish the step and wait for every live robot's command for it (no deadline)."""
+    _publish(participant, world)
+    while not world.commanded.issuperset(world.live):
         for event in await participant.events():
             _handle(event, world, roster)
 
@@ -145,7 +157,7 @@ async def _realtime(participant: Participant, world: WorldState, roster: Roster,
     """Publish the step and take whatever commands arrive until ``deadline`` (loop time: the start
     of the run plus ``step * dt / rate``, so the schedule does not drift)."""
     loop = asyncio.get_running_loop()
-    _publish(participant, world, list(range(world.scenario.robots)))
+    _publish(participant, world)
     while (remaining := deadline - loop.time()) > 0:
         try:
             events = await asyncio.wait_for(participant.events(), remaining)

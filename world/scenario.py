@@ -30,6 +30,14 @@ A scenario file looks like::
     prior_variance = 1.0       # m^2, P0 = p I
     fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
     criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
+    [limits]
+    communication_range = 5.0  # m, r_c: links longer than this are down (default: unlimited)
+    [faults]                   # robot-to-robot links; seeded by seed (default: the scenario's)
+    drop = 0.2                 # probability a message is lost
+    duplicate = 0.0            # probability a message arrives twice
+    delay_ms = 0.0             # wall delay, with +- jitter_ms
+    [[faults.links]]           # per-link override: between = [0, 1], drop = 0.5, ...
+    [[faults.outages]]         # links down: links = [[2, 3], [5, 0]], from_step = 100, to_step = 300
 
 Every problem is reported as one :class:`ScenarioError` line naming the key and the fix.
 """
@@ -50,7 +58,8 @@ from agents.estimation import EstimationParams
 from agents.laws import ControlParams
 from agents.ring import ring_gaps
 from world.geometry import ConvexRegion, FloatArray, RegionError
-from world.schema import Finite, NonNegative, Point, Positive, Spec
+from bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
+from world.schema import Finite, NonNegative, Point, Positive, Probability, Spec
 from world.target import Stationary, TargetSpec
 
 MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
@@ -96,6 +105,36 @@ class EstimationSpec(Spec):
     criterion: Literal["trace", "det"] = "trace"
 
 
+class LimitsSpec(Spec):
+    communication_range: Positive | None = None
+
+
+class LinkFaultSpec(Spec):
+    between: tuple[int, int]
+    drop: Probability | None = None
+    duplicate: Probability | None = None
+    delay_ms: NonNegative | None = None
+    jitter_ms: NonNegative | None = None
+
+
+class OutageSpec(Spec):
+    links: list[tuple[int, int]]
+    from_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
+    to_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
+    from_s: NonNegative | None = None
+    to_s: NonNegative | None = None
+
+
+class FaultsSpec(Spec):
+    seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    drop: Probability = 0.0
+    duplicate: Probability = 0.0
+    delay_ms: NonNegative = 0.0
+    jitter_ms: NonNegative = 0.0
+    links: list[LinkFaultSpec] = []
+    outages: list[OutageSpec] = []
+
+
 class ScenarioSpec(Spec, kw_only=True):
     region: RegionSpec
     target: TargetSpec
@@ -105,6 +144,8 @@ class ScenarioSpec(Spec, kw_only=True):
     control: ControlSpec = ControlSpec()
     sensing: SensingSpec = SensingSpec()
     estimation: EstimationSpec = EstimationSpec()
+    limits: LimitsSpec = LimitsSpec()
+    faults: FaultsSpec = FaultsSpec()
 
 
 DEFAULT_OMEGA_MAX_DEG = 1.0
@@ -124,6 +165,8 @@ class Scenario:
     estimation: EstimationParams
     threshold: float  # rad, convergence threshold on Cerr
     v_max: float | None  # m/s cap on boundary speed in the world, None: no cap
+    faults: FaultPlan = NO_FAULTS
+    communication_range: float | None = None  # m, r_c; None: unlimited
 
     @property
     def name(self) -> str:
@@ -230,6 +273,9 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
     "max_steps": ("control", "max_steps"),
     "robots": ("team", "robots"),
     "estimation": ("estimation", "mode"),
+    "drop": ("faults", "drop"),
+    "duplicate": ("faults", "duplicate"),
+    "communication_range": ("limits", "communication_range"),
     "seed": (None, "seed"),
     "name": (None, "name"),
 }
@@ -334,7 +380,47 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,
+        faults=_fault_plan(spec, label),
+        communication_range=spec.limits.communication_range,
     )
+
+
+def _fault_plan(spec: ScenarioSpec, label: str) -> FaultPlan:
+    """The ``[faults]`` section resolved: robot ids checked, outage windows in steps."""
+    faults, robots, dt = spec.faults, spec.team.robots, spec.control.dt
+
+    def pair(value: tuple[int, int], key: str) -> frozenset[int]:
+        a, b = value
+        if not (0 <= a < robots and 0 <= b < robots) or a == b:
+            raise ScenarioError(f"{label}: {key} {list(value)} must name two different robots 0..{robots - 1}")
+        return link(a, b)
+
+    def rates(override: LinkFaultSpec | None = None) -> LinkRates:
+        def pick(name: str) -> float:
+            value = None if override is None else getattr(override, name)
+            return getattr(faults, name) if value is None else value
+
+        return LinkRates(pick("drop"), pick("duplicate"), pick("delay_ms") / 1000.0, pick("jitter_ms") / 1000.0)
+
+    outages = []
+    for index, outage in enumerate(faults.outages):
+        key = f"faults.outages[{index}]"
+        by_steps = (outage.from_step, outage.to_step)
+        by_seconds = (outage.from_s, outage.to_s)
+        if None not in by_steps and by_seconds == (None, None):
+            first, last = by_steps
+        elif None not in by_seconds and by_steps == (None, None):
+            first, last = (int(math.floor(seconds / dt)) + 1 for seconds in by_seconds)
+        else:
+            raise ScenarioError(f"{label}: {key} needs from_step and to_step, or from_s and to_s (simulated seconds)")
+        if first > last:
+            raise ScenarioError(f"{label}: {key} ends before it starts; give from <= to")
+        links = frozenset(pair(value, f"{key}.links") for value in outage.links)
+        outages.append(Outage(links, first, last))
+    overrides = {pair(entry.between, f"faults.links[{index}].between"): rates(entry)
+                 for index, entry in enumerate(faults.links)}
+    seed = spec.seed if faults.seed is None else faults.seed
+    return FaultPlan(seed=seed, default=rates(), links=overrides, outages=tuple(outages))
 
 
 # ---------------------------------------------------------------------------- error text

@@ -11,6 +11,7 @@ HUGE = 1e300
 Finite = Annotated[float, msgspec.Meta(ge=-HUGE, le=HUGE)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0, le=HUGE)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=HUGE)]
+Probability = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 Point = tuple[Finite, Finite]
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from agents.ring import ring_neighbours
 from bus.messages import SCHEMA, Command, Measurement, Tick
 from world.geometry import FloatArray
 from world.metrics import convergence_error, true_offsets
@@ -29,6 +30,7 @@ class WorldState:
         sensing = scenario.spec.sensing
         self.sensor = RangeSensor(sensing.range_sigma, sensing.range, seed)
         self.ranges: FloatArray = self.sensor.measure(self.positions, self.target)
+        self.live: set[int] = set(range(scenario.robots))
         self.goals: FloatArray = self.positions.copy()
         self.offsets: FloatArray = np.zeros(scenario.robots)  # gV - theta each robot reported, rad
         self.commanded: set[int] = set()
@@ -47,8 +49,28 @@ class WorldState:
         measured = self.ranges[robot]
         return Measurement(
             SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
-            None if np.isnan(measured) else float(measured),
+            None if np.isnan(measured) else float(measured), self.in_range(robot),
         )
+
+    def rejoin(self, robot: int) -> None:
+        """Bring a restarted robot back into the ring, placed midway along the boundary between its
+        live ring neighbours (as an operator would put it back): where it stopped may no longer lie
+        between them, since they re-spread while it was gone, and the ring is ordered by id."""
+        predecessor, successor = ring_neighbours(robot, self.live | {robot})
+        if predecessor != successor:
+            region = self.scenario.region
+            start, end = region.arc_length(self.positions[predecessor]), region.arc_length(self.positions[successor])
+            middle = start + np.mod(end - start, region.perimeter) / 2.0
+            self.positions[robot] = self.goals[robot] = region.point_at(middle)
+        self.live.add(robot)
+
+    def in_range(self, robot: int) -> list[int] | None:
+        """The other live robots within the communication range of ``robot`` (None: unlimited)."""
+        limit = self.scenario.communication_range
+        if limit is None:
+            return None
+        distances = np.linalg.norm(self.positions - self.positions[robot], axis=1)
+        return [other for other in sorted(self.live) if other != robot and distances[other] <= limit]
 
     def tick(self, live: list[int]) -> Tick:
         """The true state at the start of the step, for the monitor."""

@@ -1,0 +1,290 @@
+"""Faults, limits and hostile input: dropped links, partitions, crashes, limited ranges, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bus.faults import FaultPlan, LinkRates, Outage, link
+from tests.emulation import (
+    RINGTRACK,
+    assert_equals_engine,
+    engine_twin,
+    lockstep_run,
+    processes_mentioning,
+    scenario,
+    start_spawn,
+    stop_all,
+    wait_for_steps,
+)
+from tools.runlog import read_log
+from world import engine
+from world.geometry import angle_of
+from world.metrics import ring_order_kept
+from world.ranges import link_lengths
+from world.scenario import load_scenario
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def test_fates_are_reproducible_and_match_their_rates() -> None:
+    plan = FaultPlan(seed=3, default=LinkRates(drop=0.2, duplicate=0.1))
+    fates = [plan.fate("request", 1, 2, step) for step in range(20000)]
+    assert fates == [FaultPlan(seed=3, default=LinkRates(drop=0.2, duplicate=0.1)).fate("request", 1, 2, step)
+                     for step in range(20000)]
+    dropped = np.mean([fate.dropped for fate in fates])
+    duplicated = np.mean([fate.copies == 2 for fate in fates if not fate.dropped])
+    assert abs(dropped - 0.2) < 0.015 and abs(duplicated - 0.1) < 0.015
+    reseeded = FaultPlan(seed=4, default=plan.default)
+    assert [fate.dropped for fate in fates[:200]] != [reseeded.fate("request", 1, 2, step).dropped for step in range(200)]
+    outage = FaultPlan(outages=(Outage(frozenset({link(2, 3)}), 10, 20),))
+    assert [outage.fate("reply", 3, 2, step).reason for step in (9, 10, 20, 21)] == [None, "outage", "outage", None]
+
+
+def test_twenty_percent_drop_converges_keeps_order_and_accounts_for_every_message(tmp_path: Path) -> None:
+    team = scenario(drop=0.2, max_steps=900)
+    result, log = lockstep_run(team, tmp_path)
+    logged = assert_equals_engine(log)  # a lockstep run with faults is reproducible: it equals the engine
+    assert result["converged"] is True
+    assert ring_order_kept(team.region, logged.positions[:, 0]).all()
+    faults = log.end["faults"]
+    assert faults["dropped"] > 0 and faults["duplicated"] == 0
+    assert faults["sent"] == faults["delivered"] + faults["dropped"]
+    twin = engine.fault_totals(engine_twin(log))
+    assert {key: faults[key] for key in ("sent", "delivered", "dropped")} == \
+        {key: twin[key] for key in ("sent", "delivered", "dropped")}
+    dropped_events = [event for event in log.events if event["event"] == "dropped"]
+    assert len(dropped_events) == faults["dropped"]
+    assert {event["reason"] for event in dropped_events} == {"drop"}
+    # what the monitor saw on the wire: every request not dropped before sending, every reply
+    requests_dropped_early = sum(1 for event in dropped_events if event["subject"] == "request")
+    assert result["messages"]["robot"] == faults["sent"] - requests_dropped_early
+
+
+def test_partition_for_200_steps_keeps_order_and_converges_after_it_heals(tmp_path: Path) -> None:
+    partition = """
+[[faults.outages]]
+links = [[2, 3], [5, 0]]
+from_step = 100
+to_step = 299
+"""
+    path = tmp_path / "partition.toml"
+    base = (Path(__file__).parents[1] / "scenarios" / "paper-stationary.toml").read_text()
+    path.write_text(base.replace('name = "paper-stationary"', 'name = "partition"') + partition)
+    team = load_scenario(str(path), max_steps=1200)
+    result, log = lockstep_run(team, tmp_path / "runs")
+    logged = assert_equals_engine(log)
+    assert ring_order_kept(team.region, logged.positions[:, 0]).all()
+    assert result["converged"] is True and result["ctime"] > 300
+    outage_drops = [event for event in log.events if event.get("reason") == "outage"]
+    assert outage_drops and all(100 <= event["step"] <= 299 for event in outage_drops)
+    assert {frozenset((event["sender"], event["receiver"])) for event in outage_drops} <= {frozenset((2, 3)), frozenset((5, 0))}
+    clean = engine.run(load_scenario("paper-stationary", max_steps=1200), until_converged=True)
+    assert result["ctime"] >= clean.ctime[0]  # the partition costs time: see the README's fault table
+
+
+def _is_robot(pid: int, robot: int) -> bool:
+    command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    return b"robot" in command and command[command.index(b"--id") + 1] == str(robot).encode()
+
+
+def _spacing(folder: Path) -> tuple[int, list[int], np.ndarray]:
+    """Step, live robots and their angular gaps (degrees) about the target at the latest step."""
+    record = read_log(folder / "log.jsonl").steps[-1]
+    live = record["live"]
+    angles = np.sort(np.rad2deg(angle_of(np.array(record["positions"])[live], record["target"])) % 360.0)
+    return record["step"], live, np.diff(np.append(angles, angles[0] + 360.0))
+
+
+def _wait_for_spacing(folder: Path, robots: int, timeout_s: float = 60.0) -> np.ndarray:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        _, live, gaps = _spacing(folder)
+        if len(live) == robots and np.all(np.abs(gaps - 360.0 / robots) < 2.0):
+            return gaps
+        time.sleep(0.2)
+    raise AssertionError(f"no uniform spacing of {robots} robots within {timeout_s} s: {_spacing(folder)}")
+
+
+FAST_RING = """
+name = "fast-ring"
+seed = 3
+[region]
+vertices = [[3.0, 7.0], [8.0, 17.0], [5.0, 26.0], [1.0, 22.0]]
+[target]
+position = [4.0, 20.0]
+[team]
+robots = 6
+[control]
+dt = 0.1
+omega_max_deg = 20.0
+sigma_deg = 0.5
+max_steps = 100000
+"""
+
+
+def test_killed_robot_is_detected_the_ring_reforms_and_a_restart_rejoins(tmp_path: Path) -> None:
+    (tmp_path / "fast.toml").write_text(FAST_RING)
+    runs = tmp_path / "runs"
+    process = start_spawn(runs, str(tmp_path / "fast.toml"), "--clock", "realtime", "--rate", "5", "--steps", "100000")
+    restarted = None
+    try:
+        folder = wait_for_steps(runs, 50)
+        _wait_for_spacing(folder, 6)
+        victim = [pid for pid in processes_mentioning(str(folder)) if _is_robot(pid, 3)]
+        assert len(victim) == 1
+        killed_at = time.time()
+        os.kill(victim[0], signal.SIGKILL)
+        gaps = _wait_for_spacing(folder, 5)
+        left = [event for event in read_log(folder / "log.jsonl").events if event["event"] == "left"]
+        assert [event["robot"] for event in left] == ["r3"]
+        assert left[0]["wall"] - killed_at < 1.0  # detected through liveliness in well under a second
+        assert np.all(np.abs(gaps - 72.0) < 2.0)
+        restarted = subprocess.Popen([*RINGTRACK, "robot", "--join", str(folder), "--id", "3"])
+        gaps = _wait_for_spacing(folder, 6)
+        assert np.all(np.abs(gaps - 60.0) < 2.0)
+        joined = [event for event in read_log(folder / "log.jsonl").events if event["event"] == "joined"]
+        assert any(event["robot"] == "r3" and event["wall"] > killed_at for event in joined)
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 130
+        assert restarted.wait(timeout=20) == 0  # the restarted robot ends with the run it joined
+    finally:
+        stop_all(process)
+        if restarted is not None and restarted.poll() is None:
+            restarted.kill()
+            restarted.wait()
+    assert processes_mentioning(str(folder)) == []
+
+
+def test_a_dead_world_stops_the_team_with_a_clear_message(tmp_path: Path) -> None:
+    process = start_spawn(tmp_path, "--steps", "100000")
+    try:
+        folder = wait_for_steps(tmp_path, 20)
+        world = [pid for pid in processes_mentioning(str(folder))
+                 if b" world " in Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")]
+        assert len(world) == 1
+        os.kill(world[0], signal.SIGKILL)
+        code = process.wait(timeout=30)
+        _, stderr = process.communicate()
+    finally:
+        stop_all(process)
+    assert code == 1
+    assert "world exited with -9" in stderr.decode()
+    assert processes_mentioning(str(folder)) == []
+
+
+# ---------------------------------------------------------------------------- limited ranges
+def test_the_papers_range_bound_is_not_enough_and_a_safe_one_is() -> None:
+    counterexample = load_scenario("counterexample-square")  # r_c = 0.7 > L/N = 0.667, < 0.828 needed
+    for r_c, converges in ((0.7, False), (counterexample.region.outer_diameter, True)):
+        team = load_scenario("counterexample-square", communication_range=r_c, max_steps=3000)
+        history = engine.run(team)
+        links = link_lengths(history.positions[:, 0])
+        in_range_at_start = links[0] <= r_c
+        assert np.all(links[:, in_range_at_start] <= r_c + 1e-9)  # a reachable link is never broken
+        assert ring_order_kept(team.region, history.positions[:, 0]).all()
+        assert bool(history.ctime[0]) is converges
+    failing = engine.run(load_scenario("counterexample-square", max_steps=3000))
+    assert engine.fault_totals(failing)["probes"] > 0  # robots probe the neighbour they cannot reach
+
+
+def test_limited_range_lockstep_equals_the_engine(tmp_path: Path) -> None:
+    _, log = lockstep_run(load_scenario("counterexample-square", max_steps=200), tmp_path)
+    assert_equals_engine(log)
+    twin = engine.fault_totals(engine_twin(log))
+    assert {key: log.end["faults"][key] for key in ("sent", "delivered", "dropped")} == \
+        {key: twin[key] for key in ("sent", "delivered", "dropped")}
+    assert log.end["notes"]["probes"] == twin["probes"] > 0
+    assert {event["reason"] for event in log.events if event["event"] == "dropped"} == {"range"}
+
+
+def test_check_reports_bounds_and_flags_violations() -> None:
+    def check(*arguments: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([*RINGTRACK, "check", *arguments], capture_output=True, text=True, timeout=60)
+
+    report = check("counterexample-square")
+    assert report.returncode == 0
+    for line in ("perimeter L                4.0000", "r_c >= L/N                 0.6667",
+                 "r_c >= uniform link        0.8282", "r_c >= D_in sin(pi/N)      0.5000"):
+        assert line in report.stdout
+    assert report.stderr.strip() == ("warning: limits.communication_range 0.7 m is below the 0.8282 m the uniform "
+                                     "configuration needs for this target: the team cannot spread evenly and stay "
+                                     "connected")
+    broken = check("counterexample-square", "--communication-range", "0.4")
+    assert broken.returncode == 1
+    assert broken.stderr.startswith("error: limits.communication_range 0.4 m is below the necessary 0.5000 m")
+
+
+# ---------------------------------------------------------------------------- bad and hostile input
+BAD_SCENARIOS = {
+    "wrong type": ('[team]\nrobots = "six"\n', "team.robots: expected `int`, got `str`; fix the value"),
+    "unknown key": ("[control]\nspeed = 3\n", "unknown key 'speed' in [control]; allowed keys: strategy, law, dt,"),
+    "non-convex": (None, "region is not convex at vertex 2 [1.0, 1.0]; give a convex polygon"),
+    "target outside": ("position = [9.0, 9.0]", "target.position [9.0, 9.0] is not inside the region; move it inside the polygon"),
+    "fewer than 3 robots": ("[team]\nrobots = 2\n", "team.robots: expected `int` >= 3; fix the value"),
+    "co-located starts": ("[team]\nangles_deg = [10.0, 10.0, 200.0]\nrobots = 3\n",
+                          "team.angles_deg has co-located robots; give distinct angles"),
+    "NaN": ("[control]\ndt = nan\n", "control.dt: expected a finite number > 0; fix the value"),
+    "negative": ("[control]\nsigma_deg = -1.0\n", "control.sigma_deg: expected a finite number >= 0; fix the value"),
+    "drop above 1": ("[faults]\ndrop = 1.5\n", "faults.drop: expected `float` <= 1.0; fix the value"),
+    "outage robot": ("[[faults.outages]]\nlinks = [[0, 7]]\nfrom_step = 1\nto_step = 5\n",
+                     "faults.outages[0].links [0, 7] must name two different robots 0..5"),
+}
+GOOD = """name = "bad"
+[region]
+vertices = [[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]
+[target]
+position = [1.0, 1.0]
+"""
+
+
+@pytest.mark.parametrize("case", list(BAD_SCENARIOS))
+def test_bad_scenarios_get_one_line_and_exit_code_2(tmp_path: Path, case: str) -> None:
+    addition, message = BAD_SCENARIOS[case]
+    if case == "non-convex":
+        text = GOOD.replace("[[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]", "[[0, 0], [4, 0], [1, 1], [0, 4]]")
+    elif case == "target outside":
+        text = GOOD.replace("position = [1.0, 1.0]", addition)
+    else:
+        text = GOOD + addition
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    for command in ("simulate", "spawn"):
+        completed = subprocess.run([*RINGTRACK, command, str(path)], capture_output=True, text=True, timeout=60)
+        assert completed.returncode == 2
+        lines = completed.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"ringtrack: error: {path}: {message}"), completed.stderr
+
+
+def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: Path) -> None:
+    process = start_spawn(tmp_path, "--steps", "1500")
+    try:
+        folder = wait_for_steps(tmp_path, 5)
+        hostile = subprocess.run([sys.executable, "-m", "tests.hostile", str(folder), "3"],
+                                 capture_output=True, text=True, timeout=60)
+        assert hostile.returncode == 0, hostile.stderr
+        sent = json.loads(hostile.stdout)
+        assert process.wait(timeout=120) == 0
+    finally:
+        stop_all(process)
+    log = read_log(folder / "log.jsonl")
+    assert len(log.steps) == 1500
+    assert_equals_engine(log)  # nothing the intruder sent moved any robot
+    rejected = log.end["rejected"]  # the monitor hears everything
+    for reason in ("malformed", "schema", "foreign", "route", "sender"):
+        assert rejected.get(reason, 0) > 0, (reason, rejected)
+    r1 = log.end["rejected_by"]["r1"]  # robot 1 drops what was addressed to it
+    assert r1["malformed"] + r1["schema"] + r1["foreign"] + r1["route"] + r1["sender"] >= 0.9 * sum(
+        sent[name] for name in ("malformed", "schema", "foreign", "impossible_sender", "route", "sender"))
+    assert log.end["rejected_by"]["world"]["malformed"] >= 0.9 * sent["world_malformed"]
+    assert log.end["notes"]["ignored_replies"] >= 0.9 * sent["forged_reply"]
+    # well-formed forgeries cannot be told from the wire, but the monitor notices the surplus
+    assert log.end["consistent"] is False
