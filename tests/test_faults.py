@@ -288,3 +288,37 @@ def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: 
     assert log.end["notes"]["ignored_replies"] >= 0.9 * sent["forged_reply"]
     # well-formed forgeries cannot be told from the wire, but the monitor notices the surplus
     assert log.end["consistent"] is False
+
+
+def test_duplicates_and_delays_leave_a_lockstep_run_unchanged_and_are_logged(tmp_path: Path) -> None:
+    noisy = tmp_path / "noisy.toml"
+    base = (Path(__file__).parents[1] / "scenarios" / "paper-stationary.toml").read_text()
+    noisy.write_text(base + "\n[faults]\ndrop = 0.1\nduplicate = 0.2\ndelay_ms = 1.0\njitter_ms = 1.0\n")
+    team = load_scenario(str(noisy), max_steps=250)
+    result, log = lockstep_run(team, tmp_path / "runs")
+    assert_equals_engine(log)  # neither copies nor delays change what a lockstep team does
+    faults = log.end["faults"]
+    assert faults["duplicated"] > 0 and faults["delayed"] > 0 and faults["dropped"] > 0
+    assert faults["sent"] + faults["duplicated"] == faults["delivered"] + faults["dropped"]
+    counted = {what: sum(1 for event in log.events if event["event"] == what) for what in ("dropped", "delayed")}
+    assert counted == {"dropped": faults["dropped"], "delayed": faults["delayed"]}
+    twin = engine.fault_totals(engine_twin(log))
+    assert {key: faults[key] for key in ("sent", "delivered", "dropped", "duplicated")} == \
+        {key: twin[key] for key in ("sent", "delivered", "dropped", "duplicated")}
+    # a duplicated request is answered twice; the second reply is ignored
+    assert log.end["notes"]["ignored_replies"] > 0
+
+
+def test_realtime_polls_settle_by_timeout_when_replies_are_late(tmp_path: Path) -> None:
+    late = tmp_path / "late.toml"
+    late.write_text(FAST_RING.replace("max_steps = 100000", "max_steps = 150") + "\n[faults]\ndelay_ms = 60.0\n")
+    from tools.spawn import spawn_team
+
+    result = spawn_team(load_scenario(str(late)), clock="realtime", rate=5.0, runs=tmp_path / "runs", quiet=True)
+    assert result["exit_code"] == 0 and result["end_reason"] == "done"
+    log = read_log(Path(result["log"]))
+    # Replies 60 ms late against a 20 ms poll deadline (one step of 0.1 s at 5x): robots go on
+    # without them, so the world keeps its schedule and every late reply is ignored.
+    assert 150 * 0.1 / 5 * 0.8 < log.end["wall_s"] < 150 * 0.1 / 5 * 3
+    assert log.end["notes"]["ignored_replies"] > 0
+    assert log.end["faults"]["delayed"] > 0

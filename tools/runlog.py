@@ -241,10 +241,19 @@ def history_from_log(log: RunLog) -> History:
         ages=ages[:, None],
         cerr_true=convergence_error(true_offsets(positions, targets)),
         targets=targets,
-        terr=np.nanmean(np.linalg.norm(estimates - targets[..., None, :], axis=-1), axis=-1),
+        terr=_mean_over_robots(np.linalg.norm(estimates - targets[..., None, :], axis=-1)),
         estimates=estimates,
         sent=np.array([record["sent_messages"] for record in log.steps], dtype=np.int64)[:, None],
         received=np.array([record["received_messages"] for record in log.steps], dtype=np.int64)[:, None],
         faults=np.zeros((len(log.steps), 1, 4), dtype=np.int64),  # per run only: see the end record
         probes=np.zeros((len(log.steps), 1), dtype=np.int64),
     )
+
+
+def _mean_over_robots(values: np.ndarray) -> np.ndarray:
+    """Mean over the last axis of what is known (NaN: a robot sent no command that step); NaN where
+    nothing is (a realtime step no robot answered)."""
+    known = ~np.isnan(values)
+    count = known.sum(axis=-1)
+    total = np.where(known, values, 0.0).sum(axis=-1)
+    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
