@@ -16,7 +16,7 @@ from bus.config import BusConfig
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_name
 from bus.messages import SCHEMA, End, Estimate, RangeReport
 from bus.participant import Delivery, Interrupt, Presence
-from bus.runtime import Roster, gather_until, joined, next_events
+from bus.runtime import Roster, gather_until, joined, linger, next_events
 from world.scenario import Scenario
 
 
@@ -83,4 +83,6 @@ async def run_fusion(
             if code is None:
                 events = await next_events(participant, roster)
         participant.send(MONITOR, participant.stats(final=True))
+        if expect_monitor and code != 130:
+            await linger(participant, roster, {MONITOR})
         return code

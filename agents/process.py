@@ -18,7 +18,7 @@ from bus.config import BusConfig
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import End, Measurement, Reply
 from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Roster, gather_until, joined, next_events
+from bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
 from bus.shim import LinkShim
 from world.scenario import Scenario
 
@@ -38,6 +38,7 @@ async def run_robot(
     expect_monitor: bool = False,
     exit_with_parent: bool = False,
     reply_timeout: float | None = None,
+    interrupts: Interrupts | None = None,
 ) -> int:
     """Run robot ``robot`` until the run ends; returns the exit code (0 done, 1 world lost, 130 stopped).
 
@@ -46,7 +47,7 @@ async def run_robot(
     """
     node = RobotNode(robot, scenario, run)
     keys = Keys(run)
-    async with joined(bus, keys, node.name, scenario.robots, exit_with_parent) as participant:
+    async with joined(bus, keys, node.name, scenario.robots, exit_with_parent, interrupts) as participant:
         participant.listen(keys.inbox(node.name))
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
@@ -63,7 +64,28 @@ async def run_robot(
         code = await _serve(link, roster, events)
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies}
         participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
+        if expect_monitor and code != 130:
+            await linger(participant, roster, {MONITOR})
         return code
+
+
+async def run_robots(
+    robots: list[int],
+    scenario: Scenario,
+    run: int,
+    bus: BusConfig,
+    expect_monitor: bool = False,
+    exit_with_parent: bool = False,
+    reply_timeout: float | None = None,
+) -> int:
+    """Run several robots in this process, each its own Zenoh session and participant (own identity,
+    own counts), sharing one event loop; returns the worst exit code."""
+    interrupts = Interrupts(exit_with_parent)
+    codes = await asyncio.gather(*(
+        run_robot(robot, scenario, run, bus, expect_monitor, exit_with_parent, reply_timeout, interrupts)
+        for robot in robots
+    ))
+    return max(codes)
 
 
 class RobotLink:

@@ -23,39 +23,71 @@ from bus.keys import WORLD, Keys
 from bus.participant import Event, Interrupt, Participant, Presence
 
 
-@contextlib.asynccontextmanager
-async def joined(
-    config: BusConfig, keys: Keys, name: str, robots: int, exit_with_parent: bool = False
-) -> AsyncIterator[Participant]:
-    """Open a session and yield the :class:`Participant` ``name`` of run ``keys.run``."""
-    loop = asyncio.get_running_loop()
-    session = open_session(config)
-    participant = Participant(session, keys, name, robots, loop)
-    signals = (signal.SIGINT, signal.SIGTERM)
-    for number in signals:
-        loop.add_signal_handler(number, participant.inbox.push, Interrupt(signal.Signals(number).name))
-    if exit_with_parent:
-        _watch_parent(participant)
-    try:
-        yield participant
-    finally:
-        for number in signals:
-            loop.remove_signal_handler(number)
-        participant.close()
-        session.close()
+class Interrupts:
+    """Delivers SIGINT, SIGTERM and, with ``exit_with_parent``, the end of the parent (standard input,
+    a pipe from it, reaching end of file) as :class:`Interrupt` events to every participant of this
+    process: a process may host several robots, each its own participant."""
 
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-def _watch_parent(participant: Participant) -> None:
-    """Post an Interrupt once standard input (a pipe from the parent) reaches end of file."""
+    def __init__(self, exit_with_parent: bool = False) -> None:
+        self.exit_with_parent = exit_with_parent
+        self.participants: list[Participant] = []
+        self.loop: asyncio.AbstractEventLoop | None = None
 
-    def wait_for_eof() -> None:
+    def add(self, participant: Participant) -> None:
+        if self.loop is None:
+            self._install(asyncio.get_running_loop())
+        self.participants.append(participant)
+
+    def remove(self, participant: Participant) -> None:
+        self.participants.remove(participant)
+        if not self.participants and self.loop is not None:
+            for number in self.SIGNALS:
+                self.loop.remove_signal_handler(number)
+            self.loop = None
+
+    def fire(self, reason: str) -> None:
+        for participant in list(self.participants):
+            participant.inbox.push(Interrupt(reason))
+
+    def _install(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop = loop
+        for number in self.SIGNALS:
+            loop.add_signal_handler(number, self.fire, signal.Signals(number).name)
+        if self.exit_with_parent:
+            threading.Thread(target=self._wait_for_parent, name="parent-watch", daemon=True).start()
+            self.exit_with_parent = False  # one watcher per process
+
+    def _wait_for_parent(self) -> None:
         # Raw reads: a daemon thread blocked in a buffered reader aborts interpreter shutdown.
         with contextlib.suppress(OSError):
             while os.read(sys.stdin.fileno(), 4096):
                 pass
-        participant.inbox.push(Interrupt("parent exited"))
+        loop = self.loop
+        if loop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self.fire, "parent exited")
 
-    threading.Thread(target=wait_for_eof, name="parent-watch", daemon=True).start()
+
+@contextlib.asynccontextmanager
+async def joined(
+    config: BusConfig, keys: Keys, name: str, robots: int, exit_with_parent: bool = False,
+    interrupts: Interrupts | None = None,
+) -> AsyncIterator[Participant]:
+    """Open a session and yield the :class:`Participant` ``name`` of run ``keys.run``; signals reach
+    it through ``interrupts`` (shared by the participants of one process; by default its own)."""
+    loop = asyncio.get_running_loop()
+    interrupts = interrupts or Interrupts(exit_with_parent)
+    session = open_session(config)
+    participant = Participant(session, keys, name, robots, loop)
+    interrupts.add(participant)
+    try:
+        yield participant
+    finally:
+        interrupts.remove(participant)
+        participant.close()
+        session.close()
 
 
 # A token's withdrawal travels ahead of the data its owner sent before leaving (liveliness
@@ -113,3 +145,20 @@ async def next_events(participant: Participant, roster: Roster, watched: str = W
         return await asyncio.wait_for(participant.events(), 0.5)
     except TimeoutError:
         return []
+
+
+LINGER_S = 3.0
+
+
+async def linger(participant: Participant, roster: Roster, names: set[str], limit_s: float = LINGER_S) -> None:
+    """Stay up until none of ``names`` is alive, at most ``limit_s`` seconds.
+
+    A session closed right after its last publication can lose it in flight (seen with Zenoh
+    clients), and a participant vanishing before its last message arrives looks like a crash. So the
+    world waits for its robots to leave on its End, and every sender waits for the monitor, which
+    leaves once it holds everyone's final statistics.
+    """
+    try:
+        await asyncio.wait_for(gather_until(participant, roster, lambda: not names & roster.alive), limit_s)
+    except TimeoutError:
+        pass

@@ -1,44 +1,58 @@
-"""The ``ringtrack`` command: one sub-command per module, bad input answered in one line, exit 2."""
+"""The ``ringtrack`` command: one sub-command per module, bad input answered in one line, exit 2.
+
+Command modules are imported by name when the parser is built, and ``python -m tools.roles`` builds
+one with the role commands only: a team of many processes does not pay for plotting and benchmark
+code at every start.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from collections.abc import Sequence
 
-from tools import bench, check, experiment, plot, replay, roles, simulate, spawn
-from tools.console import UsageError, err
-from bus.config import BusError
-from tools.runlog import LogError
-from world.geometry import RegionError
-from world.scenario import ScenarioError
+COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment", "bench")
 
-COMMANDS = (simulate, spawn, roles, replay, plot, check, experiment, bench)
+# One-line errors of bad input: (module, class). A class whose module was never imported cannot
+# have been raised, so none is imported just to be caught.
+USER_ERRORS = (
+    ("world.scenario", "ScenarioError"),
+    ("world.geometry", "RegionError"),
+    ("tools.console", "UsageError"),
+    ("bus.config", "BusError"),
+    ("tools.runlog", "LogError"),
+)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(commands: Sequence[str] = COMMANDS) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ringtrack",
         description="Self-triggered multi-robot target tracking: engine, emulator over Zenoh, experiments.",
     )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in COMMANDS:
-        module.register(commands)
+    subcommands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in commands:
+        importlib.import_module(f"tools.{name}").register(subcommands)
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, commands: Sequence[str] = COMMANDS) -> int:
     """Entry point of the console script; returns the process exit code."""
-    args = build_parser().parse_args(argv)
+    args = build_parser(commands).parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     try:
         return int(args.handler(args) or 0)
-    except (ScenarioError, RegionError, UsageError, BusError, LogError) as error:
+    except ValueError as error:
+        user_errors = tuple(getattr(sys.modules[module], name) for module, name in USER_ERRORS if module in sys.modules)
+        if not isinstance(error, user_errors):
+            raise
+        from tools.console import err
+
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
         return 2
     except KeyboardInterrupt:
-        err.print("ringtrack: interrupted", highlight=False)
+        print("ringtrack: interrupted", file=sys.stderr)
         return 130
 
 

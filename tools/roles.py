@@ -25,12 +25,25 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     robot = commands.add_parser("robot", help="run one robot process")
     _common(robot)
-    robot.add_argument("--id", type=int, required=True, help="robot index 0..N-1 in counter-clockwise order")
+    robot.add_argument("--id", type=robot_ids, required=True, metavar="I",
+                       help="robot index 0..N-1 in counter-clockwise order; 0-7 or 0,2,4 runs several robots in "
+                       "this process, each its own Zenoh participant")
     robot.add_argument("--reply-timeout", type=float, metavar="S",
                        help="realtime: wall seconds a poll waits for replies (default: wait, as lockstep)")
     robot.add_argument("--join", type=Path, metavar="RUN_FOLDER",
                        help="join the running team of a spawn run folder (scenario, run id, endpoints)")
     robot.set_defaults(handler=run_robot_role)
+
+    router = commands.add_parser(
+        "router",
+        help="run a Zenoh router for teams spread over several hosts",
+        description="A Zenoh router (no zenohd needed): hosts connect to it with --connect "
+        "tcp/<router-ip>:<port> (as --mode client, or as peers). It serves every run; stop it with Ctrl-C.",
+    )
+    router.add_argument("--listen", action="append", metavar="ENDPOINT", required=True,
+                        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447; repeatable")
+    router.add_argument("--connect", action="append", metavar="ENDPOINT", help="another router; repeatable")
+    router.set_defaults(handler=run_router_role)
 
     fusion = commands.add_parser("fusion", help="run the fusion centre of centralized estimation")
     _common(fusion)
@@ -55,6 +68,18 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="endpoint to connect to; repeatable")
     parser.add_argument("--monitor", action="store_true", help="a monitor is part of the team: wait for it")
     parser.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
+
+
+def robot_ids(text: str) -> list[int]:
+    """``3``, ``0-7`` or ``0,2,4``."""
+    try:
+        ids: list[int] = []
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            ids += list(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--id {text!r}: give a robot index like 3, 0-7 or 0,2,4") from None
+    return ids
 
 
 def run_id(text: str) -> int:
@@ -95,16 +120,17 @@ def run_world_role(args: argparse.Namespace) -> int:
 
 
 def run_robot_role(args: argparse.Namespace) -> int:
-    from agents.process import run_robot
+    from agents.process import run_robots
 
     if args.join is not None:
         join(args)
     scenario = scenario_from_arguments(args)
-    if not 0 <= args.id < scenario.robots:
-        raise UsageError(f"--id {args.id}: the team has robots 0..{scenario.robots - 1}")
+    for robot in args.id:
+        if not 0 <= robot < scenario.robots:
+            raise UsageError(f"--id {robot}: the team has robots 0..{scenario.robots - 1}")
     return asyncio.run(
-        run_robot(args.id, scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent,
-                  args.reply_timeout)
+        run_robots(args.id, scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent,
+                   args.reply_timeout)
     )
 
 
@@ -122,6 +148,22 @@ def join(args: argparse.Namespace) -> None:
     args.monitor = True
     if args.reply_timeout is None:
         args.reply_timeout = run["reply_timeout"]
+
+
+def run_router_role(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from bus.config import open_session
+
+    config = BusConfig(mode="router", listen=tuple(args.listen), connect=tuple(args.connect or ()))
+    stop = threading.Event()
+    for number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(number, lambda *_: stop.set())
+    with open_session(config):
+        err.print(f"router listening on {', '.join(args.listen)}; Ctrl-C to stop", highlight=False)
+        stop.wait()
+    return 0
 
 
 def run_fusion_role(args: argparse.Namespace) -> int:
@@ -156,3 +198,11 @@ def run_monitor_role(args: argparse.Namespace) -> int:
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)
     return code
+
+
+if __name__ == "__main__":
+    import sys
+
+    from tools.cli import main
+
+    sys.exit(main(commands=("roles",)))

@@ -29,8 +29,9 @@ from world.scenario import Scenario
 
 ANNOUNCE_TIMEOUT_S = 20.0
 STALL_TIMEOUT_S = 60.0
-ROLE_COMMAND = [sys.executable, "-m", "tools.cli"]
+ROLE_COMMAND = [sys.executable, "-m", "tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
+MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -47,6 +48,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--log", type=Path, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
+    parser.add_argument("--robots-per-process", type=int, default=1, metavar="K",
+                        help="host K robots per process, each still its own Zenoh participant (large teams)")
+    parser.add_argument("--topology", choices=["mesh", "star"],
+                        help=f"mesh: every pair linked; star: the world is a Zenoh router (default: mesh up to "
+                        f"{MESH_LIMIT} participants)")
     display = parser.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true",
                          help="draw the live dashboard even without a terminal (the default on a terminal)")
@@ -66,6 +72,8 @@ def run_spawn(args: argparse.Namespace) -> int:
         log_path=args.log,
         dashboard=True if args.dashboard else False if args.no_dashboard else None,
         until_converged=args.steps is None,
+        topology=args.topology,
+        robots_per_process=args.robots_per_process,
     )
     if args.json:
         write_json(args.json, result)
@@ -89,11 +97,17 @@ def spawn_team(
     dashboard: bool | None = None,
     until_converged: bool = False,
     quiet: bool = False,
+    topology: str | None = None,
+    robots_per_process: int = 1,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
     monitor draws its dashboard when ``dashboard`` is True, summary lines when False, and decides by
-    its terminal when None; ``quiet`` sends its display to ``RUN_FOLDER/monitor.stdout``."""
+    its terminal when None; ``quiet`` sends its display to ``RUN_FOLDER/monitor.stdout``. ``topology``
+    "mesh" links every pair of processes directly (Zenoh peers), "star" makes the world a Zenoh
+    router that every other process reaches as a client; None picks mesh up to
+    ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
+    still its own Zenoh participant."""
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -103,14 +117,21 @@ def spawn_team(
     common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
     started = time.perf_counter()
     interrupted = ""
+    if robots_per_process < 1:
+        raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
+    participants = scenario.robots + 2 + (scenario.estimation.mode == "centralized")  # Zenoh sessions
+    topology = topology or ("mesh" if participants <= MESH_LIMIT else "star")
+    world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
+    first_step = FirstStep(log_path, started)
     with Supervisor(folder) as supervisor:
         try:
             with terminate_as_exception():
                 stop_rule = ["--until-converged"] if until_converged else []
-                supervisor.start("world", [*ROLE_COMMAND, "world", *common, "--clock", clock, "--rate", str(rate),
-                                           "--listen", LOOPBACK_ANY_PORT, "--announce", str(announce), *stop_rule])
+                supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
+                                           "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
+                                           "--announce", str(announce), *stop_rule])
                 endpoints = _announced(announce, supervisor)
-                connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)]
+                connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "reply_timeout": None if clock == "lockstep" else
@@ -121,11 +142,13 @@ def spawn_team(
                                                  "--clock", clock, *monitor_flags], stdout=display)
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
-                for robot in range(scenario.robots):
-                    supervisor.start(f"r{robot}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
-                                                   "--id", str(robot)])
+                for first in range(0, scenario.robots, robots_per_process):
+                    last = min(first + robots_per_process, scenario.robots) - 1
+                    ids = str(first) if first == last else f"{first}-{last}"
+                    supervisor.start(f"r{ids}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
+                                                 "--id", ids])
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
-                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path)
+                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step)
         except KeyboardInterrupt:
             interrupted = "interrupted (Ctrl-C)"
         except Terminated:
@@ -139,6 +162,8 @@ def spawn_team(
         if child.process.returncode not in (0, None, -15, 130) and not interrupted:
             err.print(f"{child.name} exited with {child.process.returncode}: {child.stderr_tail()}", highlight=False)
     result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started)
+    result["topology"] = topology
+    result["startup_s"] = first_step.after
     result["failures"] = failures
     result["stopped"] = interrupted or None
     result["exit_code"] = 130 if interrupted.startswith(("interrupted", "terminated")) else int(bool(failures or interrupted))
@@ -148,6 +173,19 @@ def spawn_team(
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
+
+
+class FirstStep:
+    """Notes when the run log first holds a step record: the team's start-up time."""
+
+    def __init__(self, log_path: Path, started: float) -> None:
+        self.log_path = log_path
+        self.started = started
+        self.after: float | None = None
+
+    def __call__(self) -> None:
+        if self.after is None and self.log_path.exists() and b'"type":"step"' in self.log_path.read_bytes()[:65536]:
+            self.after = time.perf_counter() - self.started
 
 
 def _announced(path: Path, supervisor: Supervisor) -> list[str]:

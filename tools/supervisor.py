@@ -13,7 +13,7 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -64,11 +64,14 @@ class Supervisor:
         return [child for child in self.children if child.process.poll() not in (None, 0)]
 
     def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
-             watched: Path | None = None) -> None:
+             watched: Path | None = None, on_poll: Callable[[], None] | None = None) -> None:
         """Wait until every child has exited; return early when a ``critical`` child fails, and raise
-        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run)."""
+        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run);
+        ``on_poll()`` runs at every poll."""
         last_size, last_change = -1, time.monotonic()
         while self.running():
+            if on_poll is not None:
+                on_poll()
             if any(child.name in critical for child in self.failed()):
                 return
             if stall_s is not None and watched is not None:

@@ -27,14 +27,13 @@ from bus.config import BusConfig, listening_locators
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import SCHEMA, Command, End
 from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Roster, gather_until, joined
+from bus.runtime import Roster, gather_until, joined, linger
 from world.scenario import Scenario
 from world.state import WorldState
 
 log = logging.getLogger("ringtrack.world")
 
 Clock = Literal["lockstep", "realtime"]
-LINGER_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -95,17 +94,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
         log.info("run %s after %d steps in %.2f s (%.0f steps/s)", reason, last, wall, last / wall if wall else 0.0)
         participant.send(MONITOR, participant.stats(final=True))
-        await _linger(participant, roster, team)
+        await linger(participant, roster, team | ({MONITOR} if options.expect_monitor else set()))
         return code
-
-
-async def _linger(participant: Participant, roster: Roster, team: set[str]) -> None:
-    """Stay up until the robots have left (they leave on the End), at most ``LINGER_S``: robots
-    that saw the world vanish before its End would report a lost world."""
-    try:
-        await asyncio.wait_for(gather_until(participant, roster, lambda: not team & roster.alive), LINGER_S)
-    except TimeoutError:
-        pass
 
 
 def _announce(participant: Participant, path: Path) -> None:
