@@ -11,6 +11,7 @@ import json
 import os
 import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import zenoh
@@ -90,3 +91,11 @@ def listening_locators(session: zenoh.Session) -> list[str]:
         if reply.ok is not None and str(reply.ok.key_expr).rsplit("/", 1)[-1] in ("peer", "router"):
             return list(json.loads(reply.ok.payload.to_bytes()).get("locators", []))
     raise BusError("cannot read the listening endpoints from the admin space; give --listen with a fixed port")
+
+
+def announce_endpoints(session: zenoh.Session, path: Path) -> None:
+    """Write ``{"endpoints": [...]}``, the endpoints ``session`` listens on, to ``path`` atomically, so
+    a process started with port 0 can be found (needs ``BusConfig(admin_space=True)``)."""
+    temporary = path.with_suffix(".tmp")
+    temporary.write_text(json.dumps({"endpoints": listening_locators(session)}))
+    temporary.replace(path)

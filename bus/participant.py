@@ -205,3 +205,4 @@ class Participant:
         self._publishers.clear()
         self._entities.clear()
         self._channels.clear()
+        self.inbox.close()

@@ -69,6 +69,9 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path) -> None:
         (["spawn", "--rate", "0"], "ringtrack: error: --rate 0.0: give a positive factor, e.g. 1 or 10"),
         (["world", "--listen", "localhost"], "ringtrack: error: --listen 'localhost' is not an endpoint;"),
         (["robot", "--id", "9"], "ringtrack: error: --id 9: the team has robots 0..5"),
+        (["spawn", "--robots-per-process", "0"], "ringtrack: error: --robots-per-process 0: give at least 1"),
+        (["bench", "latency", "--rounds", "0"], "ringtrack: error: --rounds 0 --warmup 500: give at least 1 round"),
+        (["bench", "engine", "--sweep", "2-5"], "ringtrack: error: --sweep '2-5': every team needs at least 3"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_code_2(arguments: list[str], message: str) -> None:

@@ -1,25 +1,45 @@
-"""``ringtrack bench``: speed measurements reported as a rich table and JSON (never timed tests)."""
+"""``ringtrack bench``: speed measurements reported as a rich table and JSON (never timed tests).
+
+* ``engine``: the in-process engine, one run and batches of trials;
+* ``emulator``: lockstep steps per second of a multi-process team over Zenoh, start-up time, wire
+  bytes per message kind, resident memory per robot process;
+* ``latency``: the neighbour round trip (a poll's request and reply) between two robot processes;
+* ``suite``: all of them on the configurations the README reports.
+
+Every result carries the machine's core count and the library versions it depends on.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import statistics
+import sys
+import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
 
 from rich.table import Table
 
+from bus.keys import new_run_id
 from tools.console import UsageError, err, out, write_json
 from tools.experiment import robot_list, stationary_experiment
+from tools.supervisor import Supervisor
 from world import engine
 from world.scenario import load_scenario
 
+LATENCY_COMMAND = [sys.executable, "-m", "tools.latency"]
+MESSAGE_KINDS = ("request", "reply", "measurement", "command")
+
+# The suite's emulator configurations: (robots, robots per process, steps, repeats).
+SUITE_TEAMS = ((6, 1, 1000, 3), (24, 1, 500, 1), (64, 1, 300, 1), (64, 16, 300, 1), (256, 16, 100, 1))
+
 
 def register(commands: argparse._SubParsersAction) -> None:
-    parser = commands.add_parser("bench", help="measure speed (engine, emulator)")
+    parser = commands.add_parser("bench", help="measure speed (engine, emulator, latency, suite)")
     kinds = parser.add_subparsers(dest="bench", required=True, metavar="BENCHMARK")
     engine_parser = kinds.add_parser(
         "engine",
@@ -32,18 +52,38 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     emulator_parser = kinds.add_parser(
         "emulator",
-        help="lockstep steps per second of a multi-process team over Zenoh, bytes per message, memory",
+        help="lockstep steps per second of a multi-process team over Zenoh, start-up, bytes per message, memory",
     )
     emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
     emulator_parser.add_argument("--steps", type=int, default=1000)
     emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self")
     emulator_parser.add_argument("--repeat", type=int, default=1, help="runs per configuration; medians reported")
+    emulator_parser.add_argument("--robots-per-process", type=int, default=1, metavar="K",
+                                 help="host K robots per process (each its own Zenoh participant)")
+    emulator_parser.add_argument("--topology", choices=["mesh", "star"], help="as for spawn (default: by size)")
     emulator_parser.add_argument("--dashboard", choices=["off", "on", "compare"], default="off",
                                  help="draw the dashboard (to RUN_FOLDER/monitor.stdout), or alternate runs "
                                  "without and with it to measure what it costs")
     emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
     emulator_parser.add_argument("--json", type=Path, metavar="PATH")
     emulator_parser.set_defaults(handler=run_emulator_bench)
+
+    latency_parser = kinds.add_parser(
+        "latency",
+        help="neighbour round trip (request and reply between two robot processes): median, p99, CPU",
+    )
+    latency_parser.add_argument("--rounds", type=int, default=5000)
+    latency_parser.add_argument("--warmup", type=int, default=500)
+    latency_parser.add_argument("--json", type=Path, metavar="PATH")
+    latency_parser.set_defaults(handler=run_latency_bench)
+
+    suite_parser = kinds.add_parser(
+        "suite",
+        help="engine, neighbour latency and the emulator for N = 6, 24, 64 and 256 (16 per process)",
+    )
+    suite_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
+    suite_parser.add_argument("--json", type=Path, metavar="PATH")
+    suite_parser.set_defaults(handler=run_suite)
 
 
 def machine() -> dict[str, object]:
@@ -58,97 +98,225 @@ def machine() -> dict[str, object]:
 
 
 def parse_range(text: str) -> list[int]:
-    first, _, last = text.partition("-")
-    return list(range(int(first), int(last or first) + 1))
+    """``3-30`` or ``6``: the team sizes of a sweep."""
+    try:
+        first, _, last = text.partition("-")
+        sizes = list(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise UsageError(f"--sweep {text!r}: give team sizes like 3-30 or 6") from None
+    if not sizes or sizes[0] < 3:
+        raise UsageError(f"--sweep {text!r}: every team needs at least 3 robots")
+    return sizes
 
 
-def run_engine_bench(args: argparse.Namespace) -> int:
-    results: dict[str, object] = {"benchmark": "engine", "machine": machine()}
+# ---------------------------------------------------------------------------------------- engine
+def engine_results(trials: int, sizes: list[int]) -> dict[str, object]:
+    """One run of ``paper-stationary``, the ``trials``-trial two-strategy experiment for N = 6, and
+    the sweep over ``sizes``: steps per second and wall seconds."""
+    if trials < 1:
+        raise UsageError(f"--trials {trials}: give at least 1")
     scenario = load_scenario("paper-stationary")
     started = time.perf_counter()
     history = engine.run(scenario, steps=scenario.max_steps, record_positions=False)
     elapsed = time.perf_counter() - started
-    results["single_run"] = {"robots": scenario.robots, "steps": history.steps, "steps_per_s": history.steps / elapsed}
+    err.print(f"running the {trials}-trial two-strategy experiment for N = 6 ...")
+    experiment = stationary_experiment("paper-stationary", [6], trials, 0)
+    err.print(f"running the sweep N = {sizes[0]}..{sizes[-1]} x {trials} trials ...")
+    sweep = stationary_experiment("paper-stationary", sizes, trials, 0)
+    return {
+        "single_run": {"robots": scenario.robots, "steps": history.steps, "steps_per_s": history.steps / elapsed},
+        "experiment_n6": {"trials": trials, "wall_s": experiment["wall_s"]},
+        "sweep": {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": trials, "wall_s": sweep["wall_s"]},
+    }
 
-    err.print(f"running the {args.trials}-trial two-strategy experiment for N = 6 ...")
-    experiment = stationary_experiment("paper-stationary", [6], args.trials, 0)
-    results["experiment_n6"] = {"trials": args.trials, "wall_s": experiment["wall_s"]}
 
-    sizes = parse_range(args.sweep)
-    err.print(f"running the sweep N = {sizes[0]}..{sizes[-1]} x {args.trials} trials ...")
-    sweep = stationary_experiment("paper-stationary", sizes, args.trials, 0)
-    results["sweep"] = {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": args.trials, "wall_s": sweep["wall_s"]}
-
-    table = Table(title=f"engine benchmark ({results['machine']['cores']} cores)")
+def engine_table(results: dict, cores: object) -> Table:
+    single, experiment, sweep = results["single_run"], results["experiment_n6"], results["sweep"]
+    table = Table(title=f"engine ({cores} cores)")
     table.add_column("measurement")
     table.add_column("result", justify="right")
-    table.add_row(f"one run, N = {scenario.robots}", f"{results['single_run']['steps_per_s']:.0f} steps/s")
-    table.add_row(f"experiment N = 6, {args.trials} trials x 2 strategies", f"{experiment['wall_s']:.2f} s")
-    table.add_row(f"sweep N = {sizes[0]}..{sizes[-1]}, {args.trials} trials x 2", f"{sweep['wall_s']:.2f} s")
-    out.print(table)
+    table.add_row(f"one run, N = {single['robots']}", f"{single['steps_per_s']:.0f} steps/s")
+    table.add_row(f"experiment N = 6, {experiment['trials']} trials x 2 strategies", f"{experiment['wall_s']:.2f} s")
+    table.add_row(f"sweep N = {sweep['robots']}, {sweep['trials']} trials x 2", f"{sweep['wall_s']:.2f} s")
+    return table
+
+
+def run_engine_bench(args: argparse.Namespace) -> int:
+    results = {"benchmark": "engine", "machine": machine(), **engine_results(args.trials, parse_range(args.sweep))}
+    out.print(engine_table(results, results["machine"]["cores"]))
     if args.json:
         write_json(args.json, results)
     return 0
 
 
-def run_emulator_bench(args: argparse.Namespace) -> int:
+# -------------------------------------------------------------------------------------- emulator
+class BenchFailed(RuntimeError):
+    """A benchmarked team did not complete."""
+
+
+def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 1, dashboard: str = "off",
+                 runs: Path = Path("runs"), robots_per_process: int = 1, topology: str | None = None) -> dict:
+    """Run ``repeat`` lockstep teams of ``robots`` robots for ``steps`` steps (with ``dashboard``
+    "compare", alternately without and with the dashboard) and report medians of steps per second
+    and start-up seconds (spawn to the first logged step), payload bytes per message kind and
+    resident memory (MiB) of the largest robot process."""
     from tools.spawn import spawn_team
 
-    if args.repeat < 1:
-        raise UsageError(f"--repeat {args.repeat}: give at least 1")
-    modes = [False, True] if args.dashboard == "compare" else [args.dashboard == "on"]
-    rows = []
-    for robots in args.robots:
-        scenario = load_scenario("paper-stationary", robots=robots, strategy=args.strategy, max_steps=args.steps)
-        speeds: dict[bool, list[float]] = {mode: [] for mode in modes}
-        for attempt in range(args.repeat):
-            for dashboard in modes:
-                err.print(f"{robots} robots, {args.steps} lockstep steps, dashboard {'on' if dashboard else 'off'} "
-                          f"(run {attempt + 1}/{args.repeat}) ...")
-                result = spawn_team(scenario, clock="lockstep", runs=args.runs, dashboard=dashboard, quiet=True)
-                if result["exit_code"] != 0:
-                    err.print(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
-                    return 1
-                speeds[dashboard].append(result["steps_per_s"])
-        by_kind = result["by_kind"]
-        robot_rss = [kib for name, kib in result["rss_kib"].items() if name.startswith("r")]
-        row = {
-            "robots": robots,
-            "steps": result["steps"],
-            "steps_per_s": statistics.median(speeds[modes[0]]),
-            "runs_steps_per_s": speeds[modes[0]],
-            "bytes_per_message": {
-                kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(by_kind.items()) if entry["messages"]
-            },
-            "robot_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
-            "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
-            "run_folder": result["folder"],
-        }
-        if args.dashboard == "compare":
-            row["runs_steps_per_s_with_dashboard"] = speeds[True]
-            row["steps_per_s_with_dashboard"] = statistics.median(speeds[True])
-            row["dashboard_cost"] = 1.0 - row["steps_per_s_with_dashboard"] / row["steps_per_s"]
-        rows.append(row)
-    results = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy, "rows": rows}
-    if len(rows) == 1:
-        results["steps_per_s"] = rows[0]["steps_per_s"]
-    table = Table(title=f"lockstep emulator ({results['machine']['cores']} cores, {args.strategy} strategy)")
-    for column in ("robots", "steps/s", "request B", "reply B", "measurement B", "command B", "robot RSS MiB"):
+    if repeat < 1:
+        raise UsageError(f"--repeat {repeat}: give at least 1")
+    if steps < 1:
+        raise UsageError(f"--steps {steps}: give at least 1")
+    modes = [False, True] if dashboard == "compare" else [dashboard == "on"]
+    scenario = load_scenario("paper-stationary", robots=robots, strategy=strategy, max_steps=steps)
+    speeds: dict[bool, list[float]] = {mode: [] for mode in modes}
+    startups: list[float] = []
+    for attempt in range(repeat):
+        for with_dashboard in modes:
+            err.print(f"{robots} robots ({robots_per_process} per process), {steps} lockstep steps, dashboard "
+                      f"{'on' if with_dashboard else 'off'} (run {attempt + 1}/{repeat}) ...")
+            result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=with_dashboard, quiet=True,
+                                robots_per_process=robots_per_process, topology=topology)
+            if result["exit_code"] != 0 or "steps_per_s" not in result:
+                raise BenchFailed(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
+            speeds[with_dashboard].append(result["steps_per_s"])
+            if result.get("startup_s") is not None:
+                startups.append(result["startup_s"])
+    # Every participant reports its process's peak RSS: participants of one process report the same.
+    robot_rss = [kib for name, kib in result["rss_kib"].items() if name.startswith("r")]
+    row = {
+        "robots": robots,
+        "robots_per_process": robots_per_process,
+        "topology": result["topology"],
+        "steps": result["steps"],
+        "steps_per_s": statistics.median(speeds[modes[0]]),
+        "runs_steps_per_s": speeds[modes[0]],
+        "startup_s": statistics.median(startups) if startups else None,
+        "bytes_per_message": {
+            kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(result["by_kind"].items())
+            if entry["messages"]
+        },
+        "robot_process_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
+        "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
+        "run_folder": result["folder"],
+    }
+    if dashboard == "compare":
+        row["runs_steps_per_s_with_dashboard"] = speeds[True]
+        row["steps_per_s_with_dashboard"] = statistics.median(speeds[True])
+        row["dashboard_cost"] = 1.0 - row["steps_per_s_with_dashboard"] / row["steps_per_s"]
+    return row
+
+
+def emulator_table(rows: list[dict], title: str) -> Table:
+    compare = any("dashboard_cost" in row for row in rows)
+    table = Table(title=title)
+    columns = ["robots", "per process", "steps/s", "start-up s", *(f"{kind} B" for kind in MESSAGE_KINDS),
+               "robot process MiB"]
+    for column in columns + (["with dashboard", "cost"] if compare else []):
         table.add_column(column, justify="right")
-    if args.dashboard == "compare":
-        table.add_column("with dashboard", justify="right")
-        table.add_column("cost", justify="right")
     for row in rows:
         size = row["bytes_per_message"]
         table.add_row(
             str(row["robots"]),
+            str(row["robots_per_process"]),
             f"{row['steps_per_s']:.0f}",
-            *(f"{size.get(kind, 0):.1f}" for kind in ("request", "reply", "measurement", "command")),
-            f"{row['robot_rss_mib']:.1f}" if row["robot_rss_mib"] else "-",
-            *([f"{row['steps_per_s_with_dashboard']:.0f}", f"{row['dashboard_cost']:+.1%}"]
-              if args.dashboard == "compare" else []),
+            f"{row['startup_s']:.1f}" if row["startup_s"] is not None else "-",
+            *(f"{size.get(kind, 0):.1f}" for kind in MESSAGE_KINDS),
+            f"{row['robot_process_rss_mib']:.1f}" if row["robot_process_rss_mib"] else "-",
+            *([f"{row['steps_per_s_with_dashboard']:.0f}", f"{row['dashboard_cost']:+.1%}"] if compare else []),
         )
-    out.print(table)
+    return table
+
+
+def run_emulator_bench(args: argparse.Namespace) -> int:
+    try:
+        rows = [emulator_row(robots, args.steps, args.strategy, args.repeat, args.dashboard, args.runs,
+                             args.robots_per_process, args.topology) for robots in args.robots]
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
+    results: dict[str, object] = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy,
+                                  "rows": rows}
+    if len(rows) == 1:
+        results["steps_per_s"] = rows[0]["steps_per_s"]
+    out.print(emulator_table(rows, f"lockstep emulator ({results['machine']['cores']} cores, {args.strategy} strategy)"))
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+# --------------------------------------------------------------------------------------- latency
+def neighbour_round_trip(rounds: int, warmup: int) -> dict[str, object]:
+    """Time ``rounds`` polls of one robot process by another (after ``warmup`` untimed ones):
+    round-trip median, p99 and mean in microseconds, and CPU microseconds per round trip on each side."""
+    from tools.latency import endpoints_path
+
+    if rounds < 1 or warmup < 0:
+        raise UsageError(f"--rounds {rounds} --warmup {warmup}: give at least 1 round and no negative warm-up")
+    err.print(f"{rounds} neighbour round trips between two robot processes ...")
+    run = f"{new_run_id():08x}"
+    with tempfile.TemporaryDirectory(prefix="ringtrack-latency-") as directory:
+        folder = Path(directory)
+        sides = {side: folder / f"{side}.json" for side in ("echo", "ping")}
+        common = ["--run", run, "--rounds", str(rounds), "--warmup", str(warmup)]
+        with Supervisor(folder) as supervisor:
+            supervisor.start("echo", [*LATENCY_COMMAND, "echo", *common, "--result", str(sides["echo"])])
+            connect = [flag for endpoint in supervisor.endpoints(endpoints_path(sides["echo"]), "echo")
+                       for flag in ("--connect", endpoint)]
+            supervisor.start("ping", [*LATENCY_COMMAND, "ping", *common, "--result", str(sides["ping"]), *connect])
+            supervisor.wait(critical=frozenset({"echo", "ping"}))
+            if supervisor.failed():
+                child = supervisor.failed()[0]
+                raise BenchFailed(f"the {child.name} process failed: {child.stderr_tail()}")
+        ping, echo = (json.loads(sides[side].read_text()) for side in ("ping", "echo"))
+    round_trips = sorted(ping["round_trips_s"])
+    return {
+        "rounds": rounds,
+        "median_us": statistics.median(round_trips) * 1e6,
+        "p99_us": round_trips[min(len(round_trips) - 1, int(0.99 * len(round_trips)))] * 1e6,
+        "mean_us": statistics.fmean(round_trips) * 1e6,
+        "cpu_us_per_round_trip": {"requester": ping["cpu_s"] / rounds * 1e6, "responder": echo["cpu_s"] / rounds * 1e6},
+    }
+
+
+def latency_table(result: dict, cores: object) -> Table:
+    table = Table(title=f"neighbour round trip ({cores} cores, {result['rounds']} rounds)")
+    for column in ("median us", "p99 us", "mean us", "CPU us requester", "CPU us responder"):
+        table.add_column(column, justify="right")
+    cpu = result["cpu_us_per_round_trip"]
+    table.add_row(*(f"{value:.0f}" for value in (result["median_us"], result["p99_us"], result["mean_us"],
+                                                 cpu["requester"], cpu["responder"])))
+    return table
+
+
+def run_latency_bench(args: argparse.Namespace) -> int:
+    try:
+        result = neighbour_round_trip(args.rounds, args.warmup)
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
+    results = {"benchmark": "latency", "machine": machine(), **result}
+    out.print(latency_table(result, results["machine"]["cores"]))
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+# ----------------------------------------------------------------------------------------- suite
+def run_suite(args: argparse.Namespace) -> int:
+    results: dict[str, object] = {"benchmark": "suite", "machine": machine()}
+    cores = results["machine"]["cores"]
+    try:
+        results["engine"] = engine_results(30, parse_range("3-30"))
+        results["latency"] = neighbour_round_trip(5000, 500)
+        results["emulator"] = [emulator_row(robots, steps, repeat=repeat, runs=args.runs,
+                                            robots_per_process=per_process)
+                               for robots, per_process, steps, repeat in SUITE_TEAMS]
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
+    out.print(engine_table(results["engine"], cores))
+    out.print(latency_table(results["latency"], cores))
+    out.print(emulator_table(results["emulator"], f"lockstep emulator ({cores} cores, self strategy)"))
     if args.json:
         write_json(args.json, results)
     return 0

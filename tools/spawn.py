@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
-import json
 import sys
 import time
 from pathlib import Path
@@ -27,7 +26,6 @@ from tools.supervisor import Supervisor, Terminated, terminate_as_exception
 from world import engine
 from world.scenario import Scenario
 
-ANNOUNCE_TIMEOUT_S = 20.0
 STALL_TIMEOUT_S = 60.0
 ROLE_COMMAND = [sys.executable, "-m", "tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
@@ -108,6 +106,8 @@ def spawn_team(
     router that every other process reaches as a client; None picks mesh up to
     ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
     still its own Zenoh participant."""
+    if robots_per_process < 1:
+        raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -117,8 +117,6 @@ def spawn_team(
     common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
     started = time.perf_counter()
     interrupted = ""
-    if robots_per_process < 1:
-        raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     participants = scenario.robots + 2 + (scenario.estimation.mode == "centralized")  # Zenoh sessions
     topology = topology or ("mesh" if participants <= MESH_LIMIT else "star")
     world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
@@ -130,7 +128,7 @@ def spawn_team(
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
                                            "--announce", str(announce), *stop_rule])
-                endpoints = _announced(announce, supervisor)
+                endpoints = supervisor.endpoints(announce, "world")
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
@@ -186,19 +184,6 @@ class FirstStep:
     def __call__(self) -> None:
         if self.after is None and self.log_path.exists() and b'"type":"step"' in self.log_path.read_bytes()[:65536]:
             self.after = time.perf_counter() - self.started
-
-
-def _announced(path: Path, supervisor: Supervisor) -> list[str]:
-    """Wait for the world to write its endpoints."""
-    deadline = time.monotonic() + ANNOUNCE_TIMEOUT_S
-    while time.monotonic() < deadline:
-        if path.exists():
-            return list(json.loads(path.read_text())["endpoints"])
-        if supervisor.failed():
-            child = supervisor.failed()[0]
-            raise UsageError(f"the world process failed to start: {child.stderr_tail()}")
-        time.sleep(0.02)
-    raise TimeoutError(f"the world did not announce its endpoints within {ANNOUNCE_TIMEOUT_S:.0f} s")
 
 
 def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: int, supervisor: Supervisor,

@@ -9,6 +9,7 @@ supervisor dies, even by SIGKILL, the pipe closes and the child stops itself (``
 from __future__ import annotations
 
 import contextlib
+import json
 import signal
 import subprocess
 import threading
@@ -19,6 +20,9 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+from tools.console import UsageError
+
+ANNOUNCE_TIMEOUT_S = 20.0
 STOP_GRACE_S = 1.5  # SIGTERM, then SIGKILL after this long; everything is gone within 2 s
 
 
@@ -81,6 +85,18 @@ class Supervisor:
                 elif time.monotonic() - last_change > stall_s:
                     raise TimeoutError(f"no progress for {stall_s:.0f} s")
             time.sleep(poll_s)
+
+    def endpoints(self, path: Path, name: str, timeout_s: float = ANNOUNCE_TIMEOUT_S) -> list[str]:
+        """Wait for child ``name`` to announce the endpoints it listens on in ``path`` (written by
+        :func:`bus.config.announce_endpoints`) and return them."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if path.exists():
+                return list(json.loads(path.read_text())["endpoints"])
+            if self.failed():
+                raise UsageError(f"the {name} process failed to start: {self.failed()[0].stderr_tail()}")
+            time.sleep(0.02)
+        raise TimeoutError(f"the {name} process did not announce its endpoints within {timeout_s:.0f} s")
 
     def stop(self, grace_s: float = STOP_GRACE_S) -> None:
         """End every child within ``grace_s`` (+ reaping): SIGTERM the first child started (the

@@ -16,14 +16,13 @@ placed midway between its live ring neighbours (:meth:`world.state.WorldState.re
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from bus.config import BusConfig, listening_locators
+from bus.config import BusConfig, announce_endpoints
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import SCHEMA, Command, End
 from bus.participant import Delivery, Interrupt, Participant, Presence
@@ -65,7 +64,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         participant.watch("ready")
         participant.announce("alive")
         if options.announce is not None:
-            _announce(participant, options.announce)
+            announce_endpoints(participant.session, options.announce)
         team = {robot_name(i) for i in range(scenario.robots)}
         needed = team | ({MONITOR} if options.expect_monitor else set())
         needed |= {FUSION} if scenario.estimation.mode == "centralized" else set()
@@ -96,14 +95,6 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         participant.send(MONITOR, participant.stats(final=True))
         await linger(participant, roster, team | ({MONITOR} if options.expect_monitor else set()))
         return code
-
-
-def _announce(participant: Participant, path: Path) -> None:
-    """Write the endpoints this world listens on, atomically, for spawn and hand-assembled teams."""
-    locators = listening_locators(participant.session)
-    temporary = path.with_suffix(".tmp")
-    temporary.write_text(json.dumps({"endpoints": locators}))
-    temporary.replace(path)
 
 
 def _publish(participant: Participant, world: WorldState) -> None:

@@ -1,0 +1,43 @@
+"""``ringtrack bench``: each benchmark runs for real (briefly) and reports what its JSON promises."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bus.messages import SCHEMA, Reply, Request, encode
+from tools.cli import main
+
+pytestmark = pytest.mark.timeout(240)
+
+
+def test_latency_bench_times_real_round_trips(tmp_path: Path) -> None:
+    path = tmp_path / "latency.json"
+    assert main(["bench", "latency", "--rounds", "300", "--warmup", "30", "--json", str(path)]) == 0
+    result = json.loads(path.read_text())
+    assert result["rounds"] == 300 and result["machine"]["cores"] >= 1
+    assert 0 < result["median_us"] <= result["p99_us"]
+    assert result["median_us"] < 1e6  # a hang or a timeout would show here, not a speed target
+    assert all(value > 0 for value in result["cpu_us_per_round_trip"].values())
+    assert "eclipse-zenoh" in result["machine"]["versions"]
+
+
+def test_emulator_bench_reports_speed_start_up_bytes_and_memory(tmp_path: Path) -> None:
+    path = tmp_path / "emulator.json"
+    arguments = ["bench", "emulator", "--robots", "3", "--steps", "40", "--robots-per-process", "3",
+                 "--runs", str(tmp_path / "runs"), "--json", str(path)]
+    assert main(arguments) == 0
+    result = json.loads(path.read_text())
+    (row,) = result["rows"]
+    assert result["steps_per_s"] == row["steps_per_s"] > 0
+    assert row["robots"] == 3 and row["robots_per_process"] == 3 and row["steps"] == 40
+    assert row["startup_s"] > 0 and row["robot_process_rss_mib"] > 10
+    # Wire bytes per message: a request's size does not depend on its values' magnitudes beyond
+    # msgpack's integer widths, so it lies between the smallest and the largest possible encoding.
+    smallest = len(encode(Request(SCHEMA, 0, 1, 0, 1, 0)))
+    largest = len(encode(Request(SCHEMA, 2**32 - 1, 2**31, 2, 2, 2**32 - 1)))
+    assert smallest <= row["bytes_per_message"]["request"] <= largest
+    assert row["bytes_per_message"]["reply"] > row["bytes_per_message"]["request"]
+    assert len(encode(Reply(SCHEMA, 0, 1, 0, 1, 0, (0.0, 0.0)))) <= row["bytes_per_message"]["reply"]
