@@ -49,6 +49,10 @@ Outgoing = list[tuple[str, Message]]  # (destination participant, message)
 Belief = tuple[Point, Covariance]
 
 KEPT_STEPS = 16  # own step-start positions (and beliefs) remembered to answer late requests
+# Requests for a step this robot has not reached are kept until it does, if that step is at most
+# KEPT_STEPS ahead and at most BUFFERED_LIMIT are waiting; others are ignored (a flood of forged
+# far-future requests cannot grow the robot's memory).
+BUFFERED_LIMIT = 4 * KEPT_STEPS
 
 
 def pack_point(vector: FloatArray) -> Point:
@@ -99,6 +103,7 @@ class RobotNode:
         self.polls = 0
         self.probes = 0
         self.ignored_replies = 0
+        self.ignored_requests = 0
         self.finished = False
 
     # ------------------------------------------------------------------ dispatch
@@ -149,8 +154,11 @@ class RobotNode:
         return self._decide()
 
     def on_request(self, request: Request) -> Outgoing:
-        if request.step > self.step:
-            self.buffered.append(request)  # our measurement of that step has not arrived yet
+        if request.step > self.step:  # our measurement of that step has not arrived yet
+            if request.step <= self.step + KEPT_STEPS and len(self.buffered) < BUFFERED_LIMIT:
+                self.buffered.append(request)
+            else:
+                self.ignored_requests += 1
             return []
         return [self._reply(request)]
 

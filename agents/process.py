@@ -62,7 +62,8 @@ async def run_robot(
         participant.announce("ready")
         link = RobotLink(participant, node, reply_timeout)
         code = await _serve(link, roster, events)
-        notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies}
+        notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
+                 "ignored_requests": node.ignored_requests}
         participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
         if expect_monitor and code != 130:
             await linger(participant, roster, {MONITOR})

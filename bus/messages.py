@@ -9,16 +9,25 @@ whose ``reason`` is counted by the receiver.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import msgspec
 
-from bus.keys import FUSION, MONITOR, WORLD, Route, robot_index, robot_name
+from bus.keys import FUSION, MONITOR, WORLD, Route, robot_name
 
 SCHEMA = 1
 
-Point = tuple[float, float]
-Covariance = tuple[float, float, float]  # (xx, xy, yy), m^2
+# Checked wire values: msgspec refuses NaN, infinities and out-of-range numbers while decoding
+# ("malformed"), so no process ever computes with them. Robot ids are checked against the team in
+# :func:`decode` ("sender").
+BOUND = 1e9
+Real = Annotated[float, msgspec.Meta(ge=-BOUND, le=BOUND)]
+NonNegativeReal = Annotated[float, msgspec.Meta(ge=0.0, le=BOUND)]
+Step = Annotated[int, msgspec.Meta(ge=1)]  # steps are 1-based
+Count = Annotated[int, msgspec.Meta(ge=0)]
+Nonce = Annotated[int, msgspec.Meta(ge=0, lt=2**32)]
+Point = tuple[Real, Real]
+Covariance = tuple[Real, Real, Real]  # (xx, xy, yy), m^2
 
 
 class Message(msgspec.Struct, array_like=True, frozen=True, tag=True):
@@ -32,11 +41,11 @@ class Measurement(Message, tag=1):
     """World -> robot: the robot's exact position and a noisy range to the target (None: beyond
     r_s), and with a limited communication range the live robots it can reach this step."""
 
-    step: int
-    time: float
+    step: Step
+    time: NonNegativeReal
     robot: int
     position: Point
-    range: float | None
+    range: NonNegativeReal | None
     in_range: list[int] | None = None
     kind: ClassVar[str] = "measurement"
     category: ClassVar[str] = "world"
@@ -51,12 +60,12 @@ class Command(Message, tag=2):
     estimates.
     """
 
-    step: int
+    step: Step
     robot: int
     goal: Point
-    trigger: int
-    guaranteed_offset: float
-    ages: tuple[int, int]
+    trigger: Count
+    guaranteed_offset: Real
+    ages: tuple[Count, Count]
     centre: Point
     covariance: Covariance | None = None
     kind: ClassVar[str] = "command"
@@ -66,10 +75,10 @@ class Command(Message, tag=2):
 class Request(Message, tag=3):
     """Robot -> ring neighbour: send me your state at the start of ``step``."""
 
-    step: int
+    step: Step
     sender: int
     receiver: int
-    nonce: int
+    nonce: Nonce
     kind: ClassVar[str] = "request"
     category: ClassVar[str] = "robot"
 
@@ -78,10 +87,10 @@ class Reply(Message, tag=4):
     """Ring neighbour -> robot: its position at the start of ``step`` (and belief when estimating),
     answering the request with ``nonce``."""
 
-    step: int
+    step: Step
     sender: int
     receiver: int
-    nonce: int
+    nonce: Nonce
     position: Point
     mean: Point | None = None
     covariance: Covariance | None = None
@@ -92,8 +101,8 @@ class Reply(Message, tag=4):
 class Tick(Message, tag=5):
     """World -> monitor: the true state at the start of ``step`` (never sent to robots)."""
 
-    step: int
-    time: float
+    step: Step
+    time: NonNegativeReal
     positions: list[Point]
     target: Point
     live: list[int]
@@ -104,9 +113,9 @@ class Tick(Message, tag=5):
 class End(Message, tag=6):
     """World -> everyone: the run is over after ``step`` steps (``reason``: "done", "stopped", ...)."""
 
-    step: int
+    step: Count  # 0: stopped before its first step
     reason: str
-    wall_s: float
+    wall_s: NonNegativeReal
     kind: ClassVar[str] = "end"
     category: ClassVar[str] = "world"
 
@@ -123,8 +132,8 @@ class Stats(Message, tag=7):
     final: bool
     sent: list[Traffic]
     received: list[Traffic]
-    rejected: dict[str, int]
-    rss_kib: int
+    rejected: dict[str, Count]
+    rss_kib: Count
     faults: dict[str, int] = {}
     notes: dict[str, int] = {}
     kind: ClassVar[str] = "stats"
@@ -135,13 +144,13 @@ class FaultNotice(Message, tag=10):
     """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone),
     ``duplicated`` or ``delayed`` (by ``delay_s``) the ``subject`` message ``sender -> receiver``."""
 
-    step: int
+    step: Step
     subject: str
     sender: int
     receiver: int
     what: str
     reason: str
-    delay_s: float
+    delay_s: NonNegativeReal
     kind: ClassVar[str] = "fault"
     category: ClassVar[str] = "monitoring"
 
@@ -150,10 +159,10 @@ class RangeReport(Message, tag=8):
     """Robot -> fusion centre (centralized estimation): its position and measured range (None:
     beyond the sensing range) at the start of ``step``."""
 
-    step: int
+    step: Step
     robot: int
     position: Point
-    range: float | None
+    range: NonNegativeReal | None
     kind: ClassVar[str] = "range"
     category: ClassVar[str] = "estimation"
 
@@ -161,7 +170,7 @@ class RangeReport(Message, tag=8):
 class Estimate(Message, tag=9):
     """Fusion centre -> every robot: the centralized estimate of the target after ``step``'s ranges."""
 
-    step: int
+    step: Step
     mean: Point
     covariance: Covariance
     kind: ClassVar[str] = "estimate"
@@ -186,7 +195,9 @@ class Rejected(ValueError):
         self.reason = reason
 
 
-REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender")
+# "value": well formed and from a team member, but impossible for this run (e.g. a goal off the
+# boundary); counted by the receiver that can tell.
+REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value")
 
 
 def encode(message: Message) -> bytes:
@@ -210,14 +221,28 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
         raise Rejected("foreign", f"run {message.run:#x} on {route}")
     if route.kind != message.kind:
         raise Rejected("route", f"{message.kind} sent as {route.kind}")
+    for robot in robot_ids(message):
+        if not 0 <= robot < robots:
+            raise Rejected("sender", f"{message.kind} names robot {robot}, not one of a team of {robots}")
+    if isinstance(message, Tick) and len(message.positions) != robots:
+        raise Rejected("malformed", f"tick with {len(message.positions)} positions for a team of {robots}")
     source, destination = endpoints(message)
     if source != route.source or destination not in (route.destination, None):
         raise Rejected("sender", f"{message.kind} from {source} to {destination} on {route}")
-    for name in (source, destination):
-        index = robot_index(name) if name else None
-        if index is not None and index >= robots:
-            raise Rejected("sender", f"robot {index} does not exist in a team of {robots}")
     return message
+
+
+def robot_ids(message: Message) -> list[int]:
+    """Every robot index a message names (all must belong to the team)."""
+    if isinstance(message, (Request, Reply, FaultNotice)):
+        return [message.sender, message.receiver]
+    if isinstance(message, Measurement):
+        return [message.robot, *(message.in_range or ())]
+    if isinstance(message, (Command, RangeReport)):
+        return [message.robot]
+    if isinstance(message, Tick):
+        return list(message.live)
+    return []
 
 
 def endpoints(message: Message) -> tuple[str, str | None]:

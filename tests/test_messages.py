@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from bus.keys import Keys, robot_index
 from bus.messages import (
+    BOUND,
     SCHEMA,
     Command,
     End,
@@ -29,7 +30,8 @@ RUN = 0x1234ABCD
 KEYS = Keys(RUN)
 ROBOTS = 6
 
-finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+finite = st.floats(-BOUND, BOUND, width=64)
+non_negative = st.floats(0.0, BOUND, width=64)
 points = st.tuples(finite, finite)
 robots = st.integers(0, ROBOTS - 1)
 steps = st.integers(1, 10**6)
@@ -39,16 +41,18 @@ nonces = st.integers(0, 2**32 - 1)
 def messages() -> st.SearchStrategy:
     covariance = st.one_of(st.none(), st.tuples(finite, finite, finite))
     return st.one_of(
-        st.builds(lambda s, t, r, p, z: Measurement(SCHEMA, RUN, s, t, r, p, z), steps, finite, robots, points,
-                  st.one_of(st.none(), finite)),
+        st.builds(lambda s, t, r, p, z: Measurement(SCHEMA, RUN, s, t, r, p, z), steps, non_negative, robots, points,
+                  st.one_of(st.none(), non_negative)),
         st.builds(lambda s, r, g, m, o, a, c, v: Command(SCHEMA, RUN, s, r, g, m, o, a, c, v), steps, robots, points,
                   st.integers(0, 31), finite, st.tuples(steps, steps), points, covariance),
         st.builds(lambda s, a, b, n: Request(SCHEMA, RUN, s, a, b, n), steps, robots, robots, nonces),
         st.builds(lambda s, a, b, n, p, m, v: Reply(SCHEMA, RUN, s, a, b, n, p, m, v), steps, robots, robots, nonces,
                   points, st.one_of(st.none(), points), covariance),
-        st.builds(lambda s, t, ps, p: Tick(SCHEMA, RUN, s, t, ps, p, list(range(len(ps)))), steps, finite,
-                  st.lists(points, max_size=ROBOTS), points),
-        st.builds(lambda s, why, w: End(SCHEMA, RUN, s, why, w), steps, st.text(max_size=20), finite),
+        st.builds(lambda s, t, ps, p, live: Tick(SCHEMA, RUN, s, t, ps, p, live), steps, non_negative,
+                  st.lists(points, min_size=ROBOTS, max_size=ROBOTS), points,
+                  st.lists(robots, max_size=ROBOTS, unique=True)),
+        st.builds(lambda s, why, w: End(SCHEMA, RUN, s, why, w), st.integers(0, 10**6), st.text(max_size=20),
+                  non_negative),
     )
 
 
@@ -62,6 +66,51 @@ def route_of(message):
 @given(messages())
 def test_every_message_round_trips(message) -> None:
     assert decode(encode(message), route_of(message), RUN, ROBOTS) == message
+
+
+# Well-formed messages carrying one impossible value each: (message, reason it is rejected for).
+BAD_VALUES = [
+    (Request(SCHEMA, RUN, 0, 1, 2, 42), "malformed"),  # steps are 1-based
+    (Request(SCHEMA, RUN, -5, 1, 2, 42), "malformed"),
+    (Request(SCHEMA, RUN, 3, 1, 2, -1), "malformed"),  # nonces are 32-bit unsigned
+    (Request(SCHEMA, RUN, 3, -1, 2, 42), "sender"),  # a negative robot id
+    (Request(SCHEMA, RUN, 3, 1, -7, 42), "sender"),
+    (Request(SCHEMA, RUN, 3, 1, 6, 42), "sender"),  # robot 6 of a team of 6
+    (Reply(SCHEMA, RUN, 3, 2, 1, 42, (float("nan"), 0.0)), "malformed"),
+    (Reply(SCHEMA, RUN, 3, 2, 1, 42, (0.0, float("inf"))), "malformed"),
+    (Reply(SCHEMA, RUN, 3, 2, 1, 42, (0.0, 0.0), (0.0, 0.0), (1.0, float("nan"), 1.0)), "malformed"),
+    (Command(SCHEMA, RUN, 3, -1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0)), "sender"),
+    (Command(SCHEMA, RUN, 3, 1, (float("nan"), 0.0), 0, 0.0, (0, 0), (0.0, 0.0)), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, float("-inf"), (0, 0), (0.0, 0.0)), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), -1, 0.0, (0, 0), (0.0, 0.0)), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (-1, 0), (0.0, 0.0)), "malformed"),
+    (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), -1.0), "malformed"),  # a negative range
+    (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), 1.0, [0, 9]), "sender"),  # in range of a robot 9
+    (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 5, (0.0, 0.0), [0, 1, 2]), "malformed"),  # 5 positions for 6
+    (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0, -1]), "sender"),
+    (End(SCHEMA, RUN, -1, "done", 1.0), "malformed"),
+]
+
+
+@pytest.mark.parametrize(("message", "reason"), BAD_VALUES, ids=[f"{m.kind}-{i}" for i, (m, _) in enumerate(BAD_VALUES)])
+def test_impossible_values_are_rejected(message, reason: str) -> None:
+    route = KEYS.parse(KEYS.data(*{
+        "request": ("r2", "r1"), "reply": ("r1", "r2"), "command": ("world", "r1"), "measurement": ("r1", "world"),
+        "tick": ("monitor", "world"), "end": ("all", "world"),
+    }[message.kind], message.kind))
+    with pytest.raises(Rejected) as raised:
+        decode(encode(message), route, RUN, ROBOTS)
+    assert raised.value.reason == reason
+
+
+@given(st.sampled_from(["sender", "receiver"]), st.one_of(st.integers(-(2**40), -1), st.integers(ROBOTS, 2**40)))
+def test_no_robot_id_outside_the_team_gets_through(field: str, robot: int) -> None:
+    fields = {"sender": 1, "receiver": 2, field: robot}
+    request = Request(SCHEMA, RUN, 3, fields["sender"], fields["receiver"], 42)
+    route = KEYS.parse(KEYS.data(f"r{fields['receiver']}", f"r{fields['sender']}", "request"))
+    with pytest.raises(Rejected) as raised:
+        decode(encode(request), route, RUN, ROBOTS)
+    assert raised.value.reason == "sender"
 
 
 def test_neighbour_messages_are_compact() -> None:

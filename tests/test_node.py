@@ -77,6 +77,39 @@ def test_a_request_from_the_future_waits_for_our_measurement() -> None:
     assert reply.position == tuple(float(v) for v in world.positions[2])
 
 
+def test_a_lost_answer_settles_the_poll_and_leaves_that_side_stale() -> None:
+    node, world = make_node(strategy="constant")  # polls every step
+    for step in (1, 2, 3):
+        out = node.handle(world.measurement(2))
+        if step < 3:  # both sides answer at steps 1 and 2
+            *_, (_, command) = [node.handle(reply_to(message, world)) for _, message in out][-1] or [None]
+            world.accept(command)
+            world.advance()
+    assert node.trigger and len(node.awaiting) == 2
+    ages_before = (int(node.controller.predecessor_age), int(node.controller.successor_age))
+    assert node.on_lost(3) == []  # the successor's answer will not come: still waiting for the other
+    assert node.on_lost(3) == []  # a second notice for the same side changes nothing
+    request = next(message for _, message in out if isinstance(message, Request) and message.receiver == 1)
+    (destination, command), = node.handle(reply_to(request, world))
+    assert destination == "world" and isinstance(command, Command)  # settled within the step
+    assert int(node.controller.predecessor_age) == 0  # fresh
+    assert int(node.controller.successor_age) == ages_before[1]  # stale, and it goes on ageing
+
+
+def test_a_flood_of_far_future_requests_cannot_grow_the_robots_memory() -> None:
+    from agents.node import BUFFERED_LIMIT, KEPT_STEPS
+
+    node, world = make_node()
+    far = [Request(SCHEMA, RUN, KEPT_STEPS + 1 + k, 1, 2, k) for k in range(1000)]
+    near = [Request(SCHEMA, RUN, 1 + k % KEPT_STEPS, 3, 2, k) for k in range(1000)]
+    for request in far + near:
+        assert node.handle(request) == []
+    assert len(node.buffered) == BUFFERED_LIMIT
+    assert node.ignored_requests == len(far) + len(near) - BUFFERED_LIMIT
+    out = node.handle(world.measurement(2))  # step 1: the buffered requests for step 1 are answered
+    assert [message.step for _, message in out if isinstance(message, Reply)] == [1] * (BUFFERED_LIMIT // KEPT_STEPS)
+
+
 def test_a_reply_describes_the_start_of_the_requested_step() -> None:
     node, world = make_node()
     requests = [message for _, message in node.handle(world.measurement(2))]

@@ -27,6 +27,7 @@ from rich.table import Table
 from bus.keys import new_run_id
 from tools.console import UsageError, err, out, write_json
 from tools.experiment import robot_list, stationary_experiment
+from tools.options import at_least, output_path
 from tools.supervisor import Supervisor
 from world import engine
 from world.scenario import load_scenario
@@ -45,9 +46,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         "engine",
         help="in-process engine: one run, the 30-trial N = 6 experiment, the N = 3..30 sweep",
     )
-    engine_parser.add_argument("--trials", type=int, default=30)
+    engine_parser.add_argument("--trials", type=at_least(1), default=30)
     engine_parser.add_argument("--sweep", type=str, default="3-30", help="team sizes of the sweep, e.g. 3-30")
-    engine_parser.add_argument("--json", type=Path, metavar="PATH")
+    engine_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
     engine_parser.set_defaults(handler=run_engine_bench)
 
     emulator_parser = kinds.add_parser(
@@ -55,26 +56,26 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="lockstep steps per second of a multi-process team over Zenoh, start-up, bytes per message, memory",
     )
     emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
-    emulator_parser.add_argument("--steps", type=int, default=1000)
+    emulator_parser.add_argument("--steps", type=at_least(1), default=1000)
     emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self")
-    emulator_parser.add_argument("--repeat", type=int, default=1, help="runs per configuration; medians reported")
-    emulator_parser.add_argument("--robots-per-process", type=int, default=1, metavar="K",
+    emulator_parser.add_argument("--repeat", type=at_least(1), default=1, help="runs per configuration; medians reported")
+    emulator_parser.add_argument("--robots-per-process", type=at_least(1), default=1, metavar="K",
                                  help="host K robots per process (each its own Zenoh participant)")
     emulator_parser.add_argument("--topology", choices=["mesh", "star"], help="as for spawn (default: by size)")
     emulator_parser.add_argument("--dashboard", choices=["off", "on", "compare"], default="off",
                                  help="draw the dashboard (to RUN_FOLDER/monitor.stdout), or alternate runs "
                                  "without and with it to measure what it costs")
     emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
-    emulator_parser.add_argument("--json", type=Path, metavar="PATH")
+    emulator_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
     emulator_parser.set_defaults(handler=run_emulator_bench)
 
     latency_parser = kinds.add_parser(
         "latency",
         help="neighbour round trip (request and reply between two robot processes): median, p99, CPU",
     )
-    latency_parser.add_argument("--rounds", type=int, default=5000)
-    latency_parser.add_argument("--warmup", type=int, default=500)
-    latency_parser.add_argument("--json", type=Path, metavar="PATH")
+    latency_parser.add_argument("--rounds", type=at_least(1), default=5000)
+    latency_parser.add_argument("--warmup", type=at_least(0), default=500)
+    latency_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
     latency_parser.set_defaults(handler=run_latency_bench)
 
     suite_parser = kinds.add_parser(
@@ -82,7 +83,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="engine, neighbour latency and the emulator for N = 6, 24, 64 and 256 (16 per process)",
     )
     suite_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
-    suite_parser.add_argument("--json", type=Path, metavar="PATH")
+    suite_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
     suite_parser.set_defaults(handler=run_suite)
 
 

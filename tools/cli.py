@@ -12,6 +12,7 @@ import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment", "bench")
 
@@ -26,8 +27,15 @@ USER_ERRORS = (
 )
 
 
+class Parser(argparse.ArgumentParser):
+    """Reports a bad flag in one line naming it, and where to read more, instead of the usage text."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"ringtrack: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser(commands: Sequence[str] = COMMANDS) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="ringtrack",
         description="Self-triggered multi-robot target tracking: engine, emulator over Zenoh, experiments.",
     )

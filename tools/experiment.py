@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 
 import msgspec
 import numpy as np
@@ -15,6 +14,7 @@ from rich import box
 from rich.table import Table
 
 from tools.console import UsageError, err, out, write_json
+from tools.options import FIGURE_SUFFIXES, at_least, output_path
 from world import engine
 from bus.messages import poll_bytes
 from world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
@@ -34,13 +34,13 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     stationary.add_argument("scenario", nargs="?", default="paper-stationary", help="base scenario")
     stationary.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 3,6,10,20")
-    stationary.add_argument("--trials", type=int, default=30, help="random starts per team size (default 30)")
-    stationary.add_argument("--seed", type=int, default=0, help="seed of trial 0 (default 0)")
+    stationary.add_argument("--trials", type=at_least(1), default=30, help="random starts per team size (default 30)")
+    stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
-    stationary.add_argument("--steps", type=int, help="step limit per trial (default: control.max_steps)")
-    stationary.add_argument("--json", type=Path, metavar="PATH", help="write per-trial rows and means")
-    stationary.add_argument("--plot", type=Path, metavar="PNG", help="draw the comparison figure")
+    stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
+    stationary.add_argument("--json", type=output_path((".json",)), metavar="PATH", help="write per-trial rows and means")
+    stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the comparison figure")
     stationary.set_defaults(handler=run_stationary)
 
     moving = kinds.add_parser(
@@ -52,14 +52,14 @@ def register(commands: argparse._SubParsersAction) -> None:
         "(v, w) = (0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8). --plot PNG also writes PNG-velocities.png.",
     )
     moving.add_argument("scenario", nargs="?", default="gazebo-moving", help="base scenario (a circling target)")
-    moving.add_argument("--trials", type=int, default=5, help="random starts per run (default 5)")
-    moving.add_argument("--seed", type=int, default=0, help="seed of trial 0 (default 0)")
-    moving.add_argument("--steps", type=int, help="steps per run (default: control.max_steps)")
-    moving.add_argument("--settle", type=int, default=300, help="means are taken from this step on (default 300)")
+    moving.add_argument("--trials", type=at_least(1), default=5, help="random starts per run (default 5)")
+    moving.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
+    moving.add_argument("--steps", type=at_least(1), help="steps per run (default: control.max_steps)")
+    moving.add_argument("--settle", type=at_least(0), default=300, help="means are taken from this step on (default 300)")
     moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
     moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
-    moving.add_argument("--json", type=Path, metavar="PATH", help="write the table and the Cerr/Terr series")
-    moving.add_argument("--plot", type=Path, metavar="PNG", help="draw Cerr and Terr over time")
+    moving.add_argument("--json", type=output_path((".json",)), metavar="PATH", help="write the table and the Cerr/Terr series")
+    moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
     moving.set_defaults(handler=run_moving)
 
 

@@ -1,12 +1,17 @@
-"""Command-line flags shared by the commands that load a scenario."""
+"""Command-line flags shared by the commands: scenario overrides and checked number types."""
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
 
 from world.scenario import Scenario, load_scenario
 
 DEFAULT_SCENARIO = "paper-stationary"
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")  # what matplotlib writes here
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> None:
@@ -24,8 +29,8 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
         type=int,
         help="team size; explicit start angles of another size are replaced by a seeded random start",
     )
-    parser.add_argument("--seed", type=int, help="random seed (starts, noise, faults)")
-    parser.add_argument("--steps", type=int, help=steps_help)
+    parser.add_argument("--seed", type=at_least(0), help="random seed (starts, noise, faults)")
+    parser.add_argument("--steps", type=at_least(1), help=steps_help)
     parser.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     parser.add_argument("--estimation", choices=["known", "centralized", "decentralized"],
                         help="how the robots estimate the target")
@@ -49,3 +54,51 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
         duplicate=args.duplicate,
         communication_range=args.communication_range,
     )
+
+
+def positive(text: str) -> float:
+    """An argparse type: a finite number > 0 (a rate, a speed factor, seconds)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive number; give e.g. 1 or 0.5")
+    return value
+
+
+def at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``minimum`` (a count of steps, trials, rounds; a seed)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer; give one >= {minimum}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{value} is below {minimum}; give an integer >= {minimum}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
+    """An argparse type: a file to write, ending in one of ``suffixes``; its folder is made (or
+    found writable) before any work starts, so a long run never fails at its very end."""
+
+    def parse(text: str) -> Path:
+        path = Path(text)
+        if not text or path.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"{text!r}: give a file name ending in {' or '.join(suffixes)}")
+        if path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name ending in {suffixes[0]}")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot make its folder ({error.strerror}); give a writable path")
+        if not os.access(path.parent, os.W_OK):
+            raise argparse.ArgumentTypeError(f"{text!r}: its folder is not writable; give a writable path")
+        return path
+
+    return parse

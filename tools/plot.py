@@ -9,13 +9,15 @@ import numpy as np
 
 from bus.counting import category_of
 from tools.console import UsageError, out
+from tools.options import FIGURE_SUFFIXES, output_path
 from tools.runlog import RunLog, history_from_log, read_log
 
 
 def register(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser("plot", help="draw a run log: trajectories, Cerr/Terr, polls, traffic per link")
     parser.add_argument("log", type=Path, help="a run log (RUN_FOLDER/log.jsonl, or simulate --log)")
-    parser.add_argument("-o", "--output", type=Path, required=True, metavar="PNG", help="figure to write")
+    parser.add_argument("-o", "--output", type=output_path(FIGURE_SUFFIXES), required=True, metavar="PNG",
+                        help="figure to write (.png, .pdf or .svg)")
     parser.set_defaults(handler=run_plot)
 
 

@@ -10,6 +10,7 @@ from rich.console import Console
 
 from tools.console import UsageError, out
 from tools.dashboard import Dashboard, TeamModel
+from tools.options import positive
 from tools.runlog import read_log
 from tools.views import LiveView
 
@@ -19,7 +20,7 @@ FRAME_S = 0.1  # at most ten redraws per wall second
 def register(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser("replay", help="watch a run again from its log on the dashboard")
     parser.add_argument("log", type=Path, help="a run log (RUN_FOLDER/log.jsonl, or simulate --log)")
-    parser.add_argument("--speed", type=float, default=10.0,
+    parser.add_argument("--speed", type=positive, default=10.0,
                         help="simulated seconds per wall second (default 10; 1e9 shows the end at once)")
     display = parser.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the dashboard even without a terminal")
@@ -30,8 +31,6 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    if not args.speed > 0:
-        raise UsageError(f"--speed {args.speed}: give a positive factor, e.g. 10")
     if not args.log.is_file():
         raise UsageError(f"{args.log}: no such run log; give RUN_FOLDER/log.jsonl")
     log = read_log(args.log)

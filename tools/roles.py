@@ -9,14 +9,14 @@ from pathlib import Path
 
 from bus.config import LOOPBACK_ANY_PORT, BusConfig
 from tools.console import UsageError, err, out
-from tools.options import add_scenario_arguments, scenario_from_arguments
+from tools.options import add_scenario_arguments, positive, scenario_from_arguments
 
 
 def register(commands: argparse._SubParsersAction) -> None:
     world = commands.add_parser("world", help="run the world process of a team")
     _common(world)
     world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
-    world.add_argument("--rate", type=float, default=1.0, help="realtime: simulated seconds per wall second")
+    world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
     world.add_argument("--until-converged", action="store_true",
@@ -28,7 +28,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     robot.add_argument("--id", type=robot_ids, required=True, metavar="I",
                        help="robot index 0..N-1 in counter-clockwise order; 0-7 or 0,2,4 runs several robots in "
                        "this process, each its own Zenoh participant")
-    robot.add_argument("--reply-timeout", type=float, metavar="S",
+    robot.add_argument("--reply-timeout", type=positive, metavar="S",
                        help="realtime: wall seconds a poll waits for replies (default: wait, as lockstep)")
     robot.add_argument("--join", type=Path, metavar="RUN_FOLDER",
                        help="join the running team of a spawn run folder (scenario, run id, endpoints)")
@@ -43,6 +43,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     router.add_argument("--listen", action="append", metavar="ENDPOINT", required=True,
                         help="endpoint to listen on, e.g. tcp/0.0.0.0:7447; repeatable")
     router.add_argument("--connect", action="append", metavar="ENDPOINT", help="another router; repeatable")
+    router.add_argument("--announce", type=Path, metavar="PATH",
+                        help="write the endpoints the router listens on to PATH (JSON; useful with port 0)")
+    router.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     router.set_defaults(handler=run_router_role)
 
     fusion = commands.add_parser("fusion", help="run the fusion centre of centralized estimation")
@@ -105,8 +108,6 @@ def run_world_role(args: argparse.Namespace) -> int:
     from world.process import WorldOptions, run_world
 
     scenario = scenario_from_arguments(args)
-    if args.rate <= 0:
-        raise UsageError(f"--rate {args.rate}: give a positive factor, e.g. 1 or 10")
     options = WorldOptions(
         steps=scenario.max_steps,
         clock=args.clock,
@@ -128,10 +129,10 @@ def run_robot_role(args: argparse.Namespace) -> int:
     for robot in args.id:
         if not 0 <= robot < scenario.robots:
             raise UsageError(f"--id {robot}: the team has robots 0..{scenario.robots - 1}")
-    return asyncio.run(
+    return finished("robot", asyncio.run(
         run_robots(args.id, scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent,
                    args.reply_timeout)
-    )
+    ))
 
 
 def join(args: argparse.Namespace) -> None:
@@ -151,17 +152,29 @@ def join(args: argparse.Namespace) -> None:
 
 
 def run_router_role(args: argparse.Namespace) -> int:
+    """A Zenoh router until SIGINT, SIGTERM or (``--exit-with-parent``) the end of standard input."""
+    import os
     import signal
+    import sys
     import threading
 
-    from bus.config import open_session
+    from bus.config import announce_endpoints, listening_locators, open_session
 
-    config = BusConfig(mode="router", listen=tuple(args.listen), connect=tuple(args.connect or ()))
+    config = BusConfig(mode="router", listen=tuple(args.listen), connect=tuple(args.connect or ()), admin_space=True)
     stop = threading.Event()
     for number in (signal.SIGINT, signal.SIGTERM):
         signal.signal(number, lambda *_: stop.set())
-    with open_session(config):
-        err.print(f"router listening on {', '.join(args.listen)}; Ctrl-C to stop", highlight=False)
+    if args.exit_with_parent:
+        def wait_for_parent() -> None:
+            while os.read(sys.stdin.fileno(), 4096):
+                pass
+            stop.set()
+
+        threading.Thread(target=wait_for_parent, daemon=True).start()
+    with open_session(config) as session:
+        if args.announce is not None:
+            announce_endpoints(session, args.announce)
+        err.print(f"router listening on {', '.join(listening_locators(session))}; Ctrl-C to stop", highlight=False)
         stop.wait()
     return 0
 
@@ -173,7 +186,8 @@ def run_fusion_role(args: argparse.Namespace) -> int:
     if scenario.estimation.mode != "centralized":
         raise UsageError(f"the scenario's estimation.mode is {scenario.estimation.mode!r}; a fusion centre serves "
                          "only 'centralized'")
-    return asyncio.run(run_fusion(scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent))
+    return finished("fusion", asyncio.run(
+        run_fusion(scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent)))
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
@@ -197,6 +211,14 @@ def run_monitor_role(args: argparse.Namespace) -> int:
         if not report.consistent():
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)
+    return finished("monitor", code)
+
+
+def finished(role: str, code: int) -> int:
+    """Say why a role stops with code 1 (the world vanished without ending the run); pass the code on."""
+    if code == 1:
+        err.print(f"{role}: the world went away without ending the run (it crashed or was killed); stopping",
+                  highlight=False)
     return code
 
 

@@ -29,7 +29,7 @@ from typing import IO, Any
 import msgspec
 import numpy as np
 
-from world.engine import History, fault_totals
+from world.engine import FAULT_COLUMNS, History, fault_totals
 from world.geometry import angle_of
 from world.metrics import convergence_error, true_offsets
 from world.scenario import Scenario, parse_scenario, resolve
@@ -245,7 +245,7 @@ def history_from_log(log: RunLog) -> History:
         estimates=estimates,
         sent=np.array([record["sent_messages"] for record in log.steps], dtype=np.int64)[:, None],
         received=np.array([record["received_messages"] for record in log.steps], dtype=np.int64)[:, None],
-        faults=np.zeros((len(log.steps), 1, 4), dtype=np.int64),  # per run only: see the end record
+        faults=np.zeros((len(log.steps), 1, len(FAULT_COLUMNS)), dtype=np.int64),  # per run only: see the end record
         probes=np.zeros((len(log.steps), 1), dtype=np.int64),
     )
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
+import math
 import sys
 import time
 from pathlib import Path
@@ -20,7 +21,7 @@ from bus.config import LOOPBACK_ANY_PORT
 from bus.counting import totals_by_category, totals_by_kind
 from bus.keys import new_run_id
 from tools.console import UsageError, err, out, write_json
-from tools.options import add_scenario_arguments, scenario_from_arguments
+from tools.options import add_scenario_arguments, at_least, output_path, positive, scenario_from_arguments
 from tools.runlog import history_from_log, read_log
 from tools.supervisor import Supervisor, Terminated, terminate_as_exception
 from world import engine
@@ -30,6 +31,8 @@ STALL_TIMEOUT_S = 60.0
 ROLE_COMMAND = [sys.executable, "-m", "tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
+PROCESS_MIB = 80  # resident memory of one robot process (measured 55-75 MiB), for the process budget
+MAX_PROCESSES = 1024
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -42,11 +45,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     add_scenario_arguments(parser, steps_help="run exactly this many steps (default: until converged, at "
                            "most control.max_steps)")
     parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
-    parser.add_argument("--rate", type=float, default=1.0, help="realtime: simulated seconds per wall second")
+    parser.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     parser.add_argument("--log", type=Path, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="also write the summary JSON here")
+    parser.add_argument("--json", type=output_path((".json",)), metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
-    parser.add_argument("--robots-per-process", type=int, default=1, metavar="K",
+    parser.add_argument("--robots-per-process", type=at_least(1), default=1, metavar="K",
                         help="host K robots per process, each still its own Zenoh participant (large teams)")
     parser.add_argument("--topology", choices=["mesh", "star"],
                         help=f"mesh: every pair linked; star: the world is a Zenoh router (default: mesh up to "
@@ -60,8 +63,6 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def run_spawn(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
-    if args.rate <= 0:
-        raise UsageError(f"--rate {args.rate}: give a positive factor, e.g. 1 or 10")
     result = spawn_team(
         scenario,
         clock=args.clock,
@@ -108,6 +109,13 @@ def spawn_team(
     still its own Zenoh participant."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
+    processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
+    if processes > budget:
+        raise UsageError(
+            f"--robots {scenario.robots}: {processes} robot processes of about {PROCESS_MIB} MiB each are more than "
+            f"this machine holds ({budget}); host several per process with --robots-per-process "
+            f"{math.ceil(scenario.robots / budget)}"
+        )
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -158,7 +166,9 @@ def spawn_team(
     failures = {child.name: child.process.returncode for child in supervisor.children if child.process.returncode}
     for child in supervisor.children:
         if child.process.returncode not in (0, None, -15, 130) and not interrupted:
-            err.print(f"{child.name} exited with {child.process.returncode}: {child.stderr_tail()}", highlight=False)
+            detail = child.stderr_tail()
+            err.print(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""),
+                      highlight=False)
     result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started)
     result["topology"] = topology
     result["startup_s"] = first_step.after
@@ -171,6 +181,17 @@ def spawn_team(
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
+
+
+def process_budget() -> int:
+    """How many robot processes this machine can hold: 80 % of its available memory at
+    ``PROCESS_MIB`` each, at most ``MAX_PROCESSES``."""
+    try:
+        meminfo = Path("/proc/meminfo").read_text()
+        available_kib = int(next(line.split()[1] for line in meminfo.splitlines() if line.startswith("MemAvailable:")))
+    except (OSError, StopIteration, ValueError):
+        return MAX_PROCESSES
+    return max(1, min(MAX_PROCESSES, int(0.8 * available_kib / 1024 / PROCESS_MIB)))
 
 
 class FirstStep:

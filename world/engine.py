@@ -18,7 +18,7 @@ from agents.controller import MidpointController
 from agents.estimation import Estimator
 from world.geometry import FloatArray, angle_of
 from world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
-from bus.faults import Fate, FaultPlan
+from bus.faults import FAULT_COUNTERS, Fate, FaultPlan
 from world.scenario import Scenario
 from world.sensing import RangeSensor
 
@@ -50,7 +50,7 @@ class History:
     estimates: FloatArray | None  # (K, T, N, 2)
     sent: NDArray[np.int64]  # (K, T, N) robot-to-robot messages published by each robot
     received: NDArray[np.int64]  # (K, T, N) ... addressed to each robot
-    faults: NDArray[np.int64]  # (K, T, 4) FAULT_COLUMNS: sent, delivered, dropped, duplicated
+    faults: NDArray[np.int64]  # (K, T, 5) FAULT_COLUMNS: sent, delivered, dropped, duplicated, delayed
     probes: NDArray[np.int64]  # (K, T) requests to unreachable neighbours
 
     @property
@@ -133,7 +133,7 @@ class TeamEstimate:
                 centres[trial, robot] = estimators[robot].centre
 
 
-FAULT_COLUMNS = ("sent", "delivered", "dropped", "duplicated")
+FAULT_COLUMNS = FAULT_COUNTERS  # sent, delivered, dropped, duplicated, delayed
 
 
 def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
@@ -145,7 +145,7 @@ def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
 
 
 def fault_totals(history: History, trial: int = 0) -> dict[str, int]:
-    """Robot-to-robot messages sent, delivered, dropped and duplicated over a trial, and probes."""
+    """Robot-to-robot messages sent, delivered, dropped, duplicated and delayed over a trial, and probes."""
     totals = history.faults[:, trial].sum(axis=0)
     return {**{name: int(value) for name, value in zip(FAULT_COLUMNS, totals, strict=True)},
             "probes": int(history.probes[:, trial].sum())}
@@ -195,6 +195,7 @@ def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus:
                 faults[trial, count["dropped"]] += 1
                 continue
             copies = fate.copies
+            faults[trial, count["delayed"]] += fate.delay_s > 0
             faults[trial, count["duplicated"]] += copies - 1
             faults[trial, count["delivered"]] += copies
             sent[trial, robot] += copies
@@ -206,6 +207,7 @@ def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus:
             if answer.dropped:
                 faults[trial, count["dropped"]] += copies
                 continue
+            faults[trial, count["delayed"]] += copies * (answer.delay_s > 0)
             faults[trial, count["delivered"]] += copies * answer.copies
             faults[trial, count["duplicated"]] += copies * (answer.copies - 1)
             fresh[side][trial, robot] = True

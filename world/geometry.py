@@ -130,6 +130,12 @@ class ConvexRegion:
         all positive exactly when ``centre`` is interior."""
         return self.offsets - np.asarray(centre, dtype=float) @ self.normals.T
 
+    def on_boundary(self, point: ArrayLike, tolerance: float) -> NDArray[np.bool_]:
+        """Whether ``point`` lies on the boundary within ``tolerance`` metres: inside every edge line
+        up to it and on at least one."""
+        heights = self.heights(point)
+        return np.all(heights >= -tolerance, axis=-1) & (np.min(np.abs(heights), axis=-1) <= tolerance)
+
     def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""
         return np.all(self.heights(point) > margin, axis=-1)

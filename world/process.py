@@ -104,13 +104,16 @@ def _publish(participant: Participant, world: WorldState) -> None:
         participant.send(robot_name(robot), world.measurement(robot))
 
 
-def _handle(event: object, world: WorldState, roster: Roster) -> None:
+def _handle(event: object, world: WorldState, roster: Roster, participant: Participant) -> None:
     """Apply one event to the world; raise :class:`RunStopped` when the run must end.
 
     A robot whose process goes away (a crash: its liveliness token is withdrawn) leaves the live
     set and stays where it is; one that declares itself ready again (a restart) rejoins."""
     if isinstance(event, Delivery) and isinstance(event.message, Command):
-        world.accept(event.message)
+        if world.possible(event.message):
+            world.accept(event.message)
+        else:
+            participant.counter.count_rejected("value")
     elif isinstance(event, Interrupt):
         raise RunStopped(f"interrupted ({event.reason})")
     elif isinstance(event, Presence):
@@ -131,7 +134,7 @@ async def _lockstep(participant: Participant, world: WorldState, roster: Roster,
     _publish(participant, world)
     while not world.commanded.issuperset(world.live):
         for event in await participant.events():
-            _handle(event, world, roster)
+            _handle(event, world, roster, participant)
 
 
 async def _realtime(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
@@ -145,4 +148,4 @@ async def _realtime(participant: Participant, world: WorldState, roster: Roster,
         except TimeoutError:
             break
         for event in events:
-            _handle(event, world, roster)
+            _handle(event, world, roster, participant)

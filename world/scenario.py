@@ -59,7 +59,7 @@ from agents.laws import ControlParams
 from agents.ring import ring_gaps
 from world.geometry import ConvexRegion, FloatArray, RegionError
 from bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
-from world.schema import Finite, NonNegative, Point, Positive, Probability, Spec
+from world.schema import COORDINATE_LIMIT, Coordinate, Finite, NonNegative, Point, Positive, Probability, Spec
 from world.target import Stationary, TargetSpec
 
 MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
@@ -74,8 +74,11 @@ class RegionSpec(Spec):
     vertices: list[Point]
 
 
+MAX_ROBOTS = 100_000
+
+
 class TeamSpec(Spec):
-    robots: Annotated[int, msgspec.Meta(ge=3)] = 6
+    robots: Annotated[int, msgspec.Meta(ge=3, le=MAX_ROBOTS)] = 6
     angles_deg: list[Finite] | None = None
 
 
@@ -281,6 +284,9 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
 }
 
 
+FLAGS = {"max_steps": "--steps"}  # command-line flags of overrides not spelled like their name
+
+
 def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     """Replace keys of a spec (command-line flags); ``None`` values are ignored. The result is
     validated like a file, so a bad flag value gets the same one-line error as a bad key.
@@ -309,7 +315,13 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     try:
         return msgspec.convert(raw, ScenarioSpec)
     except msgspec.ValidationError as error:
-        raise ScenarioError(_explain_validation(str(error), raw)) from None
+        text = _explain_validation(str(error), raw)
+        for name, value in overrides.items():  # a bad flag value is named by its flag
+            section, key = OVERRIDABLE[name]
+            path = f"{section}.{key}" if section else key
+            if value is not None and text.startswith(f"{path}:"):
+                text = f"{FLAGS.get(name, '--' + name.replace('_', '-'))} {value} ({path}){text[len(path):]}"
+        raise ScenarioError(text) from None
 
 
 def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
@@ -415,6 +427,8 @@ def _fault_plan(spec: ScenarioSpec, label: str) -> FaultPlan:
             raise ScenarioError(f"{label}: {key} needs from_step and to_step, or from_s and to_s (simulated seconds)")
         if first > last:
             raise ScenarioError(f"{label}: {key} ends before it starts; give from <= to")
+        if not outage.links:
+            raise ScenarioError(f"{label}: {key}.links is empty; name the links that go down, e.g. [[0, 1]]")
         links = frozenset(pair(value, f"{key}.links") for value in outage.links)
         outages.append(Outage(links, first, last))
     overrides = {pair(entry.between, f"faults.links[{index}].between"): rates(entry)
@@ -440,6 +454,11 @@ def _explain_validation(message: str, raw: Any) -> str:
         key = f"{path}.{missing.group(1)}" if path else missing.group(1)
         return f"{key} is missing; add it"
     key = path or "scenario"
+    kinds = _number_kinds(_type_at(path, raw)[0]) if body.startswith("Expected `float`") else []
+    if Probability in kinds:
+        return f"{key}: expected a probability in [0, 1]; fix the value"
+    if Coordinate in kinds:
+        return f"{key}: expected a coordinate in metres within +-{COORDINATE_LIMIT:,.0f}; fix the value"
     if body.startswith("Expected `float`") and ("e+300" in body or body.endswith("0.0")):
         sign = " > 0" if "> 0.0" in body else " >= 0" if ">= 0.0" in body else ""
         return f"{key}: expected a finite number{sign}; fix the value"
@@ -447,6 +466,14 @@ def _explain_validation(message: str, raw: Any) -> str:
         choices = ", ".join(repr(choice) for choice in _choices_at(path, raw))
         return f"{key}: {body[0].lower()}{body[1:]}; use one of {choices}"
     return f"{key}: {body[0].lower()}{body[1:]}; fix the value"
+
+
+def _number_kinds(annotation: Any) -> list[Any]:
+    """The checked number types (``Probability``, ``Coordinate``, ...) an annotation holds, looking
+    into unions, lists and tuples (a path's list indices are not resolved)."""
+    if get_origin(annotation) is Annotated:
+        return [annotation]
+    return [kind for argument in get_args(annotation) for kind in _number_kinds(argument)]
 
 
 def _structs(annotation: Any) -> list[type[Spec]]:
@@ -471,7 +498,7 @@ def _type_at(path: str, raw: Any) -> tuple[Any, Any]:
         owner = _struct_for(found, section)
         if owner is None:
             return None, None
-        found = get_type_hints(owner).get(part)
+        found = get_type_hints(owner, include_extras=True).get(part)
         section = section.get(part) if isinstance(section, dict) else None
     return found, section
 

@@ -37,6 +37,7 @@ class WorldState:
         self.step = 1
         dt = scenario.control.dt
         self.max_move = None if scenario.v_max is None else scenario.v_max * dt
+        self.boundary_tolerance = 1e-6 * scenario.region.outer_diameter  # metres
 
     @property
     def time(self) -> float:
@@ -83,6 +84,11 @@ class WorldState:
             (float(self.target[0]), float(self.target[1])),
             live,
         )
+
+    def possible(self, command: Command) -> bool:
+        """Whether the command's goal lies on the boundary (every robot's does; a forged command's
+        may not, and the world never moves a robot off the boundary)."""
+        return bool(self.scenario.region.on_boundary(command.goal, self.boundary_tolerance))
 
     def accept(self, command: Command) -> bool:
         """Take a robot's goal; in lockstep only commands for the current step count."""
