@@ -1,9 +1,15 @@
 """The fusion-centre process of centralized estimation.
 
-Every step each robot reports its position and range (:class:`~bus.messages.RangeReport`). Once all
-robots of the team have reported for a step, the centre runs one stacked EKF step over their ranges
-in robot order (the same :class:`agents.estimation.Estimator` the engine uses) and broadcasts the
-:class:`~bus.messages.Estimate`. Its traffic counts as estimation, not robot-to-robot, traffic.
+Every step each robot reports its position and range (:class:`~bus.messages.RangeReport`). Once
+every robot expected for a step has reported, the centre runs one stacked EKF step over the step's
+ranges in robot order (the same :class:`agents.estimation.Estimator` the engine uses) and broadcasts
+the :class:`~bus.messages.Estimate`. Its traffic counts as estimation, not robot-to-robot, traffic.
+
+The centre expects the robots that are alive, as the world does: the team starts whole, a robot
+whose process goes away (its liveliness token is withdrawn) is no longer waited for, so a step it
+left pending is estimated from the reports of the others, and a robot that declares itself ready
+again is expected from the next step on. With nobody leaving, every step waits for the whole team,
+so a lockstep run equals the engine.
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ import numpy as np
 from agents.estimation import Estimator
 from agents.node import pack_covariance, pack_point
 from bus.config import BusConfig
-from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_name
+from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import SCHEMA, End, Estimate, RangeReport
 from bus.participant import Delivery, Interrupt, Presence
 from bus.runtime import Roster, gather_until, joined, linger, next_events
@@ -27,25 +33,50 @@ class FusionCentre:
         self.scenario = scenario
         self.run = run
         self.estimator = Estimator(scenario.estimation, scenario.region, scenario.target)
-        self.reports: dict[int, dict[int, RangeReport]] = {}
+        self.reports: dict[int, dict[int, RangeReport]] = {}  # step -> robot -> report
+        self.expected: dict[int, int] = dict.fromkeys(range(scenario.robots), 1)  # robot -> first step
         self.last_step = 0
 
-    def on_report(self, report: RangeReport) -> Estimate | None:
+    def on_report(self, report: RangeReport) -> list[Estimate]:
+        """Take a robot's report; returns the estimates of the steps it completes (at most one)."""
         if report.step <= self.last_step:
-            return None  # a step already estimated
-        reports = self.reports.setdefault(report.step, {})
-        reports[report.robot] = report
-        if len(reports) < self.scenario.robots:
-            return None
-        ordered = [reports[robot] for robot in range(self.scenario.robots)]
+            return []  # a step already estimated
+        self.reports.setdefault(report.step, {})[report.robot] = report
+        return self._complete_steps()
+
+    def on_leave(self, robot: int) -> list[Estimate]:
+        """Robot ``robot`` has gone: stop waiting for it; returns the estimates of the pending steps
+        that are now complete, oldest first."""
+        self.expected.pop(robot, None)
+        return self._complete_steps()
+
+    def on_return(self, robot: int) -> None:
+        """Robot ``robot`` is ready again: expect it from the step after the newest one reported so
+        far (the world measured that step without it)."""
+        if 0 <= robot < self.scenario.robots and robot not in self.expected:
+            self.expected[robot] = max([self.last_step, *self.reports]) + 1
+
+    def _complete_steps(self) -> list[Estimate]:
+        """Estimate, in order, every pending step that every robot expected for it has reported;
+        estimating a step gives up the older ones still incomplete."""
+        return [self._estimate(step) for step in sorted(self.reports) if self._complete(step)]
+
+    def _complete(self, step: int) -> bool:
+        reported = self.reports[step]
+        return all(robot in reported for robot, first in self.expected.items() if first <= step)
+
+    def _estimate(self, step: int) -> Estimate:
+        """One filter step over the reports of ``step`` in robot order."""
+        reports = self.reports[step]
+        ordered = [reports[robot] for robot in sorted(reports)]
         positions = np.array([entry.position for entry in ordered])
         ranges = np.array([np.nan if entry.range is None else entry.range for entry in ordered])
         self.estimator.measure(positions, ranges)
-        self.last_step = report.step
-        for step in [step for step in self.reports if step <= report.step]:
-            del self.reports[step]
+        self.last_step = step
+        for done in [pending for pending in self.reports if pending <= step]:
+            del self.reports[done]
         mean, covariance = self.estimator.belief
-        return Estimate(SCHEMA, self.run, report.step, pack_point(mean), pack_covariance(covariance))
+        return Estimate(SCHEMA, self.run, step, pack_point(mean), pack_covariance(covariance))
 
 
 async def run_fusion(
@@ -58,6 +89,7 @@ async def run_fusion(
         participant.listen(keys.inbox(FUSION))
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
+        participant.watch("ready")
         participant.announce("alive")
         needed = {WORLD} | {robot_name(i) for i in range(scenario.robots)} | ({MONITOR} if expect_monitor else set())
         roster = Roster()
@@ -68,16 +100,18 @@ async def run_fusion(
         code = None
         while code is None:
             for event in events:
+                estimates: list[Estimate] = []
                 if isinstance(event, Delivery) and isinstance(event.message, RangeReport):
-                    estimate = centre.on_report(event.message)
-                    if estimate is not None:
-                        participant.send(BROADCAST, estimate)
+                    estimates = centre.on_report(event.message)
                 elif isinstance(event, Delivery) and isinstance(event.message, End):
                     code = 0
                 elif isinstance(event, Interrupt):
                     code = 130
                 elif isinstance(event, Presence):
                     roster.update(event)
+                    estimates = _on_presence(centre, event)
+                for estimate in estimates:
+                    participant.send(BROADCAST, estimate)
             if code is None and roster.gone_for_good(WORLD):
                 code = 1
             if code is None:
@@ -86,3 +120,16 @@ async def run_fusion(
         if expect_monitor and code != 130:
             await linger(participant, roster, {MONITOR})
         return code
+
+
+def _on_presence(centre: FusionCentre, presence: Presence) -> list[Estimate]:
+    """A robot leaves when its ``alive`` token goes and returns when its ``ready`` token comes (the
+    world's rule, :func:`world.process.run_world`)."""
+    robot = robot_index(presence.name)
+    if robot is None:
+        return []
+    if presence.kind == "alive" and not presence.up:
+        return centre.on_leave(robot)
+    if presence.kind == "ready" and presence.up:
+        centre.on_return(robot)
+    return []

@@ -22,6 +22,13 @@ from world.geometry import ConvexRegion
 FloatArray = NDArray[np.float64]
 
 SINGULAR_DISTANCE = 1e-9  # m: a robot this close to the estimate gives no usable bearing (0/0 Jacobian)
+# Robots whose spread across their line is below this fraction of their spread along it are on one
+# line (up to rounding: points of one boundary edge are not exactly collinear in floating point).
+COLLINEAR = 1e-9
+
+
+class NoFix(ValueError):
+    """The ranges do not fix the target: fewer than three, or from robots all on one line."""
 
 
 def _ranges(x: FloatArray, positions: FloatArray) -> FloatArray:
@@ -91,17 +98,18 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
 
     Linear least squares on ``2 (p_j - p_0)^T o = z_0^2 - z_j^2 + ||p_j||^2 - ||p_0||^2``, refined by
     ``refinements`` Gauss-Newton steps; covariance ``inflation * sigma_z^2 (H^T H)^{-1}`` (m^2).
+    Missing ranges (NaN) are skipped; :class:`NoFix` when the rest do not fix the target.
     """
     positions = np.asarray(positions, dtype=float)
     ranges = np.asarray(ranges, dtype=float)
     usable = np.isfinite(ranges)
     positions, ranges = positions[usable], ranges[usable]
     if len(ranges) < 3:
-        raise ValueError(f"trilateration needs ranges from at least 3 robots, got {len(ranges)}")
+        raise NoFix(f"trilateration needs ranges from at least 3 robots, got {len(ranges)}")
     first, rest = positions[0], positions[1:]
     system = 2.0 * (rest - first)
-    if np.linalg.matrix_rank(system) < 2:
-        raise ValueError("trilateration needs robots that are not all on one line")
+    if np.linalg.matrix_rank(system, rtol=COLLINEAR) < 2:
+        raise NoFix("trilateration needs robots that are not all on one line")
     rhs = ranges[0] ** 2 - ranges[1:] ** 2 + np.sum(rest**2, axis=1) - np.sum(first**2)
     estimate, *_ = np.linalg.lstsq(system, rhs, rcond=None)
     for _ in range(refinements):
@@ -124,9 +132,10 @@ class EstimationParams:
 
     ``range_sigma`` (m) and ``process_noise`` (m^2 per step) model the filters' R and Q;
     ``prior`` is "truth" (the target's position at step 1, as the authors), "trilateration"
-    (centralized) or a point; ``prior_variance`` (m^2) sets P0; decentralized robots fuse their
-    neighbours' beliefs with joint CI ("ci") or pairwise ("sequential"), minimising "trace" or
-    "det"; estimates are clamped ``clamp_margin`` metres inside the region before steering by them.
+    (centralized; see :class:`Estimator`) or a point; ``prior_variance`` (m^2) sets P0 of "truth"
+    and of a point; decentralized robots fuse their neighbours' beliefs with joint CI ("ci") or
+    pairwise ("sequential"), minimising "trace" or "det"; estimates are clamped ``clamp_margin``
+    metres inside the region before steering by them.
     """
 
     mode: Mode = "known"
@@ -139,19 +148,37 @@ class EstimationParams:
     clamp_margin: float = 0.0
 
 
+def prior_belief(
+    params: EstimationParams, region: ConvexRegion, truth_at_start: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """The belief ``(mean, covariance)`` (metres, m^2) an estimator starts from: the configured
+    prior, or for "trilateration" the uninformative one (see :class:`Estimator`)."""
+    if params.prior == "trilateration":
+        return region.chebyshev_centre[0].copy(), region.outer_diameter**2 * np.eye(2)
+    mean = truth_at_start if params.prior == "truth" else params.prior
+    return np.array(mean, dtype=float), params.prior_variance * np.eye(2)
+
+
 class Estimator:
     """The belief about the target of one decentralized robot or of the fusion centre.
 
     Every step: :meth:`measure` (predict, then update with the ranges it has); a decentralized robot
     that polled then :meth:`fuse` its neighbours' beliefs; :attr:`centre` is the estimate clamped
     into the region, the point it steers about.
+
+    With the "trilateration" prior, the ranges of the first step are trilaterated into the prior
+    when they fix the target (three or more, from robots not all on one line). When they do not
+    (a limited sensing range leaves fewer, or the robots in range share an edge), the prior is
+    uninformative instead, the region's Chebyshev centre with variance ``D_out^2`` (m^2) in every
+    direction, which covers the whole region, and the first step updates it with the ranges there
+    are like any other step.
     """
 
     def __init__(self, params: EstimationParams, region: ConvexRegion, truth_at_start: ArrayLike) -> None:
         self.params = params
         self.region = region
-        prior = truth_at_start if params.prior in ("truth", "trilateration") else params.prior
-        self.filter = RangeFilter(prior, params.prior_variance * np.eye(2), params.process_noise, params.range_sigma)
+        self.filter = RangeFilter(*prior_belief(params, region, truth_at_start), params.process_noise,
+                                  params.range_sigma)
         self.started = False
 
     @property
@@ -164,13 +191,18 @@ class Estimator:
         return self.region.clamp_interior(self.filter.mean, self.params.clamp_margin)
 
     def measure(self, positions: ArrayLike, ranges: ArrayLike) -> None:
-        """Fold in one step's ranges from robots at ``positions`` (NaN: no range). A trilateration
-        prior is computed from the first step's ranges instead of updating with them."""
-        if not self.started and self.params.prior == "trilateration":
-            self.filter.adopt(*trilaterate(positions, ranges, self.params.range_sigma))
-        else:
-            self.filter.step(positions, ranges)
-        self.started = True
+        """Fold in one step's ranges from robots at ``positions`` (NaN: no range). With the
+        "trilateration" prior, the first step's ranges become the prior instead when they fix the
+        target (see the class)."""
+        first, self.started = not self.started, True
+        if first and self.params.prior == "trilateration":
+            try:
+                self.filter.adopt(*trilaterate(positions, ranges, self.params.range_sigma))
+            except NoFix:
+                pass  # the uninformative prior stands, updated below with the ranges there are
+            else:
+                return
+        self.filter.step(positions, ranges)
 
     def fuse(self, beliefs: list[tuple[ArrayLike, ArrayLike]]) -> None:
         """Covariance-intersect the own belief with neighbours' ``(mean, covariance)`` and adopt it."""

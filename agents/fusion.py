@@ -5,8 +5,8 @@ correlations are unknown:
 
     P_c^{-1} = sum_k w_k P_k^{-1},    x_c = P_c sum_k w_k P_k^{-1} x_k,    w on the simplex,
 
-with the weights ``w`` minimising ``tr P_c`` (default) or ``det P_c``. Positions in metres,
-covariances in m^2.
+with the weights ``w`` minimising ``tr P_c`` (default) or ``det P_c`` (:func:`intersect_at` applies
+the formulas at any given weights). Positions in metres, covariances in m^2.
 
 The weights come in closed form for any number of 2-D estimates (Reinhardt, Noack & Hanebeck 2012
 treat two). With information matrices ``I_k = P_k^{-1}`` and ``M(w) = sum_k w_k I_k``:
@@ -75,12 +75,23 @@ def covariance_intersection(
     # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
     tied = [weights for weights, value in zip(candidates, values, strict=True)
             if value <= best_value * (1.0 + TIE_TOLERANCE)]
-    best_weights = np.mean(tied, axis=0)
-    combined = np.einsum("k,kab->ab", best_weights, information)
-    covariance = np.linalg.inv(combined)
+    return _intersect(means, information, np.mean(tied, axis=0))
+
+
+def intersect_at(means: ArrayLike, covariances: ArrayLike, weights: ArrayLike) -> Fused:
+    """The CI of ``k`` estimates at given ``weights`` (k,) on the simplex, optimal or not:
+    ``P_c = (sum_k w_k P_k^{-1})^{-1}``, ``x_c = P_c sum_k w_k P_k^{-1} x_k`` (P_c symmetrised).
+    :func:`covariance_intersection` is this at its optimal weights."""
+    information = np.linalg.inv(np.asarray(covariances, dtype=float))
+    return _intersect(np.asarray(means, dtype=float), information, np.asarray(weights, dtype=float))
+
+
+def _intersect(means: FloatArray, information: FloatArray, weights: FloatArray) -> Fused:
+    """:func:`intersect_at` from the information matrices ``P_k^{-1}`` (k, 2, 2)."""
+    covariance = np.linalg.inv(np.einsum("k,kab->ab", weights, information))
     covariance = 0.5 * (covariance + covariance.T)
-    mean = covariance @ np.einsum("k,kab,kb->a", best_weights, information, means)
-    return Fused(mean=mean, covariance=covariance, weights=best_weights)
+    mean = covariance @ np.einsum("k,kab,kb->a", weights, information, means)
+    return Fused(mean=mean, covariance=covariance, weights=weights)
 
 
 def sequential_intersection(means: ArrayLike, covariances: ArrayLike, criterion: Criterion = "trace") -> Fused:

@@ -6,7 +6,8 @@ range to the target). The robot finds the point it steers about:
 * ``known``: the stationary target of the scenario;
 * ``decentralized``: its own EKF, updated with its own range;
 * ``centralized``: it reports its range to the fusion centre (:class:`~bus.messages.RangeReport`)
-  and waits for the centre's :class:`~bus.messages.Estimate` of the step.
+  and waits for the centre's :class:`~bus.messages.Estimate` of the step (in realtime only so long:
+  then it goes on about the last estimate, :meth:`RobotNode.on_estimate_lost`).
 
 Then it observes (:meth:`agents.controller.MidpointController.observe`). If it does not poll it
 sends its :class:`~bus.messages.Command` at once; if it polls it sends a
@@ -26,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from agents.controller import MidpointController
-from agents.estimation import Estimator
+from agents.estimation import Estimator, prior_belief
 from agents.ring import ring_neighbours
 from bus.keys import FUSION, WORLD, robot_name
 from bus.messages import (
@@ -87,6 +88,9 @@ class RobotNode:
             Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
         )
         self.centre: FloatArray = scenario.target.copy()
+        if self.mode == "centralized":  # until the first estimate (late, in realtime): the centre's prior
+            prior, _ = prior_belief(scenario.estimation, scenario.region, scenario.target)
+            self.centre = scenario.region.clamp_interior(prior, scenario.estimation.clamp_margin)
         self.covariance: Covariance | None = None
         self.waiting_for_estimate = False
         self.step = 0
@@ -153,6 +157,14 @@ class RobotNode:
         self.covariance = estimate.covariance
         return self._decide()
 
+    def on_estimate_lost(self) -> Outgoing:
+        """The centre's estimate of this step will not come in time (realtime): decide about the
+        last estimate instead."""
+        if not self.waiting_for_estimate:
+            return []
+        self.waiting_for_estimate = False
+        return self._decide()
+
     def on_request(self, request: Request) -> Outgoing:
         if request.step > self.step:  # our measurement of that step has not arrived yet
             if request.step <= self.step + KEPT_STEPS and len(self.buffered) < BUFFERED_LIMIT:
@@ -170,11 +182,14 @@ class RobotNode:
         self.replies[reply.sender] = reply
         return self._settle()
 
-    def on_lost(self, neighbour: int) -> Outgoing:
+    def on_lost(self, neighbour: int, nonce: int | None = None) -> Outgoing:
         """The request to ``neighbour`` or its reply will not come (dropped, out of range, the
-        neighbour left, or too late): go on without it; that side's memory stays stale."""
-        if self.awaiting.pop(neighbour, None) is None:
+        neighbour left, or too late): go on without it; that side's memory stays stale. With a
+        ``nonce``, only the loss of the answer to the open request counts: a lost late copy of an
+        answer to an earlier poll settles nothing."""
+        if neighbour not in self.awaiting or nonce not in (None, self.awaiting[neighbour]):
             return []
+        del self.awaiting[neighbour]
         return self._settle()
 
     def set_alive(self, alive: set[int]) -> Outgoing:

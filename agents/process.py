@@ -4,7 +4,8 @@ It waits until the world, both ring neighbours (and the monitor, the fusion cent
 one) are up, declares itself ready, then reacts to every message; between its polls it sends no
 robot-to-robot message at all. Its robot-to-robot traffic passes through the fault layer
 (:class:`bus.shim.LinkShim`); a reply that will not come (dropped, out of range, its sender gone,
-or, in realtime, later than ``reply_timeout``) never blocks it. Robots joining or leaving (through
+or, in realtime, later than ``reply_timeout``) never blocks it, nor, in realtime, does a fusion
+centre's estimate later than ``ESTIMATE_SHARE * reply_timeout``. Robots joining or leaving (through
 liveliness) re-form its ring. It ends on the world's End, on a signal, or when the world is gone.
 """
 
@@ -16,16 +17,27 @@ from dataclasses import dataclass
 from agents.node import Outgoing, RobotNode
 from bus.config import BusConfig
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from bus.messages import End, Measurement, Reply
+from bus.messages import End, Measurement, RangeReport, Reply
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
 from bus.shim import LinkShim
 from world.scenario import Scenario
 
+# Realtime: the share of the reply timeout (one step period under spawn) a robot waits for the
+# centre's estimate, leaving the rest of the step to poll and command about the last estimate.
+ESTIMATE_SHARE = 0.5
+
 
 @dataclass(frozen=True)
 class ReplyDeadline:
     """Realtime: the replies of the poll of ``step`` are due."""
+
+    step: int
+
+
+@dataclass(frozen=True)
+class EstimateDeadline:
+    """Realtime: the fusion centre's estimate of ``step`` is due."""
 
     step: int
 
@@ -107,11 +119,15 @@ class RobotLink:
         if self.reply_timeout is not None and self.node.awaiting:
             loop = asyncio.get_running_loop()
             loop.call_later(self.reply_timeout, self.participant.inbox.push, ReplyDeadline(self.node.step))
+        if self.reply_timeout is not None and any(isinstance(message, RangeReport) for _, message in outgoing):
+            loop = asyncio.get_running_loop()
+            loop.call_later(ESTIMATE_SHARE * self.reply_timeout, self.participant.inbox.push,
+                            EstimateDeadline(self.node.step))
 
     def deliver(self, delivery: Delivery) -> None:
         deliveries, lost = self.shim.receive(delivery)
         if lost and isinstance(delivery.message, Reply):
-            self.send(self.node.on_lost(delivery.message.sender))
+            self.send(self.node.on_lost(delivery.message.sender, delivery.message.nonce))
         for copy in deliveries:
             self.send(self.node.handle(copy.message))
 
@@ -119,6 +135,10 @@ class RobotLink:
         if event.step == self.node.step:
             for neighbour in list(self.node.awaiting):
                 self.send(self.node.on_lost(neighbour))
+
+    def estimate_deadline(self, event: EstimateDeadline) -> None:
+        if event.step == self.node.step:
+            self.send(self.node.on_estimate_lost())
 
 
 def _newest_measurement_only(events: list) -> list:
@@ -143,6 +163,8 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
                     return 0
             elif isinstance(event, ReplyDeadline):
                 link.deadline(event)
+            elif isinstance(event, EstimateDeadline):
+                link.estimate_deadline(event)
             elif isinstance(event, Interrupt):
                 return 130
             elif isinstance(event, Presence):

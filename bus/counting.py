@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from bus.keys import robot_index
 
 from bus.messages import KINDS, REJECT_REASONS, Traffic
 
@@ -54,21 +58,38 @@ class TrafficCounter:
         return {reason: self.rejected[reason] for reason in REJECT_REASONS if self.rejected[reason]}
 
 
-def totals_by_category(rows: list[Traffic]) -> dict[str, dict[str, int]]:
-    """``{category: {"messages": m, "bytes": b}}`` summed over traffic rows."""
-    totals: dict[str, dict[str, int]] = {}
-    for kind, _source, _destination, messages, size in rows:
-        entry = totals.setdefault(category_of(kind), {"messages": 0, "bytes": 0})
-        entry["messages"] += messages
-        entry["bytes"] += size
+Totals = dict[str, int]  # {"messages": m, "bytes": b}
+Key = TypeVar("Key", bound=Hashable)
+
+
+def summed(rows: Iterable[Sequence[Any]], key: Callable[[Sequence[Any]], Key]) -> dict[Key, Totals]:
+    """``{key(row): {"messages": m, "bytes": b}}`` summed over traffic rows ``(kind, source,
+    destination, messages, bytes)``, in order of first appearance (bytes None, as engine logs have
+    them, count 0)."""
+    totals: dict[Key, Totals] = {}
+    for row in rows:
+        entry = totals.setdefault(key(row), {"messages": 0, "bytes": 0})
+        entry["messages"] += row[3]
+        entry["bytes"] += row[4] or 0
     return totals
 
 
-def totals_by_kind(rows: list[Traffic]) -> dict[str, dict[str, int]]:
-    """``{kind: {"messages": m, "bytes": b}}`` summed over traffic rows."""
-    totals: dict[str, dict[str, int]] = {}
-    for kind, _source, _destination, messages, size in rows:
-        entry = totals.setdefault(kind, {"messages": 0, "bytes": 0})
-        entry["messages"] += messages
-        entry["bytes"] += size
-    return totals
+def totals_by_category(rows: Iterable[Sequence[Any]]) -> dict[str, Totals]:
+    return summed(rows, lambda row: category_of(row[0]))
+
+
+def totals_by_kind(rows: Iterable[Sequence[Any]]) -> dict[str, Totals]:
+    return summed(rows, lambda row: row[0])
+
+
+def per_link(rows: Iterable[Sequence[Any]], categories: tuple[str, ...]) -> dict[Link, Totals]:
+    """Totals per (kind, source, destination) of the rows of ``categories``."""
+    return summed((row for row in rows if category_of(row[0]) in categories), lambda row: tuple(row[:3]))
+
+
+def robot_link_totals(rows: Iterable[Sequence[Any]]) -> dict[tuple[str, str], Totals]:
+    """Robot-to-robot totals per (sender, receiver), requests and replies together, ordered by
+    sender then receiver index."""
+    links = summed((row for row in rows if category_of(row[0]) == "robot"), lambda row: (row[1], row[2]))
+    return {pair: links[pair] for pair in sorted(links, key=lambda pair: (robot_index(pair[0]) or 0,
+                                                                          robot_index(pair[1]) or 0))}

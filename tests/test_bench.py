@@ -41,3 +41,15 @@ def test_emulator_bench_reports_speed_start_up_bytes_and_memory(tmp_path: Path) 
     assert smallest <= row["bytes_per_message"]["request"] <= largest
     assert row["bytes_per_message"]["reply"] > row["bytes_per_message"]["request"]
     assert len(encode(Reply(SCHEMA, 0, 1, 0, 1, 0, (0.0, 0.0)))) <= row["bytes_per_message"]["reply"]
+
+
+def test_engine_bench_reports_a_run_an_experiment_and_a_sweep(tmp_path: Path) -> None:
+    path = tmp_path / "engine.json"
+    assert main(["bench", "engine", "--trials", "2", "--sweep", "3-4", "--json", str(path)]) == 0
+    result = json.loads(path.read_text())
+    assert result["single_run"]["robots"] == 6 and result["single_run"]["steps"] == 3000  # control.max_steps
+    assert result["single_run"]["steps_per_s"] > 0
+    assert {key: result["experiment_n6"][key] for key in ("trials", "runs", "converged")} == \
+        {"trials": 2, "runs": 4, "converged": 4}
+    assert {key: result["sweep"][key] for key in ("robots", "runs", "converged")} == \
+        {"robots": "3..4", "runs": 8, "converged": 8}

@@ -58,6 +58,11 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path) -> None:
         rows = [row for row in result["rows"] if row["robots"] == robots and row["strategy"] == "self"]
         assert summary[robots, "self"]["ctime_mean"] == pytest.approx(np.mean([row["ctime"] for row in rows]))
         assert summary[robots, "constant"]["com_bar_mean"] == 1.0
+        for row in result["rows"]:  # Com-bar = polls of steps 1..Ctime / (N Ctime), each trial its own Ctime
+            assert row["com_bar"] == pytest.approx(row["triggers"] / (row["robots"] * row["ctime"]))
+        (ratio,) = [entry for entry in result["ratios"] if entry["robots"] == robots]
+        assert ratio["ctime_ratio"] == pytest.approx(summary[robots, "self"]["ctime_mean"] /
+                                                     summary[robots, "constant"]["ctime_mean"])
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

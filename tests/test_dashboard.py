@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import io
 import re
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from rich.console import Console
 
+from agents.laws import Trigger
 from bus.counting import totals_by_category
+from tests.emulation import lockstep_run
 from tools.cli import main
 from tools.dashboard import Dashboard, TeamModel, reason_text, sparkline
-from tools.runlog import read_log
+from tools.plot import PANELS, plot_run
+from tools.runlog import LogWriter, RunLog, read_log
 from tools.spawn import spawn_team
 from tools.views import LiveView
 from world.scenario import load_scenario
@@ -50,9 +56,9 @@ def test_dashboard_shows_robots_traffic_and_saved_messages() -> None:
     text = render(model)
     assert "step 3/3000" in text and "4 robots" in text and "lockstep" in text
     for robot in range(4):
-        assert re.search(rf"^\s*r{robot} {robot}\s+up\s", text, re.MULTILINE), text
-    row = re.search(r"^\s*r1 1\s+up.*$", text, re.MULTILINE).group(0)
-    assert " 3 " in row and "6/108" in row and "6/240" in row and "T1 ubd @3" in row  # polls, sent, recv, reason
+        assert re.search(rf"^\s*r{robot} {robot}\s+ok\|ok\s", text, re.MULTILINE), text
+    row = re.search(r"^\s*r1 1\s+ok\|ok.*$", text, re.MULTILINE).group(0)
+    assert " 3 " in row and "6/108" in row and "6/240" in row and "T1 @3" in row  # polls, sent, recv, reason
     assert re.search(r"robot-to-robot\s+12\s+348\s", text)
     assert re.search(r"world\s+27\s+1500\s", text)
     # the constant strategy would have sent 4 robots x 4 messages x 3 steps = 48: 36 saved (75 %)
@@ -69,50 +75,82 @@ def test_dashboard_adapts_to_the_console_and_marks_dead_robots() -> None:
     for width, height in ((60, 20), (100, 30), (160, 60)):
         text = render(model, width, height)
         assert re.search(r"r1 1\s+down", text), (width, height)
+        assert re.search(r"r0 0\s+ok\|gone", text) and re.search(r"r2 2\s+gone\|ok", text), (width, height)
         assert all(len(line) <= width for line in text.splitlines())
 
 
 def test_helpers() -> None:
-    assert reason_text(1 | 4) == "T1 ubd, T3 order-" and reason_text(16) == "start" and reason_text(0) == "-"
+    assert reason_text(1 | 4) == "T1+T3" and reason_text(16) == "start" and reason_text(0) == "-"
+    assert reason_text(1 | 2 | 4 | 32) == "T1+T2+T3+unk" and reason_text(8) == "every"
     assert str(sparkline([0.0, 1.0, 2.0, 3.0], 10)) == "▁▃▆█"
     assert str(sparkline([5.0, 5.0], 10)) == "▁▁"
 
 
-def test_lines_without_a_terminal(capsys: pytest.CaptureFixture[str]) -> None:
+def test_lines_without_a_terminal() -> None:
     model = TeamModel(load_scenario("paper-stationary", robots=4), "lockstep")
-    console = Console(force_terminal=False, width=200)
+    stream = io.StringIO()
+    console = Console(file=stream, force_terminal=False, width=200)
+    first, *others = prepared_records()
     with LiveView(console, model, dashboard=False) as view:
-        for record in prepared_records():
+        model.add(first)
+        view.refresh()
+        deadline = time.monotonic() + 5.0
+        while not stream.getvalue() and time.monotonic() < deadline:  # the drawer thread writes it
+            time.sleep(0.01)
+        for record in others:  # within LINE_PERIOD_S of the first line: no line
             model.add(record)
             view.refresh()
         view.refresh(final=True)
-    lines = capsys.readouterr().out.strip().splitlines()
+    lines = stream.getvalue().strip().splitlines()
+    assert len(lines) == 2, lines
     assert lines[0].startswith("step 1/3000: robot-to-robot 4 msgs 116 B (saved 12 = 75% vs constant)")
     assert lines[-1].startswith("step 3/3000: robot-to-robot 12 msgs 348 B (saved 36 = 75% vs constant), world 27 msgs")
 
 
-def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path) -> None:
+def final_frame(text: str, header: str) -> str:
+    """The last frame a live dashboard wrote (ANSI codes dropped), from its last ``header`` on."""
+    plain = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", text)
+    assert header in plain, plain[-2000:]
+    return plain[plain.rindex(header):]
+
+
+def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("COLUMNS", "120")  # the monitor's forced terminal: wide enough for every column
+    monkeypatch.setenv("LINES", "60")
     scenario = load_scenario("paper-stationary", max_steps=80)
     result = spawn_team(scenario, runs=tmp_path, dashboard=True, quiet=True)
     assert result["exit_code"] == 0
     folder = Path(result["folder"])
-    live = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", (folder / "monitor.stdout").read_text())  # drop ANSI codes
-    assert "ringtrack paper-stationary · 6 robots" in live and "saved vs constant" in live
     log = read_log(folder / "log.jsonl")
+    end = log.end
+    assert end is not None and end["late"] == 0 and end["consistent"] is True
+    rows = [tuple(row) for row in end["traffic"]]
+    seen = totals_by_category(rows)
+
+    # The live dashboard's own last frame shows the monitor's totals of the end record ...
+    frame = final_frame((folder / "monitor.stdout").read_text(), "ringtrack paper-stationary · 6 robots")
+    heading = frame[:frame.index("traffic")]  # the header line, wrapped perhaps
+    assert "step 80/80" in heading and "done" in heading
+    robot = seen["robot"]
+    assert re.search(rf"robot-to-robot\s+{robot['messages']}\s+{robot['bytes']}\s", frame), frame
+    # ... less the End, the one world message not stamped with a step
+    world = totals_by_category([row for row in rows if row[0] != "end"])["world"]
+    assert re.search(rf"world\s+{world['messages']}\s+{world['bytes']}\s", frame), frame
+    saved = 4 * 6 * 80 - robot["messages"]
+    assert f"saved vs constant: {saved} robot-to-robot messages" in frame
+    for index in range(6):
+        name = f"r{index}"
+        sent = [sum(row[k] for row in rows if row[0] in ("request", "reply") and row[1] == name) for k in (3, 4)]
+        received = [sum(row[k] for row in rows if row[0] in ("request", "reply") and row[2] == name) for k in (3, 4)]
+        assert re.search(rf"^\s*{name} {index}\s+ok\|ok\s.*\s{sent[0]}/{sent[1]}\s+{received[0]}/{received[1]}\s",
+                         frame, re.MULTILINE), frame
+
+    # and a model rebuilt from the log shows the same.
     model = TeamModel(log.scenario, "lockstep")
-    for record in log.steps:
+    for record in log.records:
         model.add(record)
-    seen = totals_by_category([tuple(row) for row in log.end["traffic"]])
-    assert model.totals["robot"] == [seen["robot"]["messages"], seen["robot"]["bytes"]]
-    end_message = 1  # the End is the one world message not stamped with a step
-    assert model.totals["world"][0] == seen["world"]["messages"] - end_message
-    text = render(model)
-    saved = 4 * 6 * 80 - seen["robot"]["messages"]
-    assert f"saved vs constant: {saved} robot-to-robot messages" in text
-    assert "step 80/80" in text or "step 80/" in text
-    for robot in range(6):
-        sent = sum(record["sent_messages"][robot] for record in log.steps)
-        assert re.search(rf"^\s*r{robot} {robot}\s+up.*\s{sent}/\d+\s", text, re.MULTILINE)
+    assert model.totals["robot"] == [robot["messages"], robot["bytes"]]
+    assert model.totals["world"] == [world["messages"], world["bytes"]]
 
 
 def test_summary_lines_when_the_monitor_has_no_terminal(tmp_path: Path) -> None:
@@ -129,11 +167,135 @@ def test_replay_and_plot_of_an_engine_log(tmp_path: Path, capsys: pytest.Capture
     assert main(["replay", str(log), "--speed", "1e9", "--no-dashboard"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1].startswith("step 60/60: robot-to-robot") and "Terr" in lines[-1]
+    assert re.match(r"step 60/60: robot-to-robot \d+ msgs - B ", lines[-1])  # the engine counts no bytes
     assert main(["replay", str(log), "--final"]) == 0
     final = capsys.readouterr().out
     assert "step 60/60" in final and "centralized target" in final and "Terr" in final and "replay" not in final
+    assert re.search(r"robot-to-robot\s+\d+\s+-\s", final) and re.search(r"world\s+\d+\s+-\s", final)
+    assert re.search(r"^\s*r0 0\s.*\s\d+/-\s", final, re.MULTILINE) and "/0 " not in final and " 0 B" not in final
     assert main(["plot", str(log), "-o", str(figure)]) == 0
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_long_trigger_reason_leaves_the_other_columns_whole() -> None:
+    """Cells as wide as a long run of 64 robots makes them fit from 100 console columns on."""
+    robots = 64
+    scenario = load_scenario("paper-stationary", robots=robots)
+    model = TeamModel(scenario, "lockstep")
+    every_condition = int(Trigger.UNCERTAINTY | Trigger.SUCCESSOR | Trigger.PREDECESSOR | Trigger.UNKNOWN)
+    target = scenario.target.tolist()
+    for step in range(12343, 12346):
+        model.add({"type": "step", "step": step, "time": 0.1 * step, "positions": scenario.start_positions(0).tolist(),
+                   "target": target, "live": list(range(robots)), "trigger": [every_condition] * robots,
+                   "offset": [0.01] * robots, "ages": [[999, 999]] * robots, "centre": [target] * robots,
+                   "sent_messages": [33333] * robots, "sent_bytes": [3333333] * robots,
+                   "received_messages": [33333] * robots, "received_bytes": [3333333] * robots,
+                   "traffic": {"robot": [4, 116], "world": [2 * robots + 1, 500], "estimation": [0, 0]}})
+    for robot in range(robots):
+        model.add(fault(12345, "dropped", robot, (robot + 1) % robots, "outage"))
+    for width, columns in ((100, 8), (120, 10), (160, 10)):
+        text = render(model, width, 60)
+        rows = re.findall(r"^\s*r\d+ \w\s.*$", text, re.MULTILINE)
+        assert len(rows) == 24 and not any("…" in row for row in rows), text
+        assert all(len(row.split()) == columns + 2 for row in rows), rows  # "r0 0", "T1+... @12345": two words
+        assert all(re.search(r" outage\|outage .* 99999/9999999 +99999/9999999 +T1\+T2\+T3\+unk @12345 *$", row)
+                   for row in rows), rows
+
+
+def fault(step: int, what: str, sender: int, receiver: int, reason: str | None = None) -> dict:
+    """A fault event record as the monitor logs a FaultNotice."""
+    return {"type": "event", "event": what, "step": step, "subject": "request", "sender": sender,
+            "receiver": receiver, "reason": reason, "delay_s": 0.05 if what == "delayed" else None}
+
+
+def link_cells(text: str) -> dict[int, str]:
+    """Robot index -> its links cell in a rendered dashboard."""
+    return {int(index): cell for index, cell in re.findall(r"^\s*r(\d) \d\s+(\S+)\s", text, re.MULTILINE)}
+
+
+def test_link_state_shows_recent_faults_on_both_ends_and_gone_neighbours() -> None:
+    model = TeamModel(load_scenario("paper-stationary", robots=4), "lockstep")
+    steps = prepared_records(steps=12)
+    model.add(steps[0])
+    model.add(fault(2, "dropped", 1, 2, "outage"))  # noticed before its step record is written
+    model.add(steps[1])
+    model.add(fault(2, "delayed", 0, 3))
+    assert link_cells(render(model)) == {0: "delay|ok", 1: "ok|outage", 2: "outage|ok", 3: "ok|delay"}
+    model.add(fault(2, "duplicated", 3, 0))  # the latest fault of a link is the one shown
+    for record in steps[2:11]:
+        model.add(record)
+    assert model.step == 11 and model.link_state(1, 2) == "outage" and model.link_state(3, 0) == "dup"
+    model.add({**steps[11], "live": [0, 1, 3], "trigger": [0, None, 0, 0]})  # 10 steps on, and robot 2 gone
+    assert link_cells(render(model)) == {0: "ok|ok", 1: "ok|gone", 2: "down", 3: "gone|ok"}
+
+
+def test_replay_shows_the_link_faults_of_the_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scenario = load_scenario("paper-stationary", robots=4)
+    path = tmp_path / "faults.jsonl"
+    steps = prepared_records(steps=5)
+    with LogWriter(path) as writer:
+        writer.header(scenario, "emulator", 1, 0, "lockstep", 5)
+        for record in [*steps[:3], fault(4, "dropped", 2, 3, "range"), *steps[3:]]:
+            writer.write(record)
+    assert main(["replay", str(path), "--final"]) == 0
+    final = capsys.readouterr().out
+    assert link_cells(final) == {0: "ok|ok", 1: "ok|ok", 2: "ok|range", 3: "range|ok"}
+    assert main(["replay", str(path), "--speed", "1e9", "--dashboard"]) == 0
+    assert link_cells(final_frame(capsys.readouterr().out, "ringtrack paper-stationary")) == link_cells(final)
+
+
+def robot_links(log: RunLog) -> dict[str, tuple[int, int]]:
+    """Robot-to-robot (messages, bytes) per "source>destination" link of the log's end record."""
+    links: dict[str, tuple[int, int]] = {}
+    for kind, source, destination, messages, size in log.end["traffic"]:
+        if kind in ("request", "reply"):
+            before = links.get(f"{source}>{destination}", (0, 0))
+            links[f"{source}>{destination}"] = (before[0] + messages, before[1] + (size or 0))
+    return links
+
+
+def check_figure(log: RunLog) -> None:
+    """The four panels of ``plot_run`` show what the log holds."""
+    figure = plot_run(log)
+    titled = {axes.get_title(): axes for axes in figure.axes if axes.get_title()}
+    assert len(titled) == 4 and PANELS[0] in titled and PANELS[1] in titled and PANELS[3] in titled
+    polls = sum(1 for record in log.steps for trigger in record["trigger"] if trigger)
+    assert f"{PANELS[2]} ({polls} in all)" in titled
+
+    robots, positions = log.scenario.robots, np.array([record["positions"] for record in log.steps])
+    paths = {line.get_label(): line for line in titled[PANELS[0]].get_lines() if re.fullmatch(r"r\d+", line.get_label())}
+    assert sorted(paths) == sorted(f"r{robot}" for robot in range(robots))
+    for robot in range(robots):
+        assert np.array_equal(paths[f"r{robot}"].get_xydata(), positions[:, robot])
+
+    series = {line.get_label(): line for axes in figure.axes for line in axes.get_lines()}
+    assert len(series["Cerr, true positions"].get_ydata()) == len(log.steps)
+    assert len(series["Cerr, robots' memory"].get_ydata()) == len(log.steps)
+    if log.scenario.estimation.mode == "known":
+        assert "Terr" not in series
+    else:
+        assert len(series["Terr"].get_ydata()) == len(log.steps)
+
+    expected = robot_links(log)
+    bars = {container.get_label(): container for axes in figure.axes for container in axes.containers}
+    names = [label.get_text() for label in titled[PANELS[3]].get_xticklabels()]
+    assert names == sorted(expected, key=lambda name: [int(part[1:]) for part in name.split(">")])
+    assert [bar.get_height() for bar in bars["messages"]] == [expected[name][0] for name in names]
+    if log.header["source"] == "engine":
+        assert "bytes" not in bars
+    else:
+        assert [bar.get_height() for bar in bars["bytes"]] == [expected[name][1] for name in names]
+
+
+def test_plot_of_a_lockstep_run_and_of_an_engine_log(tmp_path: Path) -> None:
+    _, log = lockstep_run(load_scenario("paper-stationary", max_steps=60), tmp_path / "team")
+    assert len(log.steps) == 60 and sum(robot_links(log)[name][1] for name in robot_links(log)) > 0
+    check_figure(log)
+    path = tmp_path / "engine.jsonl"
+    assert main(["simulate", "authors-moving", "--estimation", "centralized", "--steps", "40", "--log", str(path)]) == 0
+    engine_log = read_log(path)
+    assert engine_log.header["source"] == "engine" and len(engine_log.steps) == 40
+    check_figure(engine_log)
 
 
 def test_replay_of_a_killed_run_and_bad_logs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

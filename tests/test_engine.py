@@ -247,12 +247,12 @@ def with_team(line: str) -> str:
         ),
         pytest.param(
             BASE.replace("[3.0, 7.0]", "[nan, 7.0]"),
-            "x.toml: region.vertices[0][0]: expected a finite number; fix the value",
+            "x.toml: region.vertices[0][0]: expected a coordinate in metres within +-1,000,000; fix the value",
             id="nan-vertex",
         ),
         pytest.param(
             BASE.replace("[4.0, 20.0]", "[4.0, nan]"),
-            "x.toml: target.position[1]: expected a finite number; fix the value",
+            "x.toml: target.position[1]: expected a coordinate in metres within +-1,000,000; fix the value",
             id="nan-target",
         ),
         pytest.param(
@@ -351,7 +351,7 @@ def test_override_errors():
     assert str(raised.value).startswith("unknown override 'speed'; use one of strategy, law, dt,")
     with pytest.raises(ScenarioError) as raised:
         load_scenario("paper-stationary", dt=-1.0)
-    assert str(raised.value) == "control.dt: expected a finite number > 0; fix the value"
+    assert str(raised.value) == "--dt -1.0 (control.dt): expected a finite number > 0; fix the value"
     with pytest.raises(ScenarioError) as raised:
         load_scenario("paper-stationary", robots=2)
-    assert str(raised.value) == "team.robots: expected `int` >= 3; fix the value"
+    assert str(raised.value) == "--robots 2 (team.robots): expected `int` >= 3; fix the value"

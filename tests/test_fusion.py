@@ -15,7 +15,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 from scipy.optimize import minimize, minimize_scalar
 
-from agents.fusion import covariance_intersection, sequential_intersection
+from agents.fusion import covariance_intersection, intersect_at, sequential_intersection
 
 CRITERIA = ["trace", "det"]
 
@@ -194,18 +194,36 @@ def test_fused_covariance_dominates_the_independent_product(criterion, xa, xb, a
 
 
 # ---------------------------------------------------------------------------- consistency for any correlation
-@pytest.mark.parametrize("criterion", CRITERIA)
-@given(xa=means(), xb=means(), a=spd(), b=spd(), k=contraction())
-def test_consistent_for_any_cross_covariance(criterion, xa, xb, a, b, k):
-    """Sigma_c - G S G^T >= 0 with G = Sigma_c [lam Sigma_a^-1, (1-lam) Sigma_b^-1], S the joint covariance
-    with cross term C = Sigma_a^{1/2} K Sigma_b^{1/2 T}, ||K|| <= 1, lam the weight CI returned."""
-    fused = covariance_intersection([xa, xb], [a, b], criterion)
+def assert_consistent(fused, a: np.ndarray, b: np.ndarray, k: np.ndarray) -> None:
+    """Sigma_c - G S G^T >= -1e-9 tr Sigma_c with G = Sigma_c [lam Sigma_a^-1, (1-lam) Sigma_b^-1], lam the
+    weight of ``fused``, S the joint covariance with cross term C = Sigma_a^{1/2} K Sigma_b^{1/2 T}, ||K|| <= 1."""
     lam = fused.weights[0]
     cross = sqrtm(a) @ k @ sqrtm(b).T
     joint = np.block([[a, cross], [cross.T, b]])
     gain = fused.covariance @ np.hstack([lam * np.linalg.inv(a), (1.0 - lam) * np.linalg.inv(b)])
     error_covariance = gain @ joint @ gain.T
     assert min_eigenvalue(fused.covariance - error_covariance) >= -1e-9 * np.trace(fused.covariance)
+
+
+@pytest.mark.parametrize("criterion", CRITERIA)
+@given(xa=means(), xb=means(), a=spd(), b=spd(), k=contraction())
+def test_consistent_for_any_cross_covariance(criterion, xa, xb, a, b, k):
+    """At the weight CI chooses."""
+    assert_consistent(covariance_intersection([xa, xb], [a, b], criterion), a, b, k)
+
+
+@given(xa=means(), xb=means(), a=spd(), b=spd(), k=contraction(),
+       lam=st.one_of(st.sampled_from([0.0, 1.0]), st.floats(0.0, 1.0)))
+def test_consistent_for_any_cross_covariance_and_any_weight(xa, xb, a, b, k, lam):
+    """Oracle 16 holds for every lambda in [0, 1], not only the optimal one; the CI at a given lambda
+    is the spec's formula."""
+    fused = intersect_at([xa, xb], [a, b], [lam, 1.0 - lam])
+    np.testing.assert_array_equal(fused.weights, [lam, 1.0 - lam])
+    expected = fused_covariance(fused.weights, [a, b])
+    np.testing.assert_allclose(fused.covariance, expected, rtol=0, atol=1e-9 * np.trace(expected))
+    spread = max(np.abs(xa).max(), np.abs(xb).max()) + 1.0
+    assert np.linalg.norm(fused.mean - fused_mean(fused.weights, [xa, xb], [a, b])) <= 1e-8 * spread
+    assert_consistent(fused, a, b, k)
 
 
 @pytest.mark.parametrize("criterion", CRITERIA)
@@ -354,26 +372,46 @@ def test_two_way_closed_form_matches_brent_on_a_hand_example():
         np.testing.assert_allclose(fused.mean, fused.covariance @ (0.5 * np.linalg.inv(b) @ np.ones(2)), rtol=1e-12)
 
 
-# ---------------------------------------------------------------------------- scalar-like case
+# ---------------------------------------------------------------------------- scalar case, per axis
+variances = st.floats(-3.0, 3.0).map(lambda e: 10.0**e)
+
+
 @given(
     xa=means(),
     xb=means(),
-    sa=st.floats(-3.0, 3.0).map(lambda e: 10.0**e),
-    sb=st.floats(-3.0, 3.0).map(lambda e: 10.0**e),
+    sa=st.tuples(variances, variances),
+    sb=st.tuples(variances, variances),
+    isotropic=st.booleans(),
+    lam=st.one_of(st.none(), st.floats(0.0, 1.0)),
     criterion=st.sampled_from(CRITERIA),
 )
-def test_scalar_covariances_fuse_on_the_segment(xa, xb, sa, sb, criterion):
-    fused = covariance_intersection([xa, xb], [sa * np.eye(2), sb * np.eye(2)], criterion)
-    span = xb - xa
-    length = np.linalg.norm(span)
+def test_axis_aligned_covariances_fuse_coordinatewise_on_the_segment(xa, xb, sa, sb, isotropic, lam, criterion):
+    """Oracle 16's scalar case. Diagonal covariances decouple CI into one scalar CI per axis:
+    x_c[i] = w_i x_a[i] + (1 - w_i) x_b[i] with w_i = (lam / a_i) / (lam / a_i + (1 - lam) / b_i) in [0, 1],
+    at CI's own lambda (None; interior whenever the variances cross between the axes) and at any
+    lambda. Isotropic covariances give one w for both axes: x_c on the segment from x_a to x_b."""
+    if isotropic:
+        sa, sb = (sa[0], sa[0]), (sb[0], sb[0])
+    a, b = np.diag(sa), np.diag(sb)
+    fused = covariance_intersection([xa, xb], [a, b], criterion) if lam is None else intersect_at([xa, xb], [a, b], [lam, 1 - lam])
+    weight = fused.weights[0]
+    information = weight / np.array(sa) + (1.0 - weight) / np.array(sb)
+    share = (weight / np.array(sa)) / information
+    assert np.all((share >= 0.0) & (share <= 1.0))
     spread = max(np.abs(xa).max(), np.abs(xb).max()) + 1.0
-    offset = fused.mean - xa
-    if length <= 1e-12 * spread:
-        assert np.linalg.norm(offset) <= 1e-9 * spread
-        return
-    along = offset @ span / length**2
-    across = (offset[0] * span[1] - offset[1] * span[0]) / length
-    assert abs(across) <= 1e-9 * spread
-    assert -1e-9 <= along <= 1.0 + 1e-9
-    # scalar covariances: the optimum is the input with the smaller variance (P_c = s I with 1/s linear in lambda)
-    assert np.trace(fused.covariance) == pytest.approx(2.0 * min(sa, sb), rel=1e-9)
+    np.testing.assert_allclose(fused.mean, share * xa + (1.0 - share) * xb, rtol=0, atol=1e-9 * spread)
+    np.testing.assert_allclose(fused.covariance, np.diag(1.0 / information), rtol=1e-9, atol=0)
+    if isotropic:
+        span, offset = xb - xa, fused.mean - xa
+        assert abs(offset[0] * span[1] - offset[1] * span[0]) <= 1e-9 * spread * (np.linalg.norm(span) + 1.0)
+        if lam is None:  # P_c = s I with 1/s linear in lambda: the optimum is the smaller input
+            assert np.trace(fused.covariance) == pytest.approx(2.0 * min(sa[0], sb[0]), rel=1e-9)
+
+
+def test_axis_aligned_optimum_is_strictly_inside_the_box():
+    """diag(1, 10) and diag(10, 1): lambda = 1/2 by symmetry, and each coordinate of x_c is a proper
+    convex combination (weights 10/11 and 1/11), neither input nor the midpoint."""
+    xa, xb = np.array([0.0, 0.0]), np.array([11.0, 22.0])
+    fused = covariance_intersection([xa, xb], [np.diag([1.0, 10.0]), np.diag([10.0, 1.0])])
+    np.testing.assert_allclose(fused.weights, [0.5, 0.5], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fused.mean, [1.0, 20.0], rtol=0, atol=1e-12)

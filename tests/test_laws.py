@@ -130,9 +130,23 @@ def test_oracle4_uniform_ring_stays_put_through_the_controller(case, robots, rot
 
 
 # ---------------------------------------------------------------------------- oracles 5 and 6 (whole rings)
-def check_monotone_ring_history(history, expect_robots: int) -> None:
+def spec_fresh_step(angles: np.ndarray, dt: float, omega_deg: float, law: str) -> np.ndarray:
+    """ALGORITHMS.md section 3, written out independently of agents.laws: e_i = (d_i^+ - d_i^-) / 4,
+    prop: dt * sat_omega(e); deadbeat: sign(e) min(omega dt, |e|)."""
+    omega = math.radians(omega_deg)
+    gaps = ccw_gaps(angles)
+    errors = (gaps - np.roll(gaps, 1, axis=-1)) / 4.0
+    if law == "prop":
+        return dt * np.clip(errors, -omega, omega)
+    return np.sign(errors) * np.minimum(omega * dt, np.abs(errors))
+
+
+def check_monotone_ring_history(history, expect_robots: int, dt: float, omega_deg: float, law: str) -> None:
     angles = history.angles  # (K, 1, N), radians about the target, unwrapped in time
     assert angles.shape[1:] == (1, expect_robots)
+    # step 1: everyone has exact information and takes the fresh-information law (both strategies)
+    np.testing.assert_allclose(angles[1, 0] - angles[0, 0], spec_fresh_step(angles[0, 0], dt, omega_deg, law),
+                               rtol=0, atol=1e-9)
     gaps = ccw_gaps(angles[:, 0])
     # strict cyclic order preserved every step, no co-location
     assert gaps.min() > 0.0
@@ -157,8 +171,12 @@ def test_oracle5_constant_law_is_monotone(case, angles, dt, omega, law):
         strategy="constant", law=law, dt=dt, omega_max_deg=omega, max_steps=150,
     )
     history = engine.run(scenario, record_positions=False)
-    check_monotone_ring_history(history, len(angles))
+    check_monotone_ring_history(history, len(angles), dt, omega, law)
     assert np.all(history.triggers != 0)  # constant: everyone polls every step
+    # and moves by the law at every step, not only at the first
+    for k in (1, len(history.angles) // 2, len(history.angles) - 2):
+        np.testing.assert_allclose(history.angles[k + 1, 0] - history.angles[k, 0],
+                                   spec_fresh_step(history.angles[k, 0], dt, omega, law), rtol=0, atol=1e-9)
 
 
 @settings(max_examples=50)
@@ -170,7 +188,7 @@ def test_oracle6_self_triggered_law_is_monotone_and_keeps_order(case, angles, dt
         strategy="self", law=law, dt=dt, omega_max_deg=omega, sigma_deg=sigma, max_steps=200,
     )
     history = engine.run(scenario, record_positions=False)
-    check_monotone_ring_history(history, len(angles))
+    check_monotone_ring_history(history, len(angles), dt, omega, law)
 
 
 @pytest.mark.parametrize("law", ["prop", "deadbeat"])

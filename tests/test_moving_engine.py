@@ -3,16 +3,31 @@ sanity values of section 14) on scenarios/authors-moving.toml."""
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
 
+from agents.centre import FusionCentre
 from agents.estimation import Estimator
+from bus.messages import SCHEMA, RangeReport
 from world import engine
-from world.scenario import load_scenario
+from world.scenario import Scenario, load_scenario, resolve
+from world.sensing import RangeSensor
 
 SEEDS = [0, 1, 2]
 STEPS = 400
 SETTLED = 100  # steps 1..100 are the transient; statistics over steps 101..STEPS
+
+
+SENSING_RANGE = 3.0  # m: the authors' robots start 2.3 to 6.5 m from the target
+
+
+def short_sighted(estimation: str, prior: str, **overrides: object) -> Scenario:
+    """authors-moving with a sensing range of ``SENSING_RANGE`` and the given estimation and prior."""
+    spec = load_scenario("authors-moving", estimation=estimation, **overrides).spec
+    spec = msgspec.structs.replace(spec, sensing=msgspec.structs.replace(spec.sensing, range=SENSING_RANGE),
+                                   estimation=msgspec.structs.replace(spec.estimation, prior=prior))
+    return resolve(spec, "short-sighted")
 
 
 def run(estimation: str, strategy: str, steps: int = STEPS) -> engine.History:
@@ -158,3 +173,28 @@ def test_decentralized_tracking_against_centralized():
     centralized = engine.run(load_scenario("authors-moving", estimation="centralized"), seeds=SEEDS,
                              record_positions=False)
     assert decentralized.terr[299:].mean() > 2 * centralized.terr[299:].mean()
+
+
+# ---------------------------------------------------------------------------- a trilateration prior without a fix
+def test_trilateration_prior_without_a_fix_at_step_one():
+    """With a short sensing range fewer than three robots may measure at step 1: the engine does not
+    fail, the centre starts from the uninformative prior, and the team still finds and tracks the
+    target (and the fusion centre, fed the same ranges, estimates exactly what the engine does)."""
+    scenario = short_sighted("centralized", "trilateration")
+    history = engine.run(scenario, seeds=SEEDS, steps=300)
+    in_range = np.linalg.norm(history.positions - history.targets[:, :, None, :], axis=-1) <= SENSING_RANGE
+    without_fix = np.flatnonzero(in_range[0].sum(axis=-1) < 3)
+    assert len(without_fix) > 0
+    assert np.all(np.nanmean(history.terr[100:], axis=0) < 0.5)
+    for trial in without_fix:
+        seed = SEEDS[trial]
+        centre = FusionCentre(scenario, run=1)
+        sensor = RangeSensor(scenario.spec.sensing.range_sigma, SENSING_RANGE, seed)
+        for step in range(1, 41):
+            positions = history.positions[step - 1, trial]
+            ranges = sensor.measure(positions, history.targets[step - 1, trial])
+            reports = [RangeReport(SCHEMA, 1, step, robot, tuple(position), None if np.isnan(z) else float(z))
+                       for robot, (position, z) in enumerate(zip(positions, ranges, strict=True))]
+            (estimate,) = [estimate for report in reports for estimate in centre.on_report(report)]
+            steered = scenario.region.clamp_interior(np.array(estimate.mean), scenario.estimation.clamp_margin)
+            np.testing.assert_array_equal(steered, history.estimates[step - 1, trial, 0])  # as a robot steers

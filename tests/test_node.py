@@ -96,6 +96,19 @@ def test_a_lost_answer_settles_the_poll_and_leaves_that_side_stale() -> None:
     assert int(node.controller.successor_age) == ages_before[1]  # stale, and it goes on ageing
 
 
+def test_a_lost_late_copy_of_an_earlier_answer_does_not_cancel_the_open_poll() -> None:
+    node, world = make_node(strategy="constant")
+    (_, first), (_, second) = node.handle(world.measurement(2))
+    node.handle(reply_to(first, world))
+    (_, command), = node.handle(reply_to(second, world))
+    world.accept(command)
+    world.advance()
+    node.handle(world.measurement(2))  # step 2: a new poll, new nonces
+    assert set(node.awaiting) == {1, 3}
+    assert node.on_lost(1, first.nonce) == []  # a dropped late copy of step 1's answer from robot 1
+    assert set(node.awaiting) == {1, 3}  # still waiting for robot 1's answer of step 2
+
+
 def test_a_flood_of_far_future_requests_cannot_grow_the_robots_memory() -> None:
     from agents.node import BUFFERED_LIMIT, KEPT_STEPS
 

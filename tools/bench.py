@@ -27,7 +27,7 @@ from rich.table import Table
 from bus.keys import new_run_id
 from tools.console import UsageError, err, out, write_json
 from tools.experiment import robot_list, stationary_experiment
-from tools.options import at_least, output_path
+from tools.options import JSON_FILE, at_least
 from tools.supervisor import Supervisor
 from world import engine
 from world.scenario import load_scenario
@@ -48,7 +48,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     engine_parser.add_argument("--trials", type=at_least(1), default=30)
     engine_parser.add_argument("--sweep", type=str, default="3-30", help="team sizes of the sweep, e.g. 3-30")
-    engine_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
+    engine_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
     engine_parser.set_defaults(handler=run_engine_bench)
 
     emulator_parser = kinds.add_parser(
@@ -66,7 +66,7 @@ def register(commands: argparse._SubParsersAction) -> None:
                                  help="draw the dashboard (to RUN_FOLDER/monitor.stdout), or alternate runs "
                                  "without and with it to measure what it costs")
     emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
-    emulator_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
+    emulator_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
     emulator_parser.set_defaults(handler=run_emulator_bench)
 
     latency_parser = kinds.add_parser(
@@ -75,7 +75,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     latency_parser.add_argument("--rounds", type=at_least(1), default=5000)
     latency_parser.add_argument("--warmup", type=at_least(0), default=500)
-    latency_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
+    latency_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
     latency_parser.set_defaults(handler=run_latency_bench)
 
     suite_parser = kinds.add_parser(
@@ -83,7 +83,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="engine, neighbour latency and the emulator for N = 6, 24, 64 and 256 (16 per process)",
     )
     suite_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
-    suite_parser.add_argument("--json", type=output_path((".json",)), metavar="PATH")
+    suite_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
     suite_parser.set_defaults(handler=run_suite)
 
 
@@ -112,8 +112,9 @@ def parse_range(text: str) -> list[int]:
 
 # ---------------------------------------------------------------------------------------- engine
 def engine_results(trials: int, sizes: list[int]) -> dict[str, object]:
-    """One run of ``paper-stationary``, the ``trials``-trial two-strategy experiment for N = 6, and
-    the sweep over ``sizes``: steps per second and wall seconds."""
+    """One run of ``paper-stationary`` (all ``control.max_steps`` steps), the ``trials``-trial
+    two-strategy experiment for N = 6, and the sweep over ``sizes``: steps per second, wall seconds
+    and how many runs converged."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1")
     scenario = load_scenario("paper-stationary")
@@ -124,10 +125,15 @@ def engine_results(trials: int, sizes: list[int]) -> dict[str, object]:
     experiment = stationary_experiment("paper-stationary", [6], trials, 0)
     err.print(f"running the sweep N = {sizes[0]}..{sizes[-1]} x {trials} trials ...")
     sweep = stationary_experiment("paper-stationary", sizes, trials, 0)
+    def converged(result: dict) -> int:
+        return sum(entry["converged"] for entry in result["summary"])
+
     return {
         "single_run": {"robots": scenario.robots, "steps": history.steps, "steps_per_s": history.steps / elapsed},
-        "experiment_n6": {"trials": trials, "wall_s": experiment["wall_s"]},
-        "sweep": {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": trials, "wall_s": sweep["wall_s"]},
+        "experiment_n6": {"trials": trials, "runs": 2 * trials, "converged": converged(experiment),
+                          "wall_s": experiment["wall_s"]},
+        "sweep": {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": trials, "runs": 2 * trials * len(sizes),
+                  "converged": converged(sweep), "wall_s": sweep["wall_s"]},
     }
 
 
@@ -137,8 +143,9 @@ def engine_table(results: dict, cores: object) -> Table:
     table.add_column("measurement")
     table.add_column("result", justify="right")
     table.add_row(f"one run, N = {single['robots']}", f"{single['steps_per_s']:.0f} steps/s")
-    table.add_row(f"experiment N = 6, {experiment['trials']} trials x 2 strategies", f"{experiment['wall_s']:.2f} s")
-    table.add_row(f"sweep N = {sweep['robots']}, {sweep['trials']} trials x 2", f"{sweep['wall_s']:.2f} s")
+    for label, entry in ((f"experiment N = 6, {experiment['trials']} trials x 2 strategies", experiment),
+                         (f"sweep N = {sweep['robots']}, {sweep['trials']} trials x 2", sweep)):
+        table.add_row(label, f"{entry['wall_s']:.2f} s ({entry['converged']}/{entry['runs']} converged)")
     return table
 
 

@@ -1,14 +1,16 @@
 """The live dashboard: what a team is doing and what every message cost.
 
-:class:`TeamModel` is built from run-log step records, fed live by the monitor as it writes them or
-read back from a log by ``ringtrack replay``, so both show exactly the same thing. :class:`Dashboard`
-renders a model with rich: the region drawn in the terminal with the robots, the true target and
-the estimates; a row per robot; traffic totals and rates, the messages saved against the constant
-strategy; Cerr and Terr sparklines. It adapts to the console size at every render.
+:class:`TeamModel` is built from run-log step and event records, fed live by the monitor as it
+writes them or read back from a log by ``ringtrack replay`` in file order, so both show exactly the
+same thing. :class:`Dashboard` renders a model with rich: the region drawn in the terminal with the
+robots, the true target and the estimates; a row per robot, with the state of its links to its ring
+neighbours; traffic totals and rates, the messages saved against the constant strategy; Cerr and
+Terr sparklines. It adapts to the console size at every render.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections import deque
@@ -21,29 +23,35 @@ from rich.table import Table
 from rich.text import Text
 
 from agents.laws import Trigger
+from tools.runlog import LINK_EVENTS
 from world.geometry import angle_of
 from world.metrics import convergence_error, true_offsets
 from world.scenario import Scenario
 
 HISTORY = 600  # steps of Cerr/Terr kept for the sparklines
 SPARKS = "▁▂▃▄▅▆▇█"
-ROBOT_ROWS = 24  # robots listed before "... and k more"
+ROBOT_ROWS = 24  # robots listed; the caption counts the others
 CATEGORIES = ("robot", "world", "estimation")
 
-REASONS = {
+REASONS = {  # short codes, explained in the robot table's caption
     Trigger.START: "start",
-    Trigger.SCHEDULE: "every step",
-    Trigger.UNCERTAINTY: "T1 ubd",
-    Trigger.SUCCESSOR: "T2 order+",
-    Trigger.PREDECESSOR: "T3 order-",
-    Trigger.UNKNOWN: "unknown",
+    Trigger.SCHEDULE: "every",
+    Trigger.UNCERTAINTY: "T1",
+    Trigger.SUCCESSOR: "T2",
+    Trigger.PREDECESSOR: "T3",
+    Trigger.UNKNOWN: "unk",
 }
+REASON_WIDTH = 19  # characters of the last-trigger column at most ("T1+T2+T3+unk @12345" fits)
+
+LINK_MEMORY_STEPS = 10  # a fault stays on its link's cell for this many steps after the step it hit
+FAULT_NAMES = {"duplicated": "dup", "delayed": "delay"}  # of link events; a drop is shown by its reason
+LINK_STYLES = {"ok": "green", "dup": "yellow", "delay": "yellow"}  # any other state (a loss) is red
 
 
 def reason_text(mask: int) -> str:
-    """Names of the trigger conditions in a mask ("-" for none)."""
+    """Short codes of the trigger conditions in a mask, joined by "+" ("-" for none)."""
     names = [name for flag, name in REASONS.items() if mask & flag]
-    return ", ".join(names) if names else "-"
+    return "+".join(names) if names else "-"
 
 
 def robot_label(robot: int) -> str:
@@ -70,7 +78,7 @@ class RobotStatus:
 
 
 class TeamModel:
-    """Everything the dashboard shows, updated one step record at a time."""
+    """Everything the dashboard shows, updated one run-log record at a time."""
 
     def __init__(self, scenario: Scenario, clock: str, replay_speed: float | None = None, live: bool = True) -> None:
         self.scenario = scenario
@@ -85,6 +93,8 @@ class TeamModel:
         self.target: np.ndarray | None = None
         self.centres: list | None = None
         self.totals = {category: [0, 0] for category in CATEGORIES}
+        self.bytes_counted = True  # False for engine logs: nothing was sent, so no bytes were counted
+        self.link_faults: dict[frozenset[int], tuple[str, int]] = {}  # ring link -> last fault, its step
         self.cerr: deque[float] = deque(maxlen=HISTORY)
         self.terr: deque[float] = deque(maxlen=HISTORY)
         self.started = time.monotonic()
@@ -92,7 +102,14 @@ class TeamModel:
         self.status = "running"
 
     def add(self, record: dict) -> None:
-        """Fold in one ``step`` record of the run log."""
+        """Fold in one ``step`` or ``event`` record of the run log (other records change nothing)."""
+        if record["type"] == "step":
+            self._add_step(record)
+        elif record["type"] == "event" and record["event"] in LINK_EVENTS:
+            name = record["reason"] if record["event"] == "dropped" else FAULT_NAMES[record["event"]]
+            self.link_faults[frozenset((record["sender"], record["receiver"]))] = (name, record["step"])
+
+    def _add_step(self, record: dict) -> None:
         if self.first_step_at is None:
             self.first_step_at = time.monotonic()
         self.step, self.time = record["step"], record["time"]
@@ -101,6 +118,7 @@ class TeamModel:
         self.centres = record["centre"]
         params = self.scenario.control
         live = set(record["live"])
+        self.bytes_counted = record["sent_bytes"] is not None
         for index, status in enumerate(self.robots):
             status.alive = index in live
             trigger, centre = record["trigger"][index], record["centre"][index]
@@ -110,7 +128,7 @@ class TeamModel:
                 status.last_reason, status.last_reason_step = trigger, self.step
             status.sent[0] += record["sent_messages"][index]
             status.received[0] += record["received_messages"][index]
-            if record["sent_bytes"] is not None:
+            if self.bytes_counted:
                 status.sent[1] += record["sent_bytes"][index]
                 status.received[1] += record["received_bytes"][index]
             if centre is not None:
@@ -128,7 +146,26 @@ class TeamModel:
         errors = [math.dist(centre, self.target) for centre in record["centre"] if centre is not None]
         self.terr.append(sum(errors) / len(errors) if errors else math.nan)
 
+    def snapshot(self) -> "TeamModel":
+        """A copy to draw while this model goes on changing (the scenario, never changed, is shared)."""
+        return copy.deepcopy(self, {id(self.scenario): self.scenario})
+
     # ------------------------------------------------------------------ derived figures
+    def link_state(self, robot: int, neighbour: int) -> str:
+        """The link between two ring neighbours: "gone" when ``neighbour`` is not live, else the last
+        fault seen on it within ``LINK_MEMORY_STEPS`` steps (drop, outage, range, gone, dup, delay),
+        else "ok"."""
+        if not self.robots[neighbour].alive:
+            return "gone"
+        fault = self.link_faults.get(frozenset((robot, neighbour)))
+        if fault is not None and self.step - fault[1] < LINK_MEMORY_STEPS:
+            return fault[0]
+        return "ok"
+
+    def size_text(self, size: int) -> str:
+        """A byte count, or "-" when the log counted none (an engine run)."""
+        return str(size) if self.bytes_counted else "-"
+
     @property
     def polls(self) -> int:
         return sum(status.polls for status in self.robots)
@@ -154,7 +191,7 @@ class TeamModel:
         cerr = f"{self.cerr[-1]:.2f}" if self.cerr else "-"
         terr = f", Terr {self.terr[-1]:.3f} m" if self.terr and not math.isnan(self.terr[-1]) and \
             self.scenario.estimation.mode != "known" else ""
-        return (f"step {self.step}/{self.steps}: robot-to-robot {robot[0]} msgs {robot[1]} B "
+        return (f"step {self.step}/{self.steps}: robot-to-robot {robot[0]} msgs {self.size_text(robot[1])} B "
                 f"(saved {saved} = {share:.0%} vs constant), world {world[0]} msgs, polls {self.polls}, "
                 f"Cerr {cerr} deg{terr}")
 
@@ -208,37 +245,56 @@ def region_map(model: TeamModel, width: int, height: int) -> Text:
     return text
 
 
-ALL_COLUMNS = ("robot", "link", "angle", "gV", "ubd", "ages", "polls", "sent", "recv", "last trigger")
-NARROW_COLUMNS = ("robot", "link", "angle", "ubd", "polls", "sent")
-WIDE = 100  # console columns from which every robot column and the side-by-side layout fit
+WIDE = 100  # console columns from which the side-by-side layout fits
+# Robot columns by the console columns they need at least, when every cell is as wide as a long run
+# of a large team makes it ("r63 *", "outage|outage", "99999/9999999", "T1+T2+T3+unk @12345").
+ROBOT_COLUMNS = (
+    (120, ("robot", "links", "angle", "gV", "ubd", "ages", "polls", "sent", "recv", "last trigger")),
+    (WIDE, ("robot", "links", "angle", "ubd", "polls", "sent", "recv", "last trigger")),
+    (0, ("robot", "links", "angle", "ubd", "polls", "sent")),
+)
 
 
 def robots_table(model: TeamModel, width: int) -> Table:
     """A row per robot; narrow consoles get the essential columns only."""
-    columns = ALL_COLUMNS if width >= WIDE else NARROW_COLUMNS
-    table = Table(box=box.SIMPLE_HEAD, padding=(0, 1), expand=False,
-                  caption="angles about each robot's own centre; sent/recv: robot-to-robot messages/bytes",
-                  caption_justify="left")
+    columns = next(columns for least, columns in ROBOT_COLUMNS if width >= least)
+    hidden = len(model.robots) - ROBOT_ROWS
+    caption = (f"angles about each robot's own centre · links to predecessor|successor: ok or the latest fault of "
+               f"the past {LINK_MEMORY_STEPS} steps · sent/recv: robot-to-robot messages/bytes · triggers: T1 ubd, "
+               "T2 order+, T3 order-, unk unknown neighbour, every constant strategy")
+    if hidden > 0:
+        caption = f"... and {hidden} more robots · {caption}"
+    table = Table(box=box.SIMPLE_HEAD, padding=(0, 1), collapse_padding=True, pad_edge=False, expand=False,
+                  caption=caption, caption_justify="left")
     for column in columns:
-        table.add_column(column, justify="right", no_wrap=True)
+        table.add_column(column, justify="right", no_wrap=True,
+                         max_width=REASON_WIDTH + 2 if column == "last trigger" else None,  # + its padding
+                         overflow="ellipsis")
     for index, status in enumerate(model.robots[:ROBOT_ROWS]):
         cells = {
             "robot": f"r{index} {robot_label(index)}",
-            "link": Text("up", "green") if status.alive else Text("down", "bold red"),
+            "links": links_text(model, index),
             "angle": _degrees(status.angle),
             "gV": _degrees(status.midpoint),
             "ubd": _degrees(status.ubd, 3),
             "ages": f"{status.ages[0]},{status.ages[1]}" if status.ages else "-",
             "polls": str(status.polls),
-            "sent": f"{status.sent[0]}/{status.sent[1]}",
-            "recv": f"{status.received[0]}/{status.received[1]}",
+            "sent": f"{status.sent[0]}/{model.size_text(status.sent[1])}",
+            "recv": f"{status.received[0]}/{model.size_text(status.received[1])}",
             "last trigger": f"{reason_text(status.last_reason)} @{status.last_reason_step}"
             if status.last_reason else "-",
         }
         table.add_row(*(cells[column] for column in columns))
-    if len(model.robots) > ROBOT_ROWS:
-        table.add_row(f"... and {len(model.robots) - ROBOT_ROWS} more", *[""] * (len(columns) - 1))
     return table
+
+
+def links_text(model: TeamModel, robot: int) -> Text:
+    """``predecessor|successor`` link states of a live robot, coloured; "down" for a dead one."""
+    if not model.robots[robot].alive:
+        return Text("down", "bold red")
+    count = len(model.robots)
+    states = [model.link_state(robot, (robot + side) % count) for side in (-1, 1)]
+    return Text("|").join(Text(state, LINK_STYLES.get(state, "bold red")) for state in states)
 
 
 def traffic_table(model: TeamModel) -> Table:
@@ -251,7 +307,7 @@ def traffic_table(model: TeamModel) -> Table:
         if category == "estimation" and messages == 0:
             continue
         label = "robot-to-robot" if category == "robot" else category
-        table.add_row(label, str(messages), str(size), f"{messages / seconds:.1f}")
+        table.add_row(label, str(messages), model.size_text(size), f"{messages / seconds:.1f}")
     return table
 
 
@@ -281,7 +337,7 @@ class Dashboard:
         )
         yield header
         # The map takes what the robot table and the header leave of the console height.
-        rows_below = min(len(model.robots), ROBOT_ROWS + 1) + 5
+        rows_below = min(len(model.robots), ROBOT_ROWS) + 6
         room = (options.height or options.size.height) - rows_below - 2
         vertices = scenario.region.vertices
         aspect = np.ptp(vertices[:, 1]) / max(np.ptp(vertices[:, 0]), 1e-9)

@@ -14,7 +14,7 @@ from rich import box
 from rich.table import Table
 
 from tools.console import UsageError, err, out, write_json
-from tools.options import FIGURE_SUFFIXES, at_least, output_path
+from tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from world import engine
 from bus.messages import poll_bytes
 from world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
@@ -39,7 +39,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
-    stationary.add_argument("--json", type=output_path((".json",)), metavar="PATH", help="write per-trial rows and means")
+    stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
     stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the comparison figure")
     stationary.set_defaults(handler=run_stationary)
 
@@ -58,7 +58,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--settle", type=at_least(0), default=300, help="means are taken from this step on (default 300)")
     moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
     moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
-    moving.add_argument("--json", type=output_path((".json",)), metavar="PATH", help="write the table and the Cerr/Terr series")
+    moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
     moving.set_defaults(handler=run_moving)
 
@@ -96,7 +96,10 @@ def stationary_experiment(
     """Run both strategies for every team size on seeds ``seed .. seed + trials - 1``.
 
     Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
-    and standard deviation of Ctime and Com-bar, and per team size ``ratios`` self / constant.
+    and standard deviation of Ctime and Com-bar, and per team size ``ratios`` self / constant. A
+    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator);
+    ``ctime_true`` (convergence by the true Cerr) is None when not reached within the steps run, as
+    a batch stops once every trial has converged by the strategy's own Cerr.
     ``on_step(robots, strategy, step)`` reports progress.
     """
     if trials < 1:
@@ -124,7 +127,7 @@ def stationary_experiment(
                         "ctime": int(ctime[index]) or None,
                         "ctime_true": int(history.ctime_true[index]) or None,
                         "com_bar": None if ctime[index] == 0 else float(com_bar[index]),
-                        "triggers": int((history.triggers[:, index] != 0).sum()),
+                        "triggers": int((history.triggers[: ctime[index] or None, index] != 0).sum()),
                     }
                 )
             done = ctime > 0

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bus.config import BusConfig
-from bus.counting import TrafficCounter, totals_by_category
+from bus.counting import TrafficCounter, per_link, totals_by_category
 from bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import (
     Command,
@@ -76,12 +76,18 @@ class PendingStep:
         return self.sent_messages.total() >= expected
 
 
+# Categories whose every link the monitor must see exactly as its senders counted it. Monitoring
+# traffic (statistics, fault notices) is not compared: a sender's final Stats cannot count itself.
+COMPARED = ("robot", "world", "estimation")
+
 STEPPED = (Tick, Measurement, Command, Request, Reply, RangeReport, Estimate, FaultNotice)
 
 
 class Recorder:
     """Turns deliveries into step records, in step order, each written once it is complete, or
-    ``FORCE_AFTER_S`` after its tick when later steps exist (a message was lost), or at the end.
+    ``FORCE_AFTER_S`` after its tick when later steps exist (a message was lost), or at the end;
+    fault notices and robots joining or leaving become event records. Every record written is also
+    handed to ``on_record``.
 
     Messages of different senders travel on different links, so a robot's command for step k may
     reach the monitor after the world's tick for k + 5: completeness, not arrival order, decides.
@@ -122,10 +128,15 @@ class Recorder:
             entry.received_bytes[message.receiver] += delivery.size
         elif isinstance(message, FaultNotice):
             entry.notices.append(message)
-            self.writer.write({"type": "event", "event": message.what, "step": message.step,
-                               "subject": message.subject, "sender": message.sender,
-                               "receiver": message.receiver, "reason": message.reason or None,
-                               "delay_s": message.delay_s or None})
+            self.record({"type": "event", "event": message.what, "step": message.step,
+                         "subject": message.subject, "sender": message.sender, "receiver": message.receiver,
+                         "reason": message.reason or None, "delay_s": message.delay_s or None})
+
+    def record(self, record: dict) -> None:
+        """Write ``record`` to the log and hand it to ``on_record`` (the dashboard's model)."""
+        self.writer.write(record)
+        if self.on_record is not None:
+            self.on_record(record)
 
     def _pending(self, step: int) -> PendingStep:
         return self.pending.setdefault(step, PendingStep())
@@ -165,9 +176,7 @@ class Recorder:
             traffic={category: [entry.traffic_messages[category], entry.traffic_bytes[category]]
                      for category in ("robot", "world", "estimation")},
         )
-        self.writer.write(record)
-        if self.on_record is not None:
-            self.on_record(record)
+        self.record(record)
 
 
 def participants(scenario: Scenario) -> set[str]:
@@ -190,19 +199,23 @@ class MonitorReport:
     notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
     rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
 
+    def sender_rows(self) -> list[Traffic]:
+        """Every traffic row of every sender's final statistics."""
+        return [row for rows in self.senders.values() for row in rows]
+
     def sender_totals(self) -> dict[str, dict[str, int]]:
-        return totals_by_category([row for rows in self.senders.values() for row in rows])
+        return totals_by_category(self.sender_rows())
 
     def monitor_totals(self) -> dict[str, dict[str, int]]:
         return totals_by_category(self.received)
 
     def consistent(self) -> bool:
-        """Robot-to-robot, world and estimation traffic seen equals what the senders say they sent."""
-        mine, theirs = self.monitor_totals(), self.sender_totals()
-        return all(mine.get(category) == theirs.get(category) for category in ("robot", "world", "estimation"))
+        """On every (kind, source, destination) link of the ``COMPARED`` categories, the messages and
+        bytes the monitor saw equal what the senders say they sent."""
+        return per_link(self.received, COMPARED) == per_link(self.sender_rows(), COMPARED)
 
 
-Refresh = Callable[[bool], None]  # redraw the display; True once at the end
+Refresh = Callable[[bool], None]  # redraw the display (must not wait for it); True once at the end
 
 
 async def run_monitor(
@@ -217,8 +230,9 @@ async def run_monitor(
     refresh: Refresh | None = None,
     exit_with_parent: bool = False,
 ) -> tuple[int, MonitorReport | None]:
-    """Monitor one run, feeding every step record to ``model`` and calling ``refresh`` a few times
-    per second; returns the exit code and the report (None when stopped before the start)."""
+    """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
+    times per second, and once more with True when the log is complete; returns the exit code and
+    the report (None when stopped before the start)."""
     keys = Keys(run)
     robots = scenario.robots
     async with joined(bus, keys, MONITOR, robots, exit_with_parent) as participant:
@@ -234,7 +248,7 @@ async def run_monitor(
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
             recorder = Recorder(writer, scenario, None if model is None else model.add)
-            code, report = await _watch(participant, recorder, roster, held, model, refresh)
+            code, report = await _watch(participant, recorder, roster, held, refresh)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
             writer.write(
@@ -255,6 +269,10 @@ async def run_monitor(
                     "rejected_by": report.rejected_by,
                 }
             )
+        if model is not None:
+            model.status = report.end.reason if report.end else "stopped" if code == 130 else "world lost"
+        if refresh is not None:
+            refresh(True)
         return code, report
 
 
@@ -263,7 +281,6 @@ async def _watch(
     recorder: Recorder,
     roster: Roster,
     events: list,
-    model: TeamModel | None,
     refresh: Refresh | None,
 ) -> tuple[int, MonitorReport]:
     """Record until the run has ended and everything every sender says it sent has been seen (or
@@ -288,9 +305,8 @@ async def _watch(
             elif isinstance(event, Presence):
                 roster.update(event)
                 if event.kind == "alive" and robot_index(event.name) is not None:
-                    recorder.writer.write({"type": "event", "event": "joined" if event.up else "left",
-                                           "robot": event.name, "step": recorder.latest_tick,
-                                           "wall": time.time()})
+                    recorder.record({"type": "event", "event": "joined" if event.up else "left",
+                                     "robot": event.name, "step": recorder.latest_tick, "wall": time.time()})
             elif isinstance(event, Interrupt) and not code:
                 code, interrupted_at = 130, loop.time()
         if events:
@@ -313,10 +329,6 @@ async def _watch(
             last_view = now
         await asyncio.sleep(DRAIN_PERIOD_S)
         events = participant.drain()
-    if model is not None:
-        model.status = end.reason if end is not None else "stopped" if code == 130 else "world lost"
-    if refresh is not None:
-        refresh(True)
     report = MonitorReport(
         received=participant.counter.received_table(),
         senders={name: stats.sent for name, stats in finals.items()},

@@ -102,3 +102,7 @@ def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
         return path
 
     return parse
+
+
+JSON_FILE = output_path((".json",))  # summaries and results
+LOG_FILE = output_path((".jsonl",))  # run logs (JSON lines)

@@ -6,10 +6,12 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.figure import Figure
 
-from bus.counting import category_of
 from tools.console import UsageError, out
 from tools.options import FIGURE_SUFFIXES, output_path
+from bus.counting import robot_link_totals
 from tools.runlog import RunLog, history_from_log, read_log
 
 
@@ -27,27 +29,31 @@ def run_plot(args: argparse.Namespace) -> int:
     log = read_log(args.log)
     if not log.steps:
         raise UsageError(f"{args.log}: the log has no steps to draw")
-    plot_run(log, args.output)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    plot_run(log).savefig(args.output, dpi=110)
     out.print(f"wrote {args.output}", highlight=False)
     return 0
 
 
-def plot_run(log: RunLog, path: Path) -> None:
-    """Four panels: (a) trajectories on the region, (b) Cerr and Terr over time, (c) polls per robot
-    over time, (d) robot-to-robot messages and bytes per link."""
-    from tools.figures import plt
+PANELS = ("(a) trajectories (open: start, filled: end)", "(b) convergence and target errors",
+          "(c) polls per robot over time", "(d) robot-to-robot traffic per link (sender>receiver)")
 
+
+def plot_run(log: RunLog) -> Figure:
+    """Four panels titled ``PANELS``: (a) trajectories on the region (a line labelled ``r<i>`` per
+    robot), (b) Cerr and Terr over time (one point per step), (c) polls per robot over time, (d)
+    robot-to-robot messages (and bytes, when counted) per link, as the end record counts them."""
     history = history_from_log(log)
     scenario = history.scenario
     assert history.positions is not None
     positions = history.positions[:, 0]
     seconds = np.arange(history.steps) * scenario.control.dt
-    figure, axes = plt.subplots(2, 2, figsize=(12, 9), constrained_layout=True)
-    trajectories, errors, polls, links = axes.flat
+    figure = Figure(figsize=(12, 9), layout="constrained")
+    trajectories, errors, polls, links = figure.subplots(2, 2).flat
 
     outline = np.vstack([scenario.region.vertices, scenario.region.vertices[:1]])
     trajectories.plot(outline[:, 0], outline[:, 1], color="black", linewidth=1)
-    colours = plt.cm.tab10(np.arange(scenario.robots) % 10)
+    colours = colormaps["tab10"](np.arange(scenario.robots) % 10)
     for robot in range(scenario.robots):
         path_xy = positions[:, robot]
         trajectories.plot(path_xy[:, 0], path_xy[:, 1], color=colours[robot], linewidth=1.5, label=f"r{robot}")
@@ -61,7 +67,7 @@ def plot_run(log: RunLog, path: Path) -> None:
         trajectories.plot(mean_estimate[:, 0], mean_estimate[:, 1], color="goldenrod", linewidth=0.8,
                           label="estimate (mean)")
     trajectories.set_aspect("equal")
-    trajectories.set_title("(a) trajectories (open: start, filled: end)")
+    trajectories.set_title(PANELS[0])
     trajectories.legend(fontsize=7, ncols=2)
 
     errors.plot(seconds, history.cerr_true[:, 0], label="Cerr, true positions")
@@ -70,7 +76,7 @@ def plot_run(log: RunLog, path: Path) -> None:
     errors.set_yscale("log")
     errors.set_xlabel("time (s)")
     errors.set_ylabel("Cerr (deg)")
-    errors.set_title("(b) convergence and target errors")
+    errors.set_title(PANELS[1])
     if scenario.estimation.mode != "known":
         terr = errors.twinx()
         terr.plot(seconds, history.terr[:, 0], color="tab:green", linewidth=0.8, label="Terr")
@@ -81,28 +87,21 @@ def plot_run(log: RunLog, path: Path) -> None:
     polls.scatter(steps * scenario.control.dt, robots, marker="|", s=40, color=colours[robots])
     polls.set_yticks(range(scenario.robots), [f"r{robot}" for robot in range(scenario.robots)])
     polls.set_xlabel("time (s)")
-    polls.set_title(f"(c) polls per robot over time ({len(steps)} in all)")
+    polls.set_title(f"{PANELS[2]} ({len(steps)} in all)")
 
-    rows = [row for row in (log.end or {}).get("traffic", []) if category_of(row[0]) == "robot"]
-    per_link: dict[str, list[float]] = {}
-    for _kind, source, destination, messages, size in rows:
-        entry = per_link.setdefault(f"{source}>{destination}", [0, 0])
-        entry[0] += messages
-        entry[1] += size or 0
-    names = sorted(per_link, key=lambda name: [int(part[1:]) for part in name.split(">")])
-    if names:
-        spots = np.arange(len(names))
-        links.bar(spots - 0.2, [per_link[name][0] for name in names], width=0.4, label="messages")
-        links.set_xticks(spots, names, rotation=60, fontsize=7)
+    per_link = robot_link_totals((log.end or {}).get("traffic", []))
+    if per_link:
+        spots = np.arange(len(per_link))
+        counts = np.array([[entry["messages"], entry["bytes"]] for entry in per_link.values()])
+        links.bar(spots - 0.2, counts[:, 0], width=0.4, label="messages")
+        links.set_xticks(spots, [f"{source}>{destination}" for source, destination in per_link], rotation=60,
+                         fontsize=7)
         links.set_ylabel("messages")
-        if any(per_link[name][1] for name in names):
+        if counts[:, 1].any():
             sizes = links.twinx()
-            sizes.bar(spots + 0.2, [per_link[name][1] for name in names], width=0.4, color="tab:orange",
-                      label="bytes")
+            sizes.bar(spots + 0.2, counts[:, 1], width=0.4, color="tab:orange", label="bytes")
             sizes.set_ylabel("bytes", color="tab:orange")
-    links.set_title("(d) robot-to-robot traffic per link (sender>receiver)")
+    links.set_title(PANELS[3])
     figure.suptitle(f"{scenario.name}: {scenario.robots} robots, {scenario.control.strategy} strategy, "
                     f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    return figure

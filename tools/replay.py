@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from rich.console import Console
@@ -11,7 +12,7 @@ from rich.console import Console
 from tools.console import UsageError, out
 from tools.dashboard import Dashboard, TeamModel
 from tools.options import positive
-from tools.runlog import read_log
+from tools.runlog import RunLog, read_log
 from tools.views import LiveView
 
 FRAME_S = 0.1  # at most ten redraws per wall second
@@ -37,32 +38,39 @@ def run_replay(args: argparse.Namespace) -> int:
     model = TeamModel(log.scenario, log.header["clock"], replay_speed=args.speed, live=False)
     model.steps = log.header["steps"]
     if args.final:
-        for record in log.steps:
+        for record in log.records:
             model.add(record)
-        model.status = log.end["reason"] if log.end else "log ends here (the run was stopped)"
+        model.status = ending(log)
         model.replay_speed = None
         out.print(Dashboard(model))
         return 0
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     with LiveView(console, model, dashboard) as view:
-        replay(model, log.steps, args.speed, view.refresh)
-        model.status = log.end["reason"] if log.end else "log ends here (the run was stopped)"
+        replay(model, log.records, args.speed, view.refresh)
+        model.status = ending(log)
         view.refresh(True)
     return 0
 
 
-def replay(model: TeamModel, records: list[dict], speed: float, refresh) -> None:
-    """Feed ``records`` to ``model`` at ``speed`` simulated seconds per wall second, redrawing at most
-    every ``FRAME_S``."""
-    if not records:
+def ending(log: RunLog) -> str:
+    """The status the last frame shows: why the run ended, or that its log stops short."""
+    return log.end["reason"] if log.end else "log ends here (the run was stopped)"
+
+
+def replay(model: TeamModel, records: list[dict], speed: float, refresh: Callable[[bool], None]) -> None:
+    """Feed ``records`` (steps and events, in file order) to ``model``, each step at its simulated
+    time over ``speed`` (simulated seconds per wall second), redrawing at most every ``FRAME_S``."""
+    first = next((record["time"] for record in records if record["type"] == "step"), None)
+    if first is None:
         return
-    started, first = time.monotonic(), records[0]["time"]
+    started = time.monotonic()
     last_frame = 0.0
     for record in records:
-        wait = (record["time"] - first) / speed - (time.monotonic() - started)
-        if wait > 0:
-            time.sleep(wait)
+        if record["type"] == "step":
+            wait = (record["time"] - first) / speed - (time.monotonic() - started)
+            if wait > 0:
+                time.sleep(wait)
         model.add(record)
         now = time.monotonic()
         if now - last_frame >= FRAME_S:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from bus.config import LOOPBACK_ANY_PORT, BusConfig
 from tools.console import UsageError, err, out
-from tools.options import add_scenario_arguments, positive, scenario_from_arguments
+from tools.options import LOG_FILE, add_scenario_arguments, positive, scenario_from_arguments
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -54,7 +54,7 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     monitor = commands.add_parser("monitor", help="tally a team's messages live and write its run log")
     _common(monitor)
-    monitor.add_argument("--log", type=Path, required=True, metavar="PATH", help="run log to write (JSON lines)")
+    monitor.add_argument("--log", type=LOG_FILE, required=True, metavar="PATH", help="run log to write (JSON lines)")
     monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
     display = monitor.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the live dashboard even without a terminal")
@@ -79,9 +79,14 @@ def robot_ids(text: str) -> list[int]:
         ids: list[int] = []
         for part in text.split(","):
             first, _, last = part.partition("-")
-            ids += list(range(int(first), int(last or first) + 1))
+            span = range(int(first), int(last or first) + 1)
+            if not span:
+                raise ValueError(part)
+            ids += list(span)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--id {text!r}: give a robot index like 3, 0-7 or 0,2,4") from None
+        raise argparse.ArgumentTypeError(f"--id {text!r}: give a robot index like 3, or ascending ones like 0-7 or 0,2,4") from None
+    if len(set(ids)) != len(ids):
+        raise argparse.ArgumentTypeError(f"--id {text!r} names a robot twice; give each robot once")
     return ids
 
 

@@ -14,7 +14,9 @@ Records, one per line:
 * ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
   says it sent, rejected payloads and late messages.
 
-A killed run leaves every complete line readable; :func:`read_log` ignores a torn last line.
+A killed run leaves every complete line readable; :func:`read_log` ignores a torn last line and
+checks every other record against the structs below, and each step's per-robot lists against the
+team size, so that whatever reads a log may index its records without further checks.
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ from __future__ import annotations
 import datetime
 import platform
 from dataclasses import dataclass, field
+from functools import cached_property
 from importlib import metadata
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Annotated, Any
 
 import msgspec
 import numpy as np
@@ -172,19 +175,100 @@ def _engine_traffic(polled: np.ndarray) -> list[list[Any]]:
 
 
 # ---------------------------------------------------------------------------- reading
+Count = Annotated[int, msgspec.Meta(ge=0)]
+Point = tuple[float, float]  # metres
+TrafficRow = tuple[str, str, str, Count, Count | None]  # kind, source, destination, messages, bytes (None: engine)
+
+
+class Record(msgspec.Struct, tag_field="type"):
+    """What a valid record holds, by its ``type``; records stay plain dicts once checked."""
+
+
+class HeaderRecord(Record, tag="header"):
+    format: int
+    source: str
+    scenario_toml: str
+    seed: int
+    robots: Annotated[int, msgspec.Meta(ge=1)]
+    clock: str
+    steps: Count
+    run: str = ""
+    scenario_name: str = ""
+    versions: dict[str, str] = {}
+    started_utc: str = ""
+
+
+class StepRecord(Record, tag="step"):
+    step: Annotated[int, msgspec.Meta(ge=1)]
+    time: float  # simulated seconds
+    positions: list[Point]
+    target: Point
+    live: list[int]
+    trigger: list[int | None]  # None: no command from that robot this step
+    offset: list[float | None]  # rad
+    ages: list[tuple[Count, Count] | None]  # steps
+    centre: list[Point | None]
+    sent_messages: list[Count]
+    sent_bytes: list[Count] | None
+    received_messages: list[Count]
+    received_bytes: list[Count] | None
+    traffic: dict[str, tuple[Count, Count | None]]
+
+
+PER_ROBOT = ("positions", "trigger", "offset", "ages", "centre", "sent_messages", "sent_bytes",
+             "received_messages", "received_bytes")  # step fields with one entry per robot
+
+
+class EventRecord(Record, tag="event"):
+    event: str  # dropped, duplicated, delayed (a fault on a link), joined, left
+    step: Count
+    subject: str | None = None
+    sender: int | None = None
+    receiver: int | None = None
+    reason: str | None = None  # of a drop: drop, outage, range, gone
+    delay_s: float | None = None
+    robot: str | None = None
+    wall: float | None = None
+
+
+LINK_EVENTS = ("dropped", "duplicated", "delayed")
+
+
+class EndRecord(Record, tag="end"):
+    steps: Count
+    reason: str
+    wall_s: float | None = None
+    traffic: list[TrafficRow] = []
+    senders: dict[str, list[TrafficRow]] = {}
+    rejected: dict[str, int] = {}
+    late: Count = 0
+    rss_kib: dict[str, int] = {}
+    consistent: bool | None = None
+    faults: dict[str, int] = {}
+    notes: dict[str, int] = {}
+    rejected_by: dict[str, dict[str, int]] = {}
+
+
+AnyRecord = HeaderRecord | StepRecord | EventRecord | EndRecord
+
+
 @dataclass
 class RunLog:
-    """A run log read back: the header, every complete step record, events and the end record
-    (``None`` when the run was killed before it ended)."""
+    """A run log read back: the header, every complete step record, events, both of them in file
+    order (``records``: what the monitor fed its dashboard) and the end record (``None`` when the
+    run was killed before it ended)."""
 
     header: dict[str, Any]
     steps: list[dict[str, Any]] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
+    records: list[dict[str, Any]] = field(default_factory=list)
     end: dict[str, Any] | None = None
+    label: str = "run log"  # names the file in error messages
 
-    @property
+    @cached_property
     def scenario(self) -> Scenario:
-        return resolve(parse_scenario(self.header["scenario_toml"], "run log"), "run log")
+        label = f"{self.label}: line 1: scenario_toml"
+        return resolve(parse_scenario(self.header["scenario_toml"], label), label)
 
 
 class LogError(ValueError):
@@ -192,32 +276,81 @@ class LogError(ValueError):
 
 
 def read_log(path: Path) -> RunLog:
-    """Read a run log, skipping a torn last line (a killed run)."""
+    """Read and check a run log, skipping a torn last line (a killed run). A damaged record raises
+    :class:`LogError`, a bad scenario :class:`~world.scenario.ScenarioError`, in one line naming
+    the line and the problem."""
+    records = _decoded_lines(path)
+    first = records[0][1] if records else None
+    if not isinstance(first, dict) or first.get("type") != "header":
+        raise LogError(f"{path}: no header record; this is not a ringtrack run log")
+    if first.get("format") != FORMAT:
+        raise LogError(f"{path}: log format {first.get('format')}, this ringtrack reads {FORMAT}")
+    log = RunLog(header=first, label=str(path))
+    _check(path, 1, first, HeaderRecord)
+    robots = first["robots"]
+    if log.scenario.robots != robots:
+        raise _damaged(path, 1, f"header record: `robots` is {robots}, its scenario_toml has {log.scenario.robots}")
+    for number, record in records[1:]:
+        checked = _check(path, number, record, AnyRecord)
+        if isinstance(checked, HeaderRecord):
+            raise _damaged(path, number, "a second header record")
+        if isinstance(checked, StepRecord):
+            _check_team_size(path, number, record, robots)
+            log.steps.append(record)
+            log.records.append(record)
+        elif isinstance(checked, EventRecord):
+            if checked.event in LINK_EVENTS:
+                _check_link_event(path, number, checked, robots)
+            log.events.append(record)
+            log.records.append(record)
+        else:
+            log.end = record
+    return log
+
+
+def _check_team_size(path: Path, number: int, step: dict[str, Any], robots: int) -> None:
+    """Every per-robot list of a step record has one entry per robot."""
+    for name in PER_ROBOT:
+        values = step[name]
+        if values is not None and len(values) != robots:
+            raise _damaged(path, number, f"step record: `{name}` has {len(values)} entries for a team of {robots} robots")
+
+
+def _check_link_event(path: Path, number: int, event: EventRecord, robots: int) -> None:
+    """A fault on a link names the robots at both ends, and a drop its reason (the dashboard shows it)."""
+    if not all(robot is not None and 0 <= robot < robots for robot in (event.sender, event.receiver)):
+        raise _damaged(path, number, f"{event.event} event: `sender` and `receiver` must be robots 0..{robots - 1}")
+    if event.event == "dropped" and not event.reason:
+        raise _damaged(path, number, "dropped event: `reason` is missing")
+
+
+def _decoded_lines(path: Path) -> list[tuple[int, Any]]:
+    """``(line number, decoded JSON value)`` of every non-blank line but a torn last one."""
     lines = path.read_bytes().split(b"\n")
-    records = []
+    decoded = []
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
-            records.append(msgspec.json.decode(line))
+            decoded.append((number, msgspec.json.decode(line)))
         except msgspec.DecodeError:
             if number >= len(lines) - 1:
                 break  # torn last line of a killed run
             raise LogError(f"{path}: line {number} is not JSON; the file is damaged") from None
-    if not records or records[0].get("type") != "header":
-        raise LogError(f"{path}: no header record; this is not a ringtrack run log")
-    if records[0].get("format") != FORMAT:
-        raise LogError(f"{path}: log format {records[0].get('format')}, this ringtrack reads {FORMAT}")
-    log = RunLog(header=records[0])
-    for record in records[1:]:
-        kind = record.get("type")
-        if kind == "step":
-            log.steps.append(record)
-        elif kind == "event":
-            log.events.append(record)
-        elif kind == "end":
-            log.end = record
-    return log
+    return decoded
+
+
+def _check(path: Path, number: int, record: Any, schema: Any) -> Record:
+    """``record`` as a ``schema`` struct; a record that does not fit raises :class:`LogError`."""
+    try:
+        return msgspec.convert(record, schema)
+    except msgspec.ValidationError as error:
+        kind = record.get("type") if isinstance(record, dict) else None
+        raise _damaged(path, number, f"{kind} record: {error}" if isinstance(kind, str) else str(error)) from None
+
+
+def _damaged(path: Path, number: int, problem: str) -> LogError:
+    return LogError(f"{path}: line {number}: {problem}; the file is damaged or not a ringtrack run log")
 
 
 def history_from_log(log: RunLog) -> History:

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from rich.table import Table
 
 from tools.console import out, write_json
-from tools.options import add_scenario_arguments, scenario_from_arguments
+from tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, scenario_from_arguments
 from tools.runlog import write_engine_log
 from world import engine
 
@@ -21,8 +20,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         "(at most control.max_steps steps); with --steps K it runs exactly K steps.",
     )
     add_scenario_arguments(parser, steps_help="run exactly this many steps")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write the summary as JSON")
-    parser.add_argument("--log", type=Path, metavar="PATH", help="write the run log (same format as spawn's)")
+    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the summary as JSON")
+    parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="write the run log (same format as spawn's)")
     parser.set_defaults(handler=run)
 
 

@@ -21,7 +21,7 @@ from bus.config import LOOPBACK_ANY_PORT
 from bus.counting import totals_by_category, totals_by_kind
 from bus.keys import new_run_id
 from tools.console import UsageError, err, out, write_json
-from tools.options import add_scenario_arguments, at_least, output_path, positive, scenario_from_arguments
+from tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, at_least, positive, scenario_from_arguments
 from tools.runlog import history_from_log, read_log
 from tools.supervisor import Supervisor, Terminated, terminate_as_exception
 from world import engine
@@ -46,8 +46,8 @@ def register(commands: argparse._SubParsersAction) -> None:
                            "most control.max_steps)")
     parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
     parser.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
-    parser.add_argument("--log", type=Path, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
-    parser.add_argument("--json", type=output_path((".json",)), metavar="PATH", help="also write the summary JSON here")
+    parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
+    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
     parser.add_argument("--robots-per-process", type=at_least(1), default=1, metavar="K",
                         help="host K robots per process, each still its own Zenoh participant (large teams)")

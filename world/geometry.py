@@ -252,7 +252,8 @@ class ConvexRegion:
         """
         d_max = v_max * dt
         if d_max >= self.perimeter:
-            raise RegionError(f"v_max * dt = {d_max} m is at least the perimeter {self.perimeter:.6g} m")
+            raise RegionError(f"control.v_max * control.dt = {d_max:.6g} m is at least the perimeter "
+                              f"{self.perimeter:.6g} m; lower v_max or dt")
         centre = np.asarray(centre, dtype=float)
         starts = np.concatenate(
             [

@@ -63,6 +63,7 @@ from world.schema import COORDINATE_LIMIT, Coordinate, Finite, NonNegative, Poin
 from world.target import Stationary, TargetSpec
 
 MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
+START_DRAWS = 100  # random starts drawn before spreading one out (large teams)
 TARGET_MARGIN = 1e-6  # fraction of D_out a target path must stay inside the region
 
 
@@ -198,14 +199,19 @@ class Scenario:
 
     def start_angles(self, seed: int) -> FloatArray:
         """Initial angles (radians about the target, CCW ring order): the scenario's explicit
-        ``team.angles_deg`` or ``robots`` distinct uniform draws from ``numpy.random.default_rng(seed)``."""
+        ``team.angles_deg`` or ``robots`` sorted uniform draws from ``numpy.random.default_rng(seed)``,
+        redrawn while two lie within ``MIN_START_GAP``. A team so large that draws keep colliding
+        (thousands of robots) gets its last draw spread out: every gap grown by ``2 MIN_START_GAP``
+        and the ring shrunk to fit."""
         if self.spec.team.angles_deg is not None:
             return np.deg2rad(np.asarray(self.spec.team.angles_deg, dtype=float))
         rng = np.random.default_rng(seed)
-        while True:
+        for _ in range(START_DRAWS):
             angles = np.sort(rng.uniform(0.0, 2.0 * np.pi, self.robots))
             if ring_gaps(angles).min() > MIN_START_GAP:
                 return angles
+        spare = 2.0 * np.pi - 2.0 * self.robots * MIN_START_GAP
+        return angles[0] + (angles - angles[0]) * spare / (2.0 * np.pi) + 2.0 * MIN_START_GAP * np.arange(self.robots)
 
     def start_positions(self, seed: int) -> FloatArray:
         """Initial boundary points (metres, shape ``(robots, 2)``) for ``seed``."""
@@ -349,7 +355,10 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
     control = spec.control
     omega_deg = control.omega_max_deg
     if omega_deg is None and control.v_max is not None:
-        omega = region.omega_max(control.v_max, control.dt, target)
+        try:
+            omega = region.omega_max(control.v_max, control.dt, target)
+        except RegionError as error:
+            raise ScenarioError(f"{label}: {error}") from None
     else:
         omega = math.radians(omega_deg if omega_deg is not None else DEFAULT_OMEGA_MAX_DEG)
     threshold_deg = control.threshold_deg if control.threshold_deg is not None else 0.1 * team.robots

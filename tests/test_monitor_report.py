@@ -1,0 +1,93 @@
+"""The monitor's verdict and end-of-run report (tools/monitor.py MonitorReport, tools/views.py
+print_report), and the records it hands the dashboard (tools/monitor.py Recorder)."""
+
+from __future__ import annotations
+
+import re
+
+from rich.console import Console
+
+from bus.keys import Route
+from bus.messages import SCHEMA, FaultNotice
+from bus.participant import Delivery
+from tools.dashboard import TeamModel
+from tools.monitor import MonitorReport, Recorder
+from tools.views import print_report
+from world.scenario import load_scenario
+
+# What three robots of a ring sent: requests and replies on four links, world and estimation traffic.
+SENT = {
+    "r0": [("request", "r0", "r1", 3, 60), ("reply", "r0", "r1", 2, 90), ("command", "r0", "world", 10, 500),
+           ("range", "r0", "fusion", 10, 300), ("stats", "r0", "monitor", 1, 200)],
+    "r1": [("request", "r1", "r0", 2, 40), ("reply", "r1", "r0", 3, 135), ("request", "r1", "r2", 1, 20)],
+    "r2": [("reply", "r2", "r1", 1, 45)],
+    "world": [("measurement", "world", "r0", 10, 480), ("tick", "world", "all", 10, 900)],
+}
+
+
+def seen_rows(changes: dict[tuple[str, str, str], tuple[int, int]] | None = None) -> list[tuple]:
+    """What the monitor saw: every row the senders counted, with the (messages, bytes) of the
+    (kind, source, destination) links in ``changes`` replaced or added."""
+    links = {(kind, source, destination): (messages, size)
+             for rows in SENT.values() for kind, source, destination, messages, size in rows}
+    links.update(changes or {})
+    return [(*link, *counts) for link, counts in sorted(links.items())]
+
+
+def report(received: list[tuple]) -> MonitorReport:
+    return MonitorReport(received=received, senders=SENT, rejected={}, rss_kib={}, end=None, late=0)
+
+
+def test_consistent_compares_every_link_not_the_totals() -> None:
+    assert report(seen_rows()).consistent()
+    # The stats the senders send last are monitoring traffic: not compared.
+    assert report(seen_rows({("stats", "r0", "monitor"): (2, 400), ("fault", "r1", "monitor"): (1, 50)})).consistent()
+    # One request counted on the wrong link: every category total still equal, the verdict not.
+    moved = seen_rows({("request", "r0", "r1"): (2, 40), ("request", "r0", "r2"): (1, 20)})
+    assert report(moved).monitor_totals() == report(seen_rows()).monitor_totals()
+    assert not report(moved).consistent()
+    # The same for a world message on the wrong link, an estimation message of the wrong kind, and bytes.
+    for changes in ({("measurement", "world", "r0"): (9, 432), ("measurement", "world", "r1"): (1, 48)},
+                    {("range", "r0", "fusion"): (9, 270), ("estimate", "r0", "fusion"): (1, 30)},
+                    {("reply", "r2", "r1"): (1, 44), ("reply", "r1", "r0"): (3, 136)}):
+        assert report(seen_rows(changes)).monitor_totals() == report(seen_rows()).monitor_totals()
+        assert not report(seen_rows(changes)).consistent(), changes
+
+
+def printed(monitor_report: MonitorReport) -> str:
+    console = Console(record=True, width=140, force_terminal=False, color_system=None)
+    print_report(console, monitor_report)
+    return console.export_text()
+
+
+def test_report_lists_estimation_traffic_and_every_robot_link() -> None:
+    text = printed(report(seen_rows()))
+    assert re.search(r"│\s+estimation │\s+10 │\s+300 │\s+10 │\s+300 │\s+30\.0 │", text), text
+    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+) │\s+(\d+) │\s+(\d+) │\s+(\d+) │", text)
+    assert links == [("r0 > r1", "5", "150", "5", "150"), ("r1 > r0", "5", "175", "5", "175"),
+                     ("r1 > r2", "1", "20", "1", "20"), ("r2 > r1", "1", "45", "1", "45")]
+    assert "monitor vs senders: equal on every link" in text
+
+    text = printed(report(seen_rows({("request", "r0", "r1"): (2, 40), ("request", "r0", "r2"): (1, 20)})))
+    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+) │\s+(\d+) │\s+(\d+) │\s+(\d+) │", text)
+    assert links[:2] == [("r0 > r1", "4", "130", "5", "150"), ("r0 > r2", "1", "20", "0", "0")]
+    assert "monitor vs senders: DIFFERENT" in text
+
+
+class Written(list):
+    """A stand-in for the log writer: keeps the records."""
+
+    def write(self, record: dict) -> None:
+        self.append(record)
+
+
+def test_the_recorder_hands_fault_events_to_the_dashboard() -> None:
+    scenario = load_scenario("paper-stationary", robots=4)
+    model, written = TeamModel(scenario, "lockstep"), Written()
+    recorder = Recorder(written, scenario, model.add)  # type: ignore[arg-type]
+    notice = FaultNotice(SCHEMA, 1, step=3, subject="request", sender=1, receiver=2, what="dropped", reason="range",
+                         delay_s=0.0)
+    recorder.on_delivery(Delivery(notice, Route("monitor", "r1", "fault"), 40))
+    assert written == [{"type": "event", "event": "dropped", "step": 3, "subject": "request", "sender": 1,
+                        "receiver": 2, "reason": "range", "delay_s": None}]
+    assert model.link_state(1, 2) == model.link_state(2, 1) == "range" and model.link_state(0, 1) == "ok"
