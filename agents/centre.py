@@ -7,9 +7,9 @@ the :class:`~bus.messages.Estimate`. Its traffic counts as estimation, not robot
 
 The centre expects the robots that are alive, as the world does: the team starts whole, a robot
 whose process goes away (its liveliness token is withdrawn) is no longer waited for, so a step it
-left pending is estimated from the reports of the others, and a robot that declares itself ready
-again is expected from the next step on. With nobody leaving, every step waits for the whole team,
-so a lockstep run equals the engine.
+left pending is estimated from the reports of the others, and a robot that comes back is expected
+from the step the world brings it back at, which every report of that step names (``live``). With
+nobody leaving, every step waits for the whole team, so a lockstep run equals the engine.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from bus.config import BusConfig
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import SCHEMA, End, Estimate, RangeReport
 from bus.participant import Delivery, Interrupt, Presence
-from bus.runtime import Roster, gather_until, joined, linger, next_events
+from bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
 from world.scenario import Scenario
 
 
@@ -41,6 +41,8 @@ class FusionCentre:
         """Take a robot's report; returns the estimates of the steps it completes (at most one)."""
         if report.step <= self.last_step:
             return []  # a step already estimated
+        for robot in report.live or ():  # the world brought robots back at this step
+            self.expected.setdefault(robot, report.step)
         self.reports.setdefault(report.step, {})[report.robot] = report
         return self._complete_steps()
 
@@ -49,12 +51,6 @@ class FusionCentre:
         that are now complete, oldest first."""
         self.expected.pop(robot, None)
         return self._complete_steps()
-
-    def on_return(self, robot: int) -> None:
-        """Robot ``robot`` is ready again: expect it from the step after the newest one reported so
-        far (the world measured that step without it)."""
-        if 0 <= robot < self.scenario.robots and robot not in self.expected:
-            self.expected[robot] = max([self.last_step, *self.reports]) + 1
 
     def _complete_steps(self) -> list[Estimate]:
         """Estimate, in order, every pending step that every robot expected for it has reported;
@@ -85,11 +81,10 @@ async def run_fusion(
     """Serve the run's centralized estimate; returns the exit code (0 done, 1 world lost, 130 stopped)."""
     keys = Keys(run)
     centre = FusionCentre(scenario, run)
-    async with joined(bus, keys, FUSION, scenario.robots, exit_with_parent) as participant:
+    async with joined(bus, keys, FUSION, scenario.robots, Interrupts(exit_with_parent)) as participant:
         participant.listen(keys.inbox(FUSION))
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
-        participant.watch("ready")
         participant.announce("alive")
         needed = {WORLD} | {robot_name(i) for i in range(scenario.robots)} | ({MONITOR} if expect_monitor else set())
         roster = Roster()
@@ -123,13 +118,8 @@ async def run_fusion(
 
 
 def _on_presence(centre: FusionCentre, presence: Presence) -> list[Estimate]:
-    """A robot leaves when its ``alive`` token goes and returns when its ``ready`` token comes (the
-    world's rule, :func:`world.process.run_world`)."""
+    """A robot leaves when its ``alive`` token goes (the world's rule, :func:`world.process.run_world`)."""
     robot = robot_index(presence.name)
-    if robot is None:
+    if robot is None or presence.kind != "alive" or presence.up:
         return []
-    if presence.kind == "alive" and not presence.up:
-        return centre.on_leave(robot)
-    if presence.kind == "ready" and presence.up:
-        centre.on_return(robot)
-    return []
+    return centre.on_leave(robot)

@@ -142,9 +142,12 @@ class RobotNode:
             self.centre, self.covariance = self.estimator.centre, self.beliefs[self.step][1]
         outgoing = self._answer_buffered()
         self.awaiting, self.replies = {}, {}
+        if measurement.live is not None:  # the world says who is in the ring from this step on
+            self.set_alive(set(measurement.live))
         if self.mode == "centralized":
             self.waiting_for_estimate = True
-            report = RangeReport(SCHEMA, self.run, self.step, self.robot, measurement.position, measurement.range)
+            report = RangeReport(SCHEMA, self.run, self.step, self.robot, measurement.position, measurement.range,
+                                 measurement.live)
             return [*outgoing, (FUSION, report)]
         return [*outgoing, *self._decide()]
 

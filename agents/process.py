@@ -47,10 +47,9 @@ async def run_robot(
     scenario: Scenario,
     run: int,
     bus: BusConfig,
+    interrupts: Interrupts,
     expect_monitor: bool = False,
-    exit_with_parent: bool = False,
     reply_timeout: float | None = None,
-    interrupts: Interrupts | None = None,
 ) -> int:
     """Run robot ``robot`` until the run ends; returns the exit code (0 done, 1 world lost, 130 stopped).
 
@@ -59,7 +58,7 @@ async def run_robot(
     """
     node = RobotNode(robot, scenario, run)
     keys = Keys(run)
-    async with joined(bus, keys, node.name, scenario.robots, exit_with_parent, interrupts) as participant:
+    async with joined(bus, keys, node.name, scenario.robots, interrupts) as participant:
         participant.listen(keys.inbox(node.name))
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
@@ -95,7 +94,7 @@ async def run_robots(
     own counts), sharing one event loop; returns the worst exit code."""
     interrupts = Interrupts(exit_with_parent)
     codes = await asyncio.gather(*(
-        run_robot(robot, scenario, run, bus, expect_monitor, exit_with_parent, reply_timeout, interrupts)
+        run_robot(robot, scenario, run, bus, interrupts, expect_monitor, reply_timeout)
         for robot in robots
     ))
     return max(codes)
@@ -170,11 +169,10 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
             elif isinstance(event, Presence):
                 roster.update(event)
                 robot = robot_index(event.name)
-                if event.kind == "alive" and robot is not None and robot != node.robot:
-                    # The team starts whole; robots leave (crash) and come back (restart) from there.
-                    alive = node.alive | {robot} if event.up else node.alive - {robot}
-                    if alive != node.alive:
-                        link.send(node.set_alive(alive))
+                if event.kind == "alive" and not event.up and robot in node.alive - {node.robot}:
+                    # The team starts whole; a robot that leaves (crash) is dropped at once. One that
+                    # comes back (restart) is announced by the world with the step it rejoins at.
+                    link.send(node.set_alive(node.alive - {robot}))
         if roster.gone_for_good(WORLD):
             return 1  # the world went away without ending the run
         events = await next_events(link.participant, roster)

@@ -39,7 +39,9 @@ class Message(msgspec.Struct, array_like=True, frozen=True, tag=True):
 
 class Measurement(Message, tag=1):
     """World -> robot: the robot's exact position and a noisy range to the target (None: beyond
-    r_s), and with a limited communication range the live robots it can reach this step."""
+    r_s), with a limited communication range the live robots it can reach this step, and ``live``,
+    the robots in the ring from this step on, when that changed (a robot came back) or is news to
+    this robot (its first step after a restart); None otherwise."""
 
     step: Step
     time: NonNegativeReal
@@ -47,6 +49,7 @@ class Measurement(Message, tag=1):
     position: Point
     range: NonNegativeReal | None
     in_range: list[int] | None = None
+    live: list[int] | None = None
     kind: ClassVar[str] = "measurement"
     category: ClassVar[str] = "world"
 
@@ -157,12 +160,14 @@ class FaultNotice(Message, tag=10):
 
 class RangeReport(Message, tag=8):
     """Robot -> fusion centre (centralized estimation): its position and measured range (None:
-    beyond the sensing range) at the start of ``step``."""
+    beyond the sensing range) at the start of ``step``, and the ring from this step on when the
+    world announced a change (:attr:`Measurement.live`)."""
 
     step: Step
     robot: int
     position: Point
     range: NonNegativeReal | None
+    live: list[int] | None = None
     kind: ClassVar[str] = "range"
     category: ClassVar[str] = "estimation"
 
@@ -237,9 +242,11 @@ def robot_ids(message: Message) -> list[int]:
     if isinstance(message, (Request, Reply, FaultNotice)):
         return [message.sender, message.receiver]
     if isinstance(message, Measurement):
-        return [message.robot, *(message.in_range or ())]
-    if isinstance(message, (Command, RangeReport)):
+        return [message.robot, *(message.in_range or ()), *(message.live or ())]
+    if isinstance(message, Command):
         return [message.robot]
+    if isinstance(message, RangeReport):
+        return [message.robot, *(message.live or ())]
     if isinstance(message, Tick):
         return list(message.live)
     return []

@@ -1,9 +1,9 @@
 """Running one participant in an asyncio process: session lifecycle, signals, presence.
 
-``joined`` opens the session, installs SIGINT/SIGTERM handlers that post an :class:`Interrupt` to
-the participant's inbox (and, with ``exit_with_parent``, posts one when standard input reaches end
-of file because the parent died), and always undeclares and closes on the way out, so a process
-never hangs on exit.
+``joined`` opens the session and always undeclares and closes it on the way out, so a process
+never hangs on exit; its :class:`Interrupts` post an :class:`Interrupt` to the participant's inbox
+on SIGINT or SIGTERM (and, with ``exit_with_parent``, when standard input reaches end of file
+because the parent died). One process may host several participants sharing one ``Interrupts``.
 """
 
 from __future__ import annotations
@@ -72,13 +72,11 @@ class Interrupts:
 
 @contextlib.asynccontextmanager
 async def joined(
-    config: BusConfig, keys: Keys, name: str, robots: int, exit_with_parent: bool = False,
-    interrupts: Interrupts | None = None,
+    config: BusConfig, keys: Keys, name: str, robots: int, interrupts: Interrupts
 ) -> AsyncIterator[Participant]:
     """Open a session and yield the :class:`Participant` ``name`` of run ``keys.run``; signals reach
-    it through ``interrupts`` (shared by the participants of one process; by default its own)."""
+    it through ``interrupts``, shared by the participants of one process."""
     loop = asyncio.get_running_loop()
-    interrupts = interrupts or Interrupts(exit_with_parent)
     session = open_session(config)
     participant = Participant(session, keys, name, robots, loop)
     interrupts.add(participant)

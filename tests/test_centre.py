@@ -9,6 +9,7 @@ import signal
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -87,22 +88,18 @@ def test_a_leave_completes_every_pending_step_in_order():
     assert beliefs_of(estimates) == expected_estimates(steps)
 
 
-def test_a_robot_that_returns_is_expected_from_the_next_step():
+def test_a_robot_that_returns_is_expected_from_the_step_the_world_brings_it_back():
     centre = FusionCentre(SCENARIO, RUN)
     centre.on_leave(3)
-    first = reports(1, [0, 1])
-    for report in first:
-        centre.on_report(report)
-    centre.on_return(3)  # during step 1, which the world measured without it
-    centre.on_return(99)  # not a member of the team: ignored
-    rest = reports(1, [2, 4, 5])
-    estimates = [estimate for report in rest for estimate in centre.on_report(report)]
+    first = reports(1, [0, 1, 2, 4, 5])  # step 1, measured without robot 3
+    estimates = [estimate for report in first for estimate in centre.on_report(report)]
     assert [estimate.step for estimate in estimates] == [1]
-    second = reports(2, [0, 1, 2, 4, 5])
-    assert all(centre.on_report(report) == [] for report in second)  # step 2 waits for robot 3 again
-    back = centre.on_report(reports(2, [3])[0])
+    # the world brings robot 3 back at step 2: every report of step 2 says so
+    second = [msgspec.structs.replace(report, live=[0, 1, 2, 3, 4, 5]) for report in reports(2, [0, 1, 2, 4, 5])]
+    assert all(centre.on_report(report) == [] for report in second)  # step 2 waits for robot 3
+    back = centre.on_report(msgspec.structs.replace(reports(2, [3])[0], live=[0, 1, 2, 3, 4, 5]))
     assert [estimate.step for estimate in back] == [2]
-    assert beliefs_of(estimates + back) == expected_estimates([first + rest, second + reports(2, [3])])
+    assert beliefs_of(estimates + back) == expected_estimates([first, second + reports(2, [3])])
 
 
 def test_a_newer_complete_step_gives_up_an_older_incomplete_one():

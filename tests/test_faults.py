@@ -183,10 +183,12 @@ max_steps = 100000
 """
 
 
-def test_killed_robot_is_detected_the_ring_reforms_and_a_restart_rejoins(tmp_path: Path) -> None:
+@pytest.mark.parametrize("clock", [["--clock", "realtime", "--rate", "5"], ["--clock", "lockstep"]],
+                         ids=["realtime", "lockstep"])
+def test_killed_robot_is_detected_the_ring_reforms_and_a_restart_rejoins(tmp_path: Path, clock: list[str]) -> None:
     (tmp_path / "fast.toml").write_text(FAST_RING)
     runs = tmp_path / "runs"
-    process = start_spawn(runs, str(tmp_path / "fast.toml"), "--clock", "realtime", "--rate", "5", "--steps", "100000")
+    process = start_spawn(runs, str(tmp_path / "fast.toml"), *clock, "--steps", "100000")
     restarted = None
     try:
         folder = wait_for_steps(runs, 50)

@@ -22,7 +22,7 @@ from bus.config import BusConfig, announce_endpoints
 from bus.keys import Keys, robot_name
 from bus.messages import SCHEMA, Reply, Request
 from bus.participant import Delivery, Interrupt, Participant
-from bus.runtime import Roster, gather_until, joined, linger
+from bus.runtime import Interrupts, Roster, gather_until, joined, linger
 
 PINGER, ECHO = 0, 1
 ROBOTS = 2
@@ -31,7 +31,7 @@ ROBOTS = 2
 async def ping(bus: BusConfig, run: int, rounds: int, warmup: int, result: Path) -> int:
     """Poll r1 ``warmup + rounds`` times, one request at a time; write the timed round trips (s)."""
     keys = Keys(run)
-    async with joined(bus, keys, robot_name(PINGER), ROBOTS, exit_with_parent=True) as participant:
+    async with joined(bus, keys, robot_name(PINGER), ROBOTS, Interrupts(exit_with_parent=True)) as participant:
         participant.listen(keys.inbox(robot_name(PINGER)))
         participant.watch("alive")
         participant.announce("alive")
@@ -70,7 +70,7 @@ async def echo(bus: BusConfig, run: int, rounds: int, warmup: int, result: Path)
     """Answer r0's requests with a reply; write the CPU seconds spent on the timed rounds. Announces
     its endpoints in ``result.endpoints.json`` first (it listens on a free port)."""
     keys = Keys(run)
-    async with joined(bus, keys, robot_name(ECHO), ROBOTS, exit_with_parent=True) as participant:
+    async with joined(bus, keys, robot_name(ECHO), ROBOTS, Interrupts(exit_with_parent=True)) as participant:
         participant.listen(keys.inbox(robot_name(ECHO)))
         participant.announce("alive")
         announce_endpoints(participant.session, endpoints_path(result))

@@ -33,7 +33,7 @@ from bus.messages import (
     Traffic,
 )
 from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Roster, gather_until, joined
+from bus.runtime import Interrupts, Roster, gather_until, joined
 from tools.dashboard import TeamModel
 from tools.runlog import LogWriter, step_record
 from world.scenario import Scenario
@@ -235,7 +235,7 @@ async def run_monitor(
     the report (None when stopped before the start)."""
     keys = Keys(run)
     robots = scenario.robots
-    async with joined(bus, keys, MONITOR, robots, exit_with_parent) as participant:
+    async with joined(bus, keys, MONITOR, robots, Interrupts(exit_with_parent)) as participant:
         participant.collect(keys.everything)
         participant.watch("alive")
         participant.announce("alive")

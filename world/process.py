@@ -26,7 +26,7 @@ from bus.config import BusConfig, announce_endpoints
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from bus.messages import SCHEMA, Command, End
 from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Roster, gather_until, joined, linger
+from bus.runtime import Interrupts, Roster, gather_until, joined, linger
 from world.scenario import Scenario
 from world.state import WorldState
 
@@ -58,7 +58,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                     exit_with_parent: bool = False) -> int:
     """Serve one run; returns the process exit code (0 done, 1 failed, 130 interrupted)."""
     keys = Keys(run)
-    async with joined(bus, keys, WORLD, scenario.robots, exit_with_parent) as participant:
+    async with joined(bus, keys, WORLD, scenario.robots, Interrupts(exit_with_parent)) as participant:
         participant.listen(keys.inbox(WORLD))
         participant.watch("alive")
         participant.watch("ready")
@@ -121,12 +121,12 @@ def _handle(event: object, world: WorldState, roster: Roster, participant: Parti
         robot = robot_index(event.name)
         if robot is None:
             return
-        if event.kind == "alive" and not event.up and robot in world.live:
-            world.live.discard(robot)
+        if event.kind == "alive" and not event.up and robot in world.live | world.rejoining:
+            world.leave(robot)
             log.warning("robot %s left at step %d; %d robots go on", event.name, world.step, len(world.live))
-        elif event.kind == "ready" and event.up and robot not in world.live:
+        elif event.kind == "ready" and event.up and robot not in world.live | world.rejoining:
             world.rejoin(robot)
-            log.info("robot %s rejoined at step %d, placed between its ring neighbours", event.name, world.step)
+            log.info("robot %s rejoins at step %d, placed between its ring neighbours", event.name, world.step + 1)
 
 
 async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:

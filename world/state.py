@@ -31,6 +31,8 @@ class WorldState:
         self.sensor = RangeSensor(sensing.range_sigma, sensing.range, seed)
         self.ranges: FloatArray = self.sensor.measure(self.positions, self.target)
         self.live: set[int] = set(range(scenario.robots))
+        self.rejoining: set[int] = set()  # back from the next step on
+        self.returned: set[int] = set()  # came back at the start of this step: everyone hears of it
         self.goals: FloatArray = self.positions.copy()
         self.offsets: FloatArray = np.zeros(scenario.robots)  # gV - theta each robot reported, rad
         self.commanded: set[int] = set()
@@ -51,12 +53,23 @@ class WorldState:
         return Measurement(
             SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
             None if np.isnan(measured) else float(measured), self.in_range(robot),
+            sorted(self.live) if self.returned else None,
         )
 
     def rejoin(self, robot: int) -> None:
-        """Bring a restarted robot back into the ring, placed midway along the boundary between its
-        live ring neighbours (as an operator would put it back): where it stopped may no longer lie
-        between them, since they re-spread while it was gone, and the ring is ordered by id."""
+        """Bring a restarted robot back into the ring from the next step on (it has no measurement
+        of the current one, so a lockstep world must not wait for its command)."""
+        self.rejoining.add(robot)
+
+    def leave(self, robot: int) -> None:
+        """A robot's process went away: it stays where it is, out of the ring."""
+        self.live.discard(robot)
+        self.rejoining.discard(robot)
+
+    def _place(self, robot: int) -> None:
+        """Put a rejoining robot midway along the boundary between its live ring neighbours (as an
+        operator would put it back): where it stopped may no longer lie between them, since they
+        re-spread while it was gone, and the ring is ordered by id."""
         predecessor, successor = ring_neighbours(robot, self.live | {robot})
         if predecessor != successor:
             region = self.scenario.region
@@ -110,9 +123,12 @@ class WorldState:
         return bool(cerr < np.rad2deg(self.scenario.threshold))
 
     def advance(self) -> None:
-        """Move every robot towards its latest goal along the boundary (capped by v_max) and start
-        the next step."""
+        """Move every robot towards its latest goal along the boundary (capped by v_max), bring back
+        the robots that rejoined, and start the next step."""
         self.positions = self.scenario.region.move_along(self.positions, self.goals, self.max_move)
+        for robot in sorted(self.rejoining):
+            self._place(robot)
+        self.returned, self.rejoining = self.rejoining & self.live, set()
         self.commanded.clear()
         self.step += 1
         self.target = self.path[min(self.step, len(self.path)) - 1]
