@@ -75,12 +75,15 @@ def test_monitor_totals_equal_senders_and_log(tmp_path: Path) -> None:
 def test_two_runs_at_once_do_not_interfere(tmp_path: Path) -> None:
     runs = {"a": scenario(seed=1, robots=5, max_steps=200), "b": scenario(strategy="constant", seed=2, max_steps=200)}
     outcomes: dict[str, object] = {}
+    spans: dict[str, tuple[float, float]] = {}
 
     def run(name: str) -> None:
+        started = time.monotonic()
         try:
             outcomes[name] = lockstep_run(runs[name], tmp_path / name)
         except BaseException as error:  # reported below
             outcomes[name] = error
+        spans[name] = (started, time.monotonic())
 
     threads = [threading.Thread(target=run, args=(name,)) for name in runs]
     for thread in threads:
@@ -95,6 +98,9 @@ def test_two_runs_at_once_do_not_interfere(tmp_path: Path) -> None:
         assert result["monitor_equals_senders"] is True
         assert result["robots"] == runs[name].robots
     assert outcomes["a"][0]["run"] != outcomes["b"][0]["run"]
+    (a_start, a_end), (b_start, b_end) = spans["a"], spans["b"]
+    overlap = min(a_end, b_end) - max(a_start, b_start)
+    assert overlap > 0.5 * min(a_end - a_start, b_end - b_start)  # the two teams really ran at once
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
@@ -248,3 +254,15 @@ def test_limited_sensing_range_equals_the_engine(tmp_path: Path, estimation: str
     if prior == "trilateration":
         assert (~out_of_range[0]).sum() < 3  # no fix at step 1
         assert np.nanmean(logged.terr[100:, 0]) < 0.5  # ... yet the centre finds and tracks the target
+
+
+def test_the_world_caps_boundary_speed_at_v_max_like_the_engine(tmp_path: Path) -> None:
+    from world import engine
+
+    capped = scenario(v_max=0.05, max_steps=200)  # omega_max stays 1 deg/s; the world caps the motion
+    _, log = lockstep_run(capped, tmp_path)
+    logged = assert_equals_engine(log)
+    uncapped = engine.run(scenario(max_steps=200), record_positions=False)
+    assert np.abs(logged.angles - uncapped.angles).max() > 0.1  # the cap did hold robots back
+    moved = np.linalg.norm(np.diff(np.array([record["positions"] for record in log.steps]), axis=0), axis=-1)
+    assert moved.max() <= 0.05 * capped.control.dt * (1 + 1e-9)  # never faster than v_max (chord <= arc)

@@ -246,18 +246,27 @@ def region_map(model: TeamModel, width: int, height: int) -> Text:
 
 
 WIDE = 100  # console columns from which the side-by-side layout fits
-# Robot columns by the console columns they need at least, when every cell is as wide as a long run
-# of a large team makes it ("r63 *", "outage|outage", "99999/9999999", "T1+T2+T3+unk @12345").
+# Robot columns, widest set first: a console takes the first whose table fits its width.
 ROBOT_COLUMNS = (
-    (120, ("robot", "links", "angle", "gV", "ubd", "ages", "polls", "sent", "recv", "last trigger")),
-    (WIDE, ("robot", "links", "angle", "ubd", "polls", "sent", "recv", "last trigger")),
-    (0, ("robot", "links", "angle", "ubd", "polls", "sent")),
+    ("robot", "links", "angle", "gV", "ubd", "ages", "polls", "sent", "recv", "last trigger"),
+    ("robot", "links", "angle", "ubd", "polls", "sent", "recv", "last trigger"),
+    ("robot", "links", "angle", "ubd", "polls", "sent"),
 )
 
 
 def robots_table(model: TeamModel, width: int) -> Table:
-    """A row per robot; narrow consoles get the essential columns only."""
-    columns = next(columns for least, columns in ROBOT_COLUMNS if width >= least)
+    """A row per robot with the widest set of :data:`ROBOT_COLUMNS` whose table fits ``width``
+    console columns unsqueezed (narrow consoles get the essential ones)."""
+    rows = [robot_cells(model, index) for index in range(min(len(model.robots), ROBOT_ROWS))]
+    measuring = Console(width=10_000)  # measure unclamped: a console clamps to its own width
+    for columns in ROBOT_COLUMNS:
+        table = _robots_table(model, rows, columns)
+        if measuring.measure(table).maximum <= width:
+            break
+    return table
+
+
+def _robots_table(model: TeamModel, rows: list[dict[str, str | Text]], columns: tuple[str, ...]) -> Table:
     hidden = len(model.robots) - ROBOT_ROWS
     caption = (f"angles about each robot's own centre · links to predecessor|successor: ok or the latest fault of "
                f"the past {LINK_MEMORY_STEPS} steps · sent/recv: robot-to-robot messages/bytes · triggers: T1 ubd, "
@@ -270,22 +279,26 @@ def robots_table(model: TeamModel, width: int) -> Table:
         table.add_column(column, justify="right", no_wrap=True,
                          max_width=REASON_WIDTH + 2 if column == "last trigger" else None,  # + its padding
                          overflow="ellipsis")
-    for index, status in enumerate(model.robots[:ROBOT_ROWS]):
-        cells = {
-            "robot": f"r{index} {robot_label(index)}",
-            "links": links_text(model, index),
-            "angle": _degrees(status.angle),
-            "gV": _degrees(status.midpoint),
-            "ubd": _degrees(status.ubd, 3),
-            "ages": f"{status.ages[0]},{status.ages[1]}" if status.ages else "-",
-            "polls": str(status.polls),
-            "sent": f"{status.sent[0]}/{model.size_text(status.sent[1])}",
-            "recv": f"{status.received[0]}/{model.size_text(status.received[1])}",
-            "last trigger": f"{reason_text(status.last_reason)} @{status.last_reason_step}"
-            if status.last_reason else "-",
-        }
+    for cells in rows:
         table.add_row(*(cells[column] for column in columns))
     return table
+
+
+def robot_cells(model: TeamModel, index: int) -> dict[str, str | Text]:
+    """Every robot column's cell for robot ``index``."""
+    status = model.robots[index]
+    return {
+        "robot": f"r{index} {robot_label(index)}",
+        "links": links_text(model, index),
+        "angle": _degrees(status.angle),
+        "gV": _degrees(status.midpoint),
+        "ubd": _degrees(status.ubd, 3),
+        "ages": f"{status.ages[0]},{status.ages[1]}" if status.ages else "-",
+        "polls": str(status.polls),
+        "sent": f"{status.sent[0]}/{model.size_text(status.sent[1])}",
+        "recv": f"{status.received[0]}/{model.size_text(status.received[1])}",
+        "last trigger": f"{reason_text(status.last_reason)} @{status.last_reason_step}" if status.last_reason else "-",
+    }
 
 
 def links_text(model: TeamModel, robot: int) -> Text:
