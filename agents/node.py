@@ -51,8 +51,9 @@ Belief = tuple[Point, Covariance]
 
 KEPT_STEPS = 16  # own step-start positions (and beliefs) remembered to answer late requests
 # Requests for a step this robot has not reached are kept until it does, if that step is at most
-# KEPT_STEPS ahead and at most BUFFERED_LIMIT are waiting; others are ignored (a flood of forged
-# far-future requests cannot grow the robot's memory).
+# KEPT_STEPS ahead (any step before the robot's first measurement: one that joins a running team
+# cannot know the step yet) and at most BUFFERED_LIMIT are waiting; others are ignored (a flood of
+# forged far-future requests cannot grow the robot's memory).
 BUFFERED_LIMIT = 4 * KEPT_STEPS
 
 
@@ -170,7 +171,8 @@ class RobotNode:
 
     def on_request(self, request: Request) -> Outgoing:
         if request.step > self.step:  # our measurement of that step has not arrived yet
-            if request.step <= self.step + KEPT_STEPS and len(self.buffered) < BUFFERED_LIMIT:
+            near = self.step == 0 or request.step <= self.step + KEPT_STEPS
+            if near and len(self.buffered) < BUFFERED_LIMIT:
                 self.buffered.append(request)
             else:
                 self.ignored_requests += 1

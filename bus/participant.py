@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import resource
+from pathlib import Path
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -55,6 +56,17 @@ class Interrupt:
 
 
 Event = Delivery | Presence | Interrupt
+
+
+def peak_rss_kib() -> int:
+    """Peak resident memory (KiB) of this process since it started its program: ``VmHWM``. (The
+    ``ru_maxrss`` of ``getrusage`` also counts the parent's memory before ``exec``, so a robot
+    started by a large process would report that process's size.)"""
+    try:
+        status = Path("/proc/self/status").read_text()
+        return int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:")))
+    except (OSError, StopIteration, ValueError):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
 def _direct(callback: Callable[[zenoh.Sample], None]) -> zenoh.handlers.Callback:
@@ -190,7 +202,7 @@ class Participant:
             sent=self.counter.sent_table(),
             received=self.counter.received_table(),
             rejected=self.counter.rejected_table(),
-            rss_kib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+            rss_kib=peak_rss_kib(),
             faults=faults or {},
             notes=notes or {},
         )

@@ -120,6 +120,7 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
     assert code == 130
     # The supervisor signals, then kills what is left after 1.5 s: the team is gone within 2 s.
     assert team_gone_in < 2.0, f"the team took {team_gone_in:.2f} s to stop"
+    print(f"{stop.name}: every process of the team gone {team_gone_in:.2f} s after the signal")
     assert processes_mentioning(str(folder)) == []
     log = read_log(folder / "log.jsonl")
     steps = [record["step"] for record in log.steps]

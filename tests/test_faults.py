@@ -198,13 +198,17 @@ def test_killed_robot_is_detected_the_ring_reforms_and_a_restart_rejoins(tmp_pat
         killed_at = time.time()
         os.kill(victim[0], signal.SIGKILL)
         gaps = _wait_for_spacing(folder, 5)
+        five_at = time.time()
         left = [event for event in read_log(folder / "log.jsonl").events if event["event"] == "left"]
         assert [event["robot"] for event in left] == ["r3"]
         assert left[0]["wall"] - killed_at < 1.0  # detected through liveliness in well under a second
         assert np.all(np.abs(gaps - 72.0) < 2.0)
         restarted = subprocess.Popen([*RINGTRACK, "robot", "--join", str(folder), "--id", "3"])
+        restarted_at = time.time()
         gaps = _wait_for_spacing(folder, 6)
         assert np.all(np.abs(gaps - 60.0) < 2.0)
+        print(f"{clock[1]}: r3 seen gone after {1000 * (left[0]['wall'] - killed_at):.0f} ms; five at 72 +- 2 deg "
+              f"after {five_at - killed_at:.1f} s; six at 60 +- 2 deg {time.time() - restarted_at:.1f} s after the restart")
         joined = [event for event in read_log(folder / "log.jsonl").events if event["event"] == "joined"]
         assert any(event["robot"] == "r3" and event["wall"] > killed_at for event in joined)
         process.send_signal(signal.SIGINT)

@@ -109,18 +109,31 @@ def test_a_lost_late_copy_of_an_earlier_answer_does_not_cancel_the_open_poll() -
     assert set(node.awaiting) == {1, 3}  # still waiting for robot 1's answer of step 2
 
 
+def test_a_robot_joining_a_running_team_keeps_a_request_for_its_first_step() -> None:
+    node, world = make_node()
+    for _ in range(499):  # the team is at step 500 when this robot (re)starts
+        world.advance()
+    early = Request(SCHEMA, RUN, 500, 1, 2, 77)  # its neighbour's poll overtakes its first measurement
+    assert node.handle(early) == []
+    out = node.handle(world.measurement(2))
+    replies = [message for _, message in out if isinstance(message, Reply)]
+    assert [(reply.step, reply.nonce) for reply in replies] == [(500, 77)]
+
+
 def test_a_flood_of_far_future_requests_cannot_grow_the_robots_memory() -> None:
     from agents.node import BUFFERED_LIMIT, KEPT_STEPS
 
     node, world = make_node()
-    far = [Request(SCHEMA, RUN, KEPT_STEPS + 1 + k, 1, 2, k) for k in range(1000)]
-    near = [Request(SCHEMA, RUN, 1 + k % KEPT_STEPS, 3, 2, k) for k in range(1000)]
+    node.handle(world.measurement(2))  # at step 1: it knows the step now
+    far = [Request(SCHEMA, RUN, KEPT_STEPS + 2 + k, 1, 2, k) for k in range(1000)]
+    near = [Request(SCHEMA, RUN, 2 + k % KEPT_STEPS, 3, 2, k) for k in range(1000)]
     for request in far + near:
         assert node.handle(request) == []
     assert len(node.buffered) == BUFFERED_LIMIT
     assert node.ignored_requests == len(far) + len(near) - BUFFERED_LIMIT
-    out = node.handle(world.measurement(2))  # step 1: the buffered requests for step 1 are answered
-    assert [message.step for _, message in out if isinstance(message, Reply)] == [1] * (BUFFERED_LIMIT // KEPT_STEPS)
+    world.advance()
+    out = node.handle(world.measurement(2))  # step 2: the buffered requests for step 2 are answered
+    assert [message.step for _, message in out if isinstance(message, Reply)] == [2] * (BUFFERED_LIMIT // KEPT_STEPS)
 
 
 def test_a_reply_describes_the_start_of_the_requested_step() -> None:
