@@ -24,12 +24,9 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    if not args.log.is_file():
-        raise UsageError(f"{args.log}: no such run log; give RUN_FOLDER/log.jsonl")
     log = read_log(args.log)
     if not log.steps:
         raise UsageError(f"{args.log}: the log has no steps to draw")
-    args.output.parent.mkdir(parents=True, exist_ok=True)
     plot_run(log).savefig(args.output, dpi=110)
     out.print(f"wrote {args.output}", highlight=False)
     return 0

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from tools.console import UsageError, out
+from tools.console import out
 from tools.dashboard import Dashboard, TeamModel
 from tools.options import positive
 from tools.runlog import RunLog, read_log
@@ -32,8 +32,6 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    if not args.log.is_file():
-        raise UsageError(f"{args.log}: no such run log; give RUN_FOLDER/log.jsonl")
     log = read_log(args.log)
     model = TeamModel(log.scenario, log.header["clock"], replay_speed=args.speed, live=False)
     model.steps = log.header["steps"]

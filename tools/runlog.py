@@ -279,6 +279,8 @@ def read_log(path: Path) -> RunLog:
     """Read and check a run log, skipping a torn last line (a killed run). A damaged record raises
     :class:`LogError`, a bad scenario :class:`~world.scenario.ScenarioError`, in one line naming
     the line and the problem."""
+    if not path.is_file():
+        raise LogError(f"{path}: no such run log; give RUN_FOLDER/log.jsonl")
     records = _decoded_lines(path)
     first = records[0][1] if records else None
     if not isinstance(first, dict) or first.get("type") != "header":
