@@ -5,19 +5,21 @@ one) are up, declares itself ready, then reacts to every message; between its po
 robot-to-robot message at all. Its robot-to-robot traffic passes through the fault layer
 (:class:`bus.shim.LinkShim`); a reply that will not come (dropped, out of range, its sender gone,
 or, in realtime, later than ``reply_timeout``) never blocks it, nor, in realtime, does a fusion
-centre's estimate later than ``ESTIMATE_SHARE * reply_timeout``. Robots joining or leaving (through
-liveliness) re-form its ring. It ends on the world's End, on a signal, or when the world is gone.
+centre's estimate later than ``ESTIMATE_SHARE * reply_timeout``. A robot that leaves (its
+liveliness token goes) or comes back (the world's measurements say so) re-forms its ring. It ends
+on the world's End, on a signal, or when the world is gone.
 """
 
 from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass
+from typing import Literal
 
 from agents.node import Outgoing, RobotNode
 from bus.config import BusConfig
 from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from bus.messages import End, Measurement, RangeReport, Reply
+from bus.messages import End, Measurement, RangeReport, Reply, Request
 from bus.participant import Delivery, Interrupt, Participant, Presence
 from bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
 from bus.shim import LinkShim
@@ -29,17 +31,12 @@ ESTIMATE_SHARE = 0.5
 
 
 @dataclass(frozen=True)
-class ReplyDeadline:
-    """Realtime: the replies of the poll of ``step`` are due."""
+class Deadline:
+    """Realtime: what the robot waits for in ``step`` is due: the ``replies`` of its poll, or the
+    fusion centre's ``estimate``."""
 
     step: int
-
-
-@dataclass(frozen=True)
-class EstimateDeadline:
-    """Realtime: the fusion centre's estimate of ``step`` is due."""
-
-    step: int
+    what: Literal["replies", "estimate"]
 
 
 async def run_robot(
@@ -115,13 +112,15 @@ class RobotLink:
             destination, message = pending.pop(0)
             if not self.shim.send(destination, message) and robot_index(destination) is not None:
                 pending += self.node.on_lost(robot_index(destination))
-        if self.reply_timeout is not None and self.node.awaiting:
-            loop = asyncio.get_running_loop()
-            loop.call_later(self.reply_timeout, self.participant.inbox.push, ReplyDeadline(self.node.step))
-        if self.reply_timeout is not None and any(isinstance(message, RangeReport) for _, message in outgoing):
-            loop = asyncio.get_running_loop()
+        if self.reply_timeout is None:
+            return  # lockstep: every answer comes, or its loss is known at once
+        sent = {type(message) for _, message in outgoing}
+        loop = asyncio.get_running_loop()
+        if Request in sent and self.node.awaiting:  # this opened a poll
+            loop.call_later(self.reply_timeout, self.participant.inbox.push, Deadline(self.node.step, "replies"))
+        if RangeReport in sent:
             loop.call_later(ESTIMATE_SHARE * self.reply_timeout, self.participant.inbox.push,
-                            EstimateDeadline(self.node.step))
+                            Deadline(self.node.step, "estimate"))
 
     def deliver(self, delivery: Delivery) -> None:
         deliveries, lost = self.shim.receive(delivery)
@@ -130,14 +129,14 @@ class RobotLink:
         for copy in deliveries:
             self.send(self.node.handle(copy.message))
 
-    def deadline(self, event: ReplyDeadline) -> None:
-        if event.step == self.node.step:
+    def deadline(self, event: Deadline) -> None:
+        if event.step != self.node.step:
+            return  # the robot has left that step
+        if event.what == "estimate":
+            self.send(self.node.on_estimate_lost())
+        else:
             for neighbour in list(self.node.awaiting):
                 self.send(self.node.on_lost(neighbour))
-
-    def estimate_deadline(self, event: EstimateDeadline) -> None:
-        if event.step == self.node.step:
-            self.send(self.node.on_estimate_lost())
 
 
 def _newest_measurement_only(events: list) -> list:
@@ -160,10 +159,8 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
                 link.deliver(event)
                 if isinstance(event.message, End):
                     return 0
-            elif isinstance(event, ReplyDeadline):
+            elif isinstance(event, Deadline):
                 link.deadline(event)
-            elif isinstance(event, EstimateDeadline):
-                link.estimate_deadline(event)
             elif isinstance(event, Interrupt):
                 return 130
             elif isinstance(event, Presence):
