@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.estimation import Estimator
-from agents.node import pack_covariance, pack_point
-from bus.config import BusConfig
-from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from bus.messages import SCHEMA, End, Estimate, RangeReport
-from bus.participant import Delivery, Interrupt, Presence
-from bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
-from world.scenario import Scenario
+from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.node import pack_covariance, pack_point
+from ringtrack.bus.config import BusConfig
+from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.messages import SCHEMA, End, Estimate, RangeReport
+from ringtrack.bus.participant import Delivery, Interrupt, Presence
+from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
+from ringtrack.world.scenario import Scenario
 
 
 class FusionCentre:

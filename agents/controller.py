@@ -20,10 +20,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from agents.laws import ControlParams, Trigger, angular_step, trigger_reasons
-from agents.limits import boundary_stretch, clip_to_range, range_limited_step
-from agents.ring import local_frame, midpoint
-from world.geometry import ConvexRegion, FloatArray, angle_of
+from ringtrack.agents.laws import Trigger, angular_step, trigger_reasons
+from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
+from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
+from ringtrack.world.params import ControlParams
+from ringtrack.world.ring import local_frame, midpoint
 
 
 class MidpointController:

@@ -10,16 +10,12 @@ the shape care the spec lists: ``z`` as a column, ``h(x)`` as a column, an expli
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
-
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from agents.fusion import Criterion, covariance_intersection, sequential_intersection
-from world.geometry import ConvexRegion
-
-FloatArray = NDArray[np.float64]
+from ringtrack.agents.fusion import covariance_intersection, sequential_intersection
+from ringtrack.world.geometry import ConvexRegion, FloatArray
+from ringtrack.world.params import EstimationParams
 
 SINGULAR_DISTANCE = 1e-9  # m: a robot this close to the estimate gives no usable bearing (0/0 Jacobian)
 # Robots whose spread across their line is below this fraction of their spread along it are on one
@@ -122,30 +118,8 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
     return estimate, covariance
 
 
+
 # ---------------------------------------------------------------------------- configured estimators
-Mode = Literal["known", "centralized", "decentralized"]
-
-
-@dataclass(frozen=True)
-class EstimationParams:
-    """How the team estimates the target (section ``[estimation]`` of a scenario).
-
-    ``range_sigma`` (m) and ``process_noise`` (m^2 per step) model the filters' R and Q;
-    ``prior`` is "truth" (the target's position at step 1, as the authors), "trilateration"
-    (centralized; see :class:`Estimator`) or a point; ``prior_variance`` (m^2) sets P0 of "truth"
-    and of a point; decentralized robots fuse their neighbours' beliefs with joint CI ("ci") or
-    pairwise ("sequential"), minimising "trace" or "det"; estimates are clamped ``clamp_margin``
-    metres inside the region before steering by them.
-    """
-
-    mode: Mode = "known"
-    range_sigma: float = 0.2
-    process_noise: float = 0.2
-    prior: str | tuple[float, float] = "truth"
-    prior_variance: float = 1.0
-    fusion: Literal["ci", "sequential"] = "ci"
-    criterion: Criterion = "trace"
-    clamp_margin: float = 0.0
 
 
 def prior_belief(

@@ -31,14 +31,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import combinations
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-Criterion = Literal["trace", "det"]
+from ringtrack.world.geometry import FloatArray
+from ringtrack.world.params import Criterion
+
 TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Pure functions of numpy arrays that broadcast over robots and trials: the in-process engine calls
 them for a whole team at once, a robot process for itself. Angles are radians (robot ``i``'s local
-frame, see :mod:`agents.ring`), ``omega_max`` is rad/s, ``dt`` and ages in seconds are
+frame, see :mod:`world.ring`), ``omega_max`` is rad/s, ``dt`` and ages in seconds are
 ``age_steps * dt``; ages are kept as integer step counts so that trigger ties do not drift.
 
 Symbols: ``theta`` own angle; ``m_minus``/``m_plus`` remembered predecessor/successor angles;
@@ -13,16 +13,12 @@ Symbols: ``theta`` own angle; ``m_minus``/``m_plus`` remembered predecessor/succ
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from agents.ring import midpoint
-
-Strategy = Literal["self", "constant"]
-FreshLaw = Literal["prop", "deadbeat"]
+from ringtrack.world.params import ControlParams
+from ringtrack.world.ring import midpoint
 
 
 class Trigger(enum.IntFlag):
@@ -36,24 +32,6 @@ class Trigger(enum.IntFlag):
     UNKNOWN = 32  # nothing is known of a reachable neighbour (it changed, or its answer was lost)
 
 
-@dataclass(frozen=True)
-class ControlParams:
-    """Parameters of the midpoint laws.
-
-    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self" or "constant"; ``law`` is the
-    fresh-information law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``).
-    """
-
-    omega_max: float
-    dt: float
-    sigma: float = 0.0
-    strategy: Strategy = "self"
-    law: FreshLaw = "prop"
-
-    @property
-    def max_step(self) -> float:
-        """Largest angular step in one step, ``omega_max * dt`` (radians)."""
-        return self.omega_max * self.dt
 
 
 def uncertainty_bound(c_minus: ArrayLike, c_plus: ArrayLike, params: ControlParams) -> NDArray[np.float64]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from world.geometry import ConvexRegion, FloatArray
+from ringtrack.world.geometry import ConvexRegion, FloatArray
 
 BISECTIONS = 30
 

@@ -26,11 +26,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from agents.controller import MidpointController
-from agents.estimation import Estimator, prior_belief
-from agents.ring import ring_neighbours
-from bus.keys import FUSION, WORLD, robot_name
-from bus.messages import (
+from ringtrack.agents.controller import MidpointController
+from ringtrack.agents.estimation import Estimator, prior_belief
+from ringtrack.bus.keys import FUSION, WORLD, robot_name
+from ringtrack.bus.messages import (
     SCHEMA,
     Command,
     Covariance,
@@ -43,8 +42,9 @@ from bus.messages import (
     Reply,
     Request,
 )
-from world.geometry import FloatArray
-from world.scenario import Scenario
+from ringtrack.world.geometry import FloatArray
+from ringtrack.world.ring import ring_neighbours
+from ringtrack.world.scenario import Scenario
 
 Outgoing = list[tuple[str, Message]]  # (destination participant, message)
 Belief = tuple[Point, Covariance]

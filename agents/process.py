@@ -16,14 +16,14 @@ import asyncio
 from dataclasses import dataclass
 from typing import Literal
 
-from agents.node import Outgoing, RobotNode
-from bus.config import BusConfig
-from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from bus.messages import End, Measurement, RangeReport, Reply, Request
-from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
-from bus.shim import LinkShim
-from world.scenario import Scenario
+from ringtrack.agents.node import Outgoing, RobotNode
+from ringtrack.bus.config import BusConfig
+from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
+from ringtrack.bus.shim import LinkShim
+from ringtrack.world.scenario import Scenario
 
 # Realtime: the share of the reply timeout (one step period under spawn) a robot waits for the
 # centre's estimate, leaving the rest of the step to poll and command about the last estimate.

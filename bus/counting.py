@@ -7,9 +7,8 @@ from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from bus.keys import robot_index
-
-from bus.messages import KINDS, REJECT_REASONS, Traffic
+from ringtrack.bus.keys import robot_index
+from ringtrack.bus.messages import KINDS, REJECT_REASONS, Traffic
 
 Link = tuple[str, str, str]  # (kind, source, destination)
 

@@ -13,7 +13,7 @@ from typing import Annotated, ClassVar
 
 import msgspec
 
-from bus.keys import FUSION, MONITOR, WORLD, Route, robot_name
+from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Route, robot_name
 
 SCHEMA = 1
 

@@ -10,17 +10,17 @@ from __future__ import annotations
 import asyncio
 import logging
 import resource
-from pathlib import Path
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import zenoh
 
-from bus.counting import TrafficCounter
-from bus.inbox import Inbox
-from bus.keys import Keys, Route
-from bus.messages import SCHEMA, AnyMessage, Message, Rejected, Stats, decode, encode
+from ringtrack.bus.counting import TrafficCounter
+from ringtrack.bus.inbox import Inbox
+from ringtrack.bus.keys import Keys, Route
+from ringtrack.bus.messages import SCHEMA, AnyMessage, Message, Rejected, Stats, decode, encode
 
 log = logging.getLogger(__name__)
 

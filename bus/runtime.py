@@ -18,9 +18,9 @@ import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 
-from bus.config import BusConfig, open_session
-from bus.keys import WORLD, Keys
-from bus.participant import Event, Interrupt, Participant, Presence
+from ringtrack.bus.config import BusConfig, open_session
+from ringtrack.bus.keys import WORLD, Keys
+from ringtrack.bus.participant import Event, Interrupt, Participant, Presence
 
 
 class Interrupts:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from bus.faults import DELIVERED, Fate, FaultCounter, FaultPlan
-from bus.keys import MONITOR
-from bus.messages import SCHEMA, FaultNotice, Message, Reply, Request
-from bus.participant import Delivery, Participant
+from ringtrack.bus.faults import DELIVERED, Fate, FaultCounter, FaultPlan
+from ringtrack.bus.keys import MONITOR
+from ringtrack.bus.messages import SCHEMA, FaultNotice, Message, Reply, Request
+from ringtrack.bus.participant import Delivery, Participant
 
 
 class LinkShim:

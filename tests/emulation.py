@@ -11,13 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.runlog import RunLog, history_from_log, read_log
-from tools.spawn import spawn_team
-from world import engine
-from world.engine import History
-from world.scenario import Scenario, load_scenario
+from ringtrack.agents import engine
+from ringtrack.agents.engine import History
+from ringtrack.tools.runlog import RunLog, history_from_log, read_log
+from ringtrack.tools.spawn import spawn_team
+from ringtrack.world.scenario import Scenario, load_scenario
 
-RINGTRACK = [sys.executable, "-m", "tools.cli"]
+RINGTRACK = [sys.executable, "-m", "ringtrack.tools.cli"]
 
 
 def lockstep_run(scenario: Scenario, runs: Path) -> tuple[dict, RunLog]:

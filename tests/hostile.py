@@ -17,9 +17,9 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from bus.config import BusConfig, open_session
-from bus.keys import Keys
-from bus.messages import SCHEMA, Command, Reply, Request, Tick, encode
+from ringtrack.bus.config import BusConfig, open_session
+from ringtrack.bus.keys import Keys
+from ringtrack.bus.messages import SCHEMA, Command, Reply, Request, Tick, encode
 
 FAR_STEP = 10**9  # a step no run reaches: the monitor keeps a forged command's record pending forever
 

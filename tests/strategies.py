@@ -20,8 +20,8 @@ import numpy as np
 from hypothesis import assume
 from hypothesis import strategies as st
 
-from world.geometry import ConvexRegion
-from world.scenario import Scenario, parse_scenario, resolve
+from ringtrack.world.geometry import ConvexRegion
+from ringtrack.world.scenario import Scenario, parse_scenario, resolve
 
 TWO_PI = 2.0 * math.pi
 

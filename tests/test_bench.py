@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from bus.messages import SCHEMA, Reply, Request, encode
-from tools.cli import main
+from ringtrack.bus.messages import SCHEMA, Reply, Request, encode
+from ringtrack.tools.cli import main
 
 pytestmark = pytest.mark.timeout(240)
 

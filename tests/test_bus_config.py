@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from bus.config import BusConfig, BusError, open_session
+from ringtrack.bus.config import BusConfig, BusError, open_session
 
 
 def setting(config: BusConfig, path: str) -> object:

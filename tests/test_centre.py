@@ -13,16 +13,16 @@ import msgspec
 import numpy as np
 import pytest
 
-from agents.centre import FusionCentre
-from agents.estimation import Estimator
-from agents.node import RobotNode
-from bus.keys import FUSION, WORLD
-from bus.messages import SCHEMA, Command, Estimate, RangeReport, Reply, Request
+from ringtrack.agents.centre import FusionCentre
+from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.node import RobotNode
+from ringtrack.bus.keys import FUSION, WORLD
+from ringtrack.bus.messages import SCHEMA, Command, Estimate, RangeReport, Reply, Request
+from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.world.scenario import load_scenario
+from ringtrack.world.state import WorldState
 from tests.emulation import processes_mentioning, start_spawn, stop_all, wait_for_steps
 from tests.test_moving_engine import short_sighted
-from tools.runlog import history_from_log, read_log
-from world.scenario import load_scenario
-from world.state import WorldState
 
 RUN = 0x5EED
 SCENARIO = load_scenario("authors-moving", estimation="centralized")
@@ -115,7 +115,7 @@ def test_a_newer_complete_step_gives_up_an_older_incomplete_one():
 # ---------------------------------------------------------------------------- a robot's bounded wait
 def command_after(outgoing: list, node: RobotNode, world: WorldState) -> Command:
     """The robot's command of the step, answering its poll first if it polled."""
-    for destination, message in outgoing:
+    for _destination, message in outgoing:
         if isinstance(message, Request):
             position = tuple(float(v) for v in world.positions[message.receiver])
             outgoing = node.handle(Reply(SCHEMA, RUN, message.step, message.receiver, message.sender, message.nonce,

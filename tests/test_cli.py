@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.cli import main
-from tools.runlog import history_from_log, read_log
-from world import engine
-from world.scenario import load_scenario
+from ringtrack.agents import engine
+from ringtrack.tools.cli import main
+from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.world.scenario import load_scenario
 
 
 def test_simulate_json_summary(tmp_path: Path) -> None:
@@ -88,7 +88,7 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path) -> None:
     ],
 )
 def test_bad_input_is_one_line_and_exit_code_2(arguments: list[str], message: str) -> None:
-    completed = subprocess.run([sys.executable, "-m", "tools.cli", *arguments], capture_output=True, text=True,
+    completed = subprocess.run([sys.executable, "-m", "ringtrack.tools.cli", *arguments], capture_output=True, text=True,
                                timeout=60)
     assert completed.returncode == 2
     lines = completed.stderr.strip().splitlines()
@@ -116,7 +116,7 @@ def test_moving_experiment_json_and_figures(tmp_path: Path) -> None:
 
 
 def test_moving_experiment_needs_a_circling_target() -> None:
-    completed = subprocess.run([sys.executable, "-m", "tools.cli", "experiment", "moving", "paper-stationary"],
+    completed = subprocess.run([sys.executable, "-m", "ringtrack.tools.cli", "experiment", "moving", "paper-stationary"],
                                capture_output=True, text=True, timeout=60)
     assert completed.returncode == 2
     assert completed.stderr.strip() == "ringtrack: error: paper-stationary.toml: experiment moving needs target.motion = 'circle'"

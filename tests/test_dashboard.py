@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from agents.laws import Trigger
-from bus.counting import totals_by_category
+from ringtrack.agents.laws import Trigger
+from ringtrack.bus.counting import totals_by_category
+from ringtrack.tools.cli import main
+from ringtrack.tools.dashboard import Dashboard, TeamModel, reason_text, sparkline
+from ringtrack.tools.plot import PANELS, plot_run
+from ringtrack.tools.runlog import LogWriter, RunLog, read_log
+from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.views import LiveView
+from ringtrack.world.scenario import load_scenario
 from tests.emulation import lockstep_run
-from tools.cli import main
-from tools.dashboard import Dashboard, TeamModel, reason_text, sparkline
-from tools.plot import PANELS, plot_run
-from tools.runlog import LogWriter, RunLog, read_log
-from tools.spawn import spawn_team
-from tools.views import LiveView
-from world.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(240)
 

@@ -10,7 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bus.counting import totals_by_category
+from ringtrack.agents.engine import History, robot_to_robot_sent
+from ringtrack.bus.counting import totals_by_category
+from ringtrack.tools.runlog import RunLog, history_from_log, read_log
+from ringtrack.world.scenario import load_scenario
 from tests.emulation import (
     assert_equals_engine,
     engine_twin,
@@ -22,9 +25,6 @@ from tests.emulation import (
     wait_for_steps,
 )
 from tests.test_moving_engine import SENSING_RANGE, short_sighted
-from tools.runlog import RunLog, history_from_log, read_log
-from world.engine import History, robot_to_robot_sent
-from world.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -129,8 +129,8 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
 
 
 def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
-    from tools.spawn import spawn_team
-    from world import engine
+    from ringtrack.agents import engine
+    from ringtrack.tools.spawn import spawn_team
 
     team = scenario(robots=5, seed=4, max_steps=2000, omega_max_deg=3.0)
     result = spawn_team(team, runs=tmp_path, dashboard=False, until_converged=True)
@@ -141,7 +141,7 @@ def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
 
 
 def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
-    from tools.spawn import spawn_team
+    from ringtrack.tools.spawn import spawn_team
 
     result = spawn_team(scenario(max_steps=200), clock="realtime", rate=10.0, runs=tmp_path, dashboard=False)
     assert result["exit_code"] == 0 and result["end_reason"] == "done"
@@ -258,7 +258,7 @@ def test_limited_sensing_range_equals_the_engine(tmp_path: Path, estimation: str
 
 
 def test_the_world_caps_boundary_speed_at_v_max_like_the_engine(tmp_path: Path) -> None:
-    from world import engine
+    from ringtrack.agents import engine
 
     capped = scenario(v_max=0.05, max_steps=200)  # omega_max stays 1 deg/s; the world caps the motion
     _, log = lockstep_run(capped, tmp_path)

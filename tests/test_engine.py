@@ -9,11 +9,10 @@ import msgspec
 import numpy as np
 import pytest
 
-from agents.laws import Trigger
-from tests.strategies import AUTHORS_TARGET, AUTHORS_VERTICES, PAPER_ANGLES_DEG, TWO_PI, ccw_gaps, midpoint_offsets, scenario_toml
-from world import engine
-from world.metrics import communications, convergence_step, mean_communication_rate
-from world.scenario import (
+from ringtrack.agents import engine
+from ringtrack.agents.laws import Trigger
+from ringtrack.world.metrics import communications, convergence_step, mean_communication_rate
+from ringtrack.world.scenario import (
     Scenario,
     ScenarioError,
     apply_overrides,
@@ -21,6 +20,15 @@ from world.scenario import (
     parse_scenario,
     resolve,
     shipped_scenarios,
+)
+from tests.strategies import (
+    AUTHORS_TARGET,
+    AUTHORS_VERTICES,
+    PAPER_ANGLES_DEG,
+    TWO_PI,
+    ccw_gaps,
+    midpoint_offsets,
+    scenario_toml,
 )
 
 
@@ -142,7 +150,7 @@ def test_oracle9_mean_com_bar_non_increasing_in_sigma():
         history = run_batch(random_start(sigma_deg=sigma), range(30))
         assert np.all(history.ctime > 0)
         means.append(float(np.mean(history.com_bar)))
-    assert all(later <= earlier for earlier, later in zip(means, means[1:])), means
+    assert all(later <= earlier for earlier, later in zip(means, means[1:], strict=False)), means
 
 
 @pytest.mark.parametrize(("sigma", "period"), [(0.0, 1), (0.05, 1), (0.06, 2), (0.1, 2), (0.2, 4), (0.5, 10), (1.0, 20)])

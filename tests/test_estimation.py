@@ -14,24 +14,24 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from agents.estimation import (
+from ringtrack.agents.estimation import (
     SINGULAR_DISTANCE,
-    EstimationParams,
     Estimator,
     NoFix,
     RangeFilter,
     trilaterate,
 )
-from agents.fusion import covariance_intersection, sequential_intersection
+from ringtrack.agents.fusion import covariance_intersection, sequential_intersection
+from ringtrack.world.geometry import ConvexRegion
+from ringtrack.world.params import EstimationParams
+from ringtrack.world.ranges import uniform_ring
+from ringtrack.world.scenario import load_scenario
 from tests.strategies import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
     region_with_points,
     ring_angles,
 )
-from world.geometry import ConvexRegion
-from world.ranges import uniform_ring
-from world.scenario import load_scenario
 
 AUTHORS = ConvexRegion.from_vertices(AUTHORS_VERTICES)
 TARGET = np.array(AUTHORS_TARGET)

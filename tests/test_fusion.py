@@ -15,7 +15,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 from scipy.optimize import minimize, minimize_scalar
 
-from agents.fusion import covariance_intersection, intersect_at, sequential_intersection
+from ringtrack.agents.fusion import covariance_intersection, intersect_at, sequential_intersection
 
 CRITERIA = ["trace", "det"]
 

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from ringtrack.world.geometry import ConvexRegion, RegionError, angle_of
 from tests.strategies import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
@@ -18,7 +19,6 @@ from tests.strategies import (
     regions,
     sweep_omega,
 )
-from world.geometry import ConvexRegion, RegionError, angle_of
 
 AUTHORS = ConvexRegion.from_vertices(AUTHORS_VERTICES)
 

@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.controller import MidpointController
-from agents.laws import (
-    ControlParams,
+from ringtrack.agents import engine
+from ringtrack.agents.controller import MidpointController
+from ringtrack.agents.laws import (
     Trigger,
     angular_step,
     fresh_step,
@@ -20,7 +20,11 @@ from agents.laws import (
     trigger_reasons,
     uncertainty_bound,
 )
-from agents.ring import local_frame, midpoint, midpoint_errors, ring_gaps, wrap
+from ringtrack.world.geometry import angle_of
+from ringtrack.world.metrics import convergence_error, range_information, true_offsets
+from ringtrack.world.params import ControlParams
+from ringtrack.world.ranges import uniform_ring
+from ringtrack.world.ring import local_frame, midpoint, midpoint_errors, ring_gaps, wrap
 from tests.strategies import (
     TWO_PI,
     ccw_gaps,
@@ -30,10 +34,6 @@ from tests.strategies import (
     ring_angles,
     scenario_from,
 )
-from world import engine
-from world.geometry import angle_of
-from world.metrics import convergence_error, range_information, true_offsets
-from world.ranges import uniform_ring
 
 DEG = math.pi / 180.0
 
@@ -366,7 +366,7 @@ def test_trigger_rule_matches_spec_formulas(theta, gap_minus, gap_plus, c_minus,
 # ---------------------------------------------------------------------------- oracle 12 (controller level)
 @pytest.mark.parametrize("strategy", ["self", "constant"])
 def test_oracle12_everyone_polls_at_step_1_and_constant_polls_every_step(strategy):
-    from world.geometry import ConvexRegion
+    from ringtrack.world.geometry import ConvexRegion
 
     region = ConvexRegion.from_vertices([[3, 7], [8, 17], [5, 26], [1, 22]])
     centre = np.array([4.0, 20.0])

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from ringtrack.tools.runlog import read_log
 from tests.emulation import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
-from tools.runlog import read_log
 
 pytestmark = pytest.mark.timeout(120)
 

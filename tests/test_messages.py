@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bus.keys import Keys, robot_index
-from bus.messages import (
+from ringtrack.bus.keys import Keys, robot_index
+from ringtrack.bus.messages import (
     BOUND,
     SCHEMA,
     Command,
@@ -24,7 +24,7 @@ from bus.messages import (
     decode,
     encode,
 )
-from bus.participant import Delivery, Participant
+from ringtrack.bus.participant import Delivery, Participant
 
 RUN = 0x1234ABCD
 KEYS = Keys(RUN)
@@ -57,7 +57,7 @@ def messages() -> st.SearchStrategy:
 
 
 def route_of(message):
-    from bus.messages import endpoints
+    from ringtrack.bus.messages import endpoints
 
     source, destination = endpoints(message)
     return KEYS.parse(KEYS.data(destination or "all", source, message.kind))

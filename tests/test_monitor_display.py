@@ -17,12 +17,12 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
+from ringtrack.tools.dashboard import TeamModel
+from ringtrack.tools.runlog import read_log
+from ringtrack.tools.views import LiveView
+from ringtrack.world.scenario import load_scenario
 from tests.emulation import RINGTRACK, stop_all
 from tests.test_dashboard import prepared_records
-from tools.dashboard import TeamModel
-from tools.runlog import read_log
-from tools.views import LiveView
-from world.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -7,13 +7,13 @@ import re
 
 from rich.console import Console
 
-from bus.keys import Route
-from bus.messages import SCHEMA, FaultNotice
-from bus.participant import Delivery
-from tools.dashboard import TeamModel
-from tools.monitor import MonitorReport, Recorder
-from tools.views import print_report
-from world.scenario import load_scenario
+from ringtrack.bus.keys import Route
+from ringtrack.bus.messages import SCHEMA, FaultNotice
+from ringtrack.bus.participant import Delivery
+from ringtrack.tools.dashboard import TeamModel
+from ringtrack.tools.monitor import MonitorReport, Recorder
+from ringtrack.tools.views import print_report
+from ringtrack.world.scenario import load_scenario
 
 # What three robots of a ring sent: requests and replies on four links, world and estimation traffic.
 SENT = {

@@ -7,12 +7,12 @@ import msgspec
 import numpy as np
 import pytest
 
-from agents.centre import FusionCentre
-from agents.estimation import Estimator
-from bus.messages import SCHEMA, RangeReport
-from world import engine
-from world.scenario import Scenario, load_scenario, resolve
-from world.sensing import RangeSensor
+from ringtrack.agents import engine
+from ringtrack.agents.centre import FusionCentre
+from ringtrack.agents.estimation import Estimator
+from ringtrack.bus.messages import SCHEMA, RangeReport
+from ringtrack.world.scenario import Scenario, load_scenario, resolve
+from ringtrack.world.sensing import RangeSensor
 
 SEEDS = [0, 1, 2]
 STEPS = 400

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import pytest
 
+from ringtrack.tools.runlog import read_log
 from tests.emulation import assert_equals_engine
-from tools.runlog import read_log
 
 pytestmark = [
     pytest.mark.timeout(300),
@@ -74,7 +74,7 @@ class Hosts:
         sh("ip", "netns", "exec", self.names["a"], "sysctl", "-qw", "net.ipv4.ip_forward=1")
 
     def start(self, host: str, *arguments: str) -> subprocess.Popen[bytes]:
-        command = ["ip", "netns", "exec", self.names[host], sys.executable, "-m", "tools.roles"]
+        command = ["ip", "netns", "exec", self.names[host], sys.executable, "-m", "ringtrack.tools.roles"]
         process = subprocess.Popen([*command, *arguments], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                    cwd=Path(__file__).parents[1])
         self.processes.append(process)

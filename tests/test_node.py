@@ -7,12 +7,12 @@ import itertools
 import numpy as np
 import pytest
 
-from agents.laws import Trigger
-from agents.node import RobotNode
-from bus.messages import SCHEMA, Command, End, Measurement, Reply, Request
-from world import engine
-from world.scenario import load_scenario
-from world.state import WorldState
+from ringtrack.agents import engine
+from ringtrack.agents.laws import Trigger
+from ringtrack.agents.node import RobotNode
+from ringtrack.bus.messages import SCHEMA, Command, End, Measurement, Reply, Request
+from ringtrack.world.scenario import load_scenario
+from ringtrack.world.state import WorldState
 
 RUN = 0x51
 
@@ -121,7 +121,7 @@ def test_a_robot_joining_a_running_team_keeps_a_request_for_its_first_step() -> 
 
 
 def test_a_flood_of_far_future_requests_cannot_grow_the_robots_memory() -> None:
-    from agents.node import BUFFERED_LIMIT, KEPT_STEPS
+    from ringtrack.agents.node import BUFFERED_LIMIT, KEPT_STEPS
 
     node, world = make_node()
     node.handle(world.measurement(2))  # at step 1: it knows the step now

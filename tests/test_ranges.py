@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ringtrack.world.geometry import ConvexRegion, angle_of
+from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
 from tests.strategies import AUTHORS_TARGET, AUTHORS_VERTICES, TWO_PI, circular_distance, region_with_points, regions
-from world.geometry import ConvexRegion, angle_of
-from world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
 
 UNIT_SQUARE = ConvexRegion.from_vertices([[0, 0], [1, 0], [1, 1], [0, 1]])
 

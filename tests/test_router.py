@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from ringtrack.tools.runlog import read_log
+from ringtrack.tools.supervisor import Supervisor
 from tests.emulation import assert_equals_engine, processes_mentioning
-from tools.runlog import read_log
-from tools.supervisor import Supervisor
 
 pytestmark = pytest.mark.timeout(180)
 
-ROLES = [sys.executable, "-m", "tools.roles"]
+ROLES = [sys.executable, "-m", "ringtrack.tools.roles"]
 
 
 def test_a_team_through_a_standalone_router_equals_the_engine(tmp_path: Path) -> None:

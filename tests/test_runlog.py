@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from ringtrack.tools.cli import main
+from ringtrack.tools.runlog import read_log
 from tests.emulation import RINGTRACK
-from tools.cli import main
-from tools.runlog import read_log
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from ringtrack.tools.runlog import read_log
+from ringtrack.tools.spawn import spawn_team
 from tests.emulation import assert_equals_engine, processes_mentioning, scenario
-from tools.runlog import read_log
-from tools.spawn import spawn_team
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -48,7 +48,7 @@ def test_robots_packed_per_process_keep_their_own_identity_and_counts(tmp_path: 
 
 
 def test_robots_per_process_must_be_positive(tmp_path: Path) -> None:
-    from tools.console import UsageError
+    from ringtrack.tools.console import UsageError
 
     with pytest.raises(UsageError, match=r"--robots-per-process 0: give at least 1"):
         spawn_team(scenario(max_steps=5), clock="lockstep", runs=tmp_path, dashboard=False, robots_per_process=0)

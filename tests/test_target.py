@@ -12,11 +12,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from ringtrack.world.geometry import ConvexRegion, RegionError
+from ringtrack.world.scenario import TARGET_MARGIN, ScenarioError, load_scenario, parse_scenario, resolve
+from ringtrack.world.sensing import RangeSensor
+from ringtrack.world.target import Circle, RandomWalk, Stationary, Waypoints
 from tests.strategies import AUTHORS_VERTICES, region_with_points
-from world.geometry import ConvexRegion, RegionError
-from world.scenario import TARGET_MARGIN, ScenarioError, load_scenario, parse_scenario, resolve
-from world.sensing import RangeSensor
-from world.target import Circle, RandomWalk, Stationary, Waypoints
 
 AUTHORS = ConvexRegion.from_vertices(AUTHORS_VERTICES)
 MARGIN = TARGET_MARGIN * AUTHORS.outer_diameter

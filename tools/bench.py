@@ -24,15 +24,15 @@ from pathlib import Path
 
 from rich.table import Table
 
-from bus.keys import new_run_id
-from tools.console import UsageError, err, out, write_json
-from tools.experiment import robot_list, stationary_experiment
-from tools.options import JSON_FILE, at_least
-from tools.supervisor import Supervisor
-from world import engine
-from world.scenario import load_scenario
+from ringtrack.agents import engine
+from ringtrack.bus.keys import new_run_id
+from ringtrack.tools.console import UsageError, err, out, write_json
+from ringtrack.tools.experiment import robot_list, stationary_experiment
+from ringtrack.tools.options import JSON_FILE, at_least
+from ringtrack.tools.supervisor import Supervisor
+from ringtrack.world.scenario import load_scenario
 
-LATENCY_COMMAND = [sys.executable, "-m", "tools.latency"]
+LATENCY_COMMAND = [sys.executable, "-m", "ringtrack.tools.latency"]
 MESSAGE_KINDS = ("request", "reply", "measurement", "command")
 
 # The suite's emulator configurations: (robots, robots per process, steps, repeats).
@@ -168,7 +168,7 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
     "compare", alternately without and with the dashboard) and report medians of steps per second
     and start-up seconds (spawn to the first logged step), payload bytes per message kind and
     resident memory (MiB) of the largest robot process."""
-    from tools.spawn import spawn_team
+    from ringtrack.tools.spawn import spawn_team
 
     if repeat < 1:
         raise UsageError(f"--repeat {repeat}: give at least 1")
@@ -256,7 +256,7 @@ def run_emulator_bench(args: argparse.Namespace) -> int:
 def neighbour_round_trip(rounds: int, warmup: int) -> dict[str, object]:
     """Time ``rounds`` polls of one robot process by another (after ``warmup`` untimed ones):
     round-trip median, p99 and mean in microseconds, and CPU microseconds per round trip on each side."""
-    from tools.latency import endpoints_path
+    from ringtrack.tools.latency import endpoints_path
 
     if rounds < 1 or warmup < 0:
         raise UsageError(f"--rounds {rounds} --warmup {warmup}: give at least 1 round and no negative warm-up")

@@ -15,10 +15,10 @@ import numpy as np
 from rich import box
 from rich.table import Table
 
-from tools.console import err, out
-from tools.options import add_scenario_arguments, scenario_from_arguments
-from world.ranges import range_bounds, uniform_link_requirement
-from world.scenario import Scenario
+from ringtrack.tools.console import err, out
+from ringtrack.tools.options import add_scenario_arguments, scenario_from_arguments
+from ringtrack.world.ranges import range_bounds, uniform_link_requirement
+from ringtrack.world.scenario import Scenario
 
 PATH_SAMPLES = 48  # target positions checked along a moving target's path
 

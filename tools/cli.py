@@ -1,6 +1,6 @@
 """The ``ringtrack`` command: one sub-command per module, bad input answered in one line, exit 2.
 
-Command modules are imported by name when the parser is built, and ``python -m tools.roles`` builds
+Command modules are imported by name when the parser is built, and ``python -m ringtrack.tools.roles`` builds
 one with the role commands only: a team of many processes does not pay for plotting and benchmark
 code at every start.
 """
@@ -19,11 +19,11 @@ COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment
 # One-line errors of bad input: (module, class). A class whose module was never imported cannot
 # have been raised, so none is imported just to be caught.
 USER_ERRORS = (
-    ("world.scenario", "ScenarioError"),
-    ("world.geometry", "RegionError"),
-    ("tools.console", "UsageError"),
-    ("bus.config", "BusError"),
-    ("tools.runlog", "LogError"),
+    ("ringtrack.world.scenario", "ScenarioError"),
+    ("ringtrack.world.geometry", "RegionError"),
+    ("ringtrack.tools.console", "UsageError"),
+    ("ringtrack.bus.config", "BusError"),
+    ("ringtrack.tools.runlog", "LogError"),
 )
 
 
@@ -41,7 +41,7 @@ def build_parser(commands: Sequence[str] = COMMANDS) -> argparse.ArgumentParser:
     )
     subcommands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in commands:
-        importlib.import_module(f"tools.{name}").register(subcommands)
+        importlib.import_module(f"ringtrack.tools.{name}").register(subcommands)
     return parser
 
 
@@ -55,7 +55,7 @@ def main(argv: Sequence[str] | None = None, commands: Sequence[str] = COMMANDS) 
         user_errors = tuple(getattr(sys.modules[module], name) for module, name in USER_ERRORS if module in sys.modules)
         if not isinstance(error, user_errors):
             raise
-        from tools.console import err
+        from ringtrack.tools.console import err
 
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
         return 2

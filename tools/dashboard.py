@@ -22,11 +22,11 @@ from rich.console import Console, ConsoleOptions, Group, RenderResult
 from rich.table import Table
 from rich.text import Text
 
-from agents.laws import Trigger
-from tools.runlog import LINK_EVENTS
-from world.geometry import angle_of
-from world.metrics import convergence_error, true_offsets
-from world.scenario import Scenario
+from ringtrack.agents.laws import Trigger
+from ringtrack.tools.runlog import LINK_EVENTS
+from ringtrack.world.geometry import angle_of
+from ringtrack.world.metrics import convergence_error, true_offsets
+from ringtrack.world.scenario import Scenario
 
 HISTORY = 600  # steps of Cerr/Terr kept for the sparklines
 SPARKS = "▁▂▃▄▅▆▇█"
@@ -146,7 +146,7 @@ class TeamModel:
         errors = [math.dist(centre, self.target) for centre in record["centre"] if centre is not None]
         self.terr.append(sum(errors) / len(errors) if errors else math.nan)
 
-    def snapshot(self) -> "TeamModel":
+    def snapshot(self) -> TeamModel:
         """A copy to draw while this model goes on changing (the scenario, never changed, is shared)."""
         return copy.deepcopy(self, {id(self.scenario): self.scenario})
 

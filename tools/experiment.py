@@ -9,16 +9,16 @@ from collections.abc import Callable, Sequence
 
 import msgspec
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich import box
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from tools.console import UsageError, err, out, write_json
-from tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
-from world import engine
-from bus.messages import poll_bytes
-from world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
-from world.target import Circle
+from ringtrack.agents import engine
+from ringtrack.bus.messages import poll_bytes
+from ringtrack.tools.console import UsageError, err, out, write_json
+from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
+from ringtrack.world.target import Circle
 
 STRATEGIES = ("constant", "self")
 
@@ -190,7 +190,7 @@ def run_stationary(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result)
     if args.plot:
-        from tools.figures import stationary_comparison
+        from ringtrack.tools.figures import stationary_comparison
 
         stationary_comparison(result, args.plot)
     failed = [entry for entry in result["summary"] if entry["converged"] < entry["trials"]]
@@ -348,7 +348,7 @@ def run_moving(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result)
     if args.plot:
-        from tools.figures import moving_comparison, moving_velocities
+        from ringtrack.tools.figures import moving_comparison, moving_velocities
 
         moving_comparison(result, args.plot)
         if not args.no_velocities:

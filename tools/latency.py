@@ -1,6 +1,6 @@
 """The neighbour round trip on its own: robot r0 polls robot r1, r1 answers, as in a poll.
 
-Two processes, started by ``ringtrack bench latency`` (``python -m tools.latency ping|echo``), join a
+Two processes, started by ``ringtrack bench latency`` (``python -m ringtrack.tools.latency ping|echo``), join a
 two-robot run on the embedded bus and exchange real :class:`~bus.messages.Request` and
 :class:`~bus.messages.Reply` messages through :class:`bus.participant.Participant`, the path every
 poll takes. ``ping`` times each round trip (wall seconds, ``time.perf_counter``); both sides measure
@@ -18,11 +18,11 @@ import sys
 import time
 from pathlib import Path
 
-from bus.config import BusConfig, announce_endpoints
-from bus.keys import Keys, robot_name
-from bus.messages import SCHEMA, Reply, Request
-from bus.participant import Delivery, Interrupt, Participant
-from bus.runtime import Interrupts, Roster, gather_until, joined, linger
+from ringtrack.bus.config import BusConfig, announce_endpoints
+from ringtrack.bus.keys import Keys, robot_name
+from ringtrack.bus.messages import SCHEMA, Reply, Request
+from ringtrack.bus.participant import Delivery, Interrupt, Participant
+from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger
 
 PINGER, ECHO = 0, 1
 ROBOTS = 2
@@ -96,7 +96,7 @@ def endpoints_path(result: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tools.latency")
+    parser = argparse.ArgumentParser(prog="python -m ringtrack.tools.latency")
     parser.add_argument("side", choices=["ping", "echo"])
     parser.add_argument("--run", type=lambda text: int(text, 16), required=True)
     parser.add_argument("--rounds", type=int, required=True)

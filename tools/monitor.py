@@ -11,15 +11,15 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bus.config import BusConfig
-from bus.counting import TrafficCounter, per_link, totals_by_category
-from bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from bus.messages import (
+from ringtrack.bus.config import BusConfig
+from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
+from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.messages import (
     Command,
     End,
     Estimate,
@@ -32,11 +32,11 @@ from bus.messages import (
     Tick,
     Traffic,
 )
-from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Interrupts, Roster, gather_until, joined
-from tools.dashboard import TeamModel
-from tools.runlog import LogWriter, step_record
-from world.scenario import Scenario
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined
+from ringtrack.tools.dashboard import TeamModel
+from ringtrack.tools.runlog import LogWriter, step_record
+from ringtrack.world.scenario import Scenario
 
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
 FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)

@@ -8,7 +8,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from world.scenario import Scenario, load_scenario
+from ringtrack.world.scenario import Scenario, load_scenario
 
 DEFAULT_SCENARIO = "paper-stationary"
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")  # what matplotlib writes here
@@ -96,7 +96,7 @@ def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as error:
-            raise argparse.ArgumentTypeError(f"{text!r}: cannot make its folder ({error.strerror}); give a writable path")
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot make its folder ({error.strerror}); give a writable path") from None
         if not os.access(path.parent, os.W_OK):
             raise argparse.ArgumentTypeError(f"{text!r}: its folder is not writable; give a writable path")
         return path

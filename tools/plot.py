@@ -9,10 +9,10 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-from tools.console import UsageError, out
-from tools.options import FIGURE_SUFFIXES, output_path
-from bus.counting import robot_link_totals
-from tools.runlog import RunLog, history_from_log, read_log
+from ringtrack.bus.counting import robot_link_totals
+from ringtrack.tools.console import UsageError, out
+from ringtrack.tools.options import FIGURE_SUFFIXES, output_path
+from ringtrack.tools.runlog import RunLog, history_from_log, read_log
 
 
 def register(commands: argparse._SubParsersAction) -> None:

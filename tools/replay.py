@@ -9,11 +9,11 @@ from pathlib import Path
 
 from rich.console import Console
 
-from tools.console import out
-from tools.dashboard import Dashboard, TeamModel
-from tools.options import positive
-from tools.runlog import RunLog, read_log
-from tools.views import LiveView
+from ringtrack.tools.console import out
+from ringtrack.tools.dashboard import Dashboard, TeamModel
+from ringtrack.tools.options import positive
+from ringtrack.tools.runlog import RunLog, read_log
+from ringtrack.tools.views import LiveView
 
 FRAME_S = 0.1  # at most ten redraws per wall second
 

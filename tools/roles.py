@@ -7,9 +7,9 @@ import argparse
 import asyncio
 from pathlib import Path
 
-from bus.config import LOOPBACK_ANY_PORT, BusConfig
-from tools.console import UsageError, err, out
-from tools.options import LOG_FILE, add_scenario_arguments, positive, scenario_from_arguments
+from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
+from ringtrack.tools.console import UsageError, err, out
+from ringtrack.tools.options import LOG_FILE, add_scenario_arguments, positive, scenario_from_arguments
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -110,7 +110,7 @@ def bus_config(args: argparse.Namespace, admin_space: bool = False) -> BusConfig
 
 
 def run_world_role(args: argparse.Namespace) -> int:
-    from world.process import WorldOptions, run_world
+    from ringtrack.world.process import WorldOptions, run_world
 
     scenario = scenario_from_arguments(args)
     options = WorldOptions(
@@ -126,7 +126,7 @@ def run_world_role(args: argparse.Namespace) -> int:
 
 
 def run_robot_role(args: argparse.Namespace) -> int:
-    from agents.process import run_robots
+    from ringtrack.agents.process import run_robots
 
     if args.join is not None:
         join(args)
@@ -163,7 +163,7 @@ def run_router_role(args: argparse.Namespace) -> int:
     import sys
     import threading
 
-    from bus.config import announce_endpoints, listening_locators, open_session
+    from ringtrack.bus.config import announce_endpoints, listening_locators, open_session
 
     config = BusConfig(mode="router", listen=tuple(args.listen), connect=tuple(args.connect or ()), admin_space=True)
     stop = threading.Event()
@@ -185,7 +185,7 @@ def run_router_role(args: argparse.Namespace) -> int:
 
 
 def run_fusion_role(args: argparse.Namespace) -> int:
-    from agents.centre import run_fusion
+    from ringtrack.agents.centre import run_fusion
 
     scenario = scenario_from_arguments(args)
     if scenario.estimation.mode != "centralized":
@@ -198,9 +198,9 @@ def run_fusion_role(args: argparse.Namespace) -> int:
 def run_monitor_role(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from tools.dashboard import TeamModel
-    from tools.monitor import run_monitor
-    from tools.views import LiveView, print_report
+    from ringtrack.tools.dashboard import TeamModel
+    from ringtrack.tools.monitor import run_monitor
+    from ringtrack.tools.views import LiveView, print_report
 
     scenario = scenario_from_arguments(args)
     model = TeamModel(scenario, args.clock)
@@ -230,6 +230,6 @@ def finished(role: str, code: int) -> int:
 if __name__ == "__main__":
     import sys
 
-    from tools.cli import main
+    from ringtrack.tools.cli import main
 
     sys.exit(main(commands=("roles",)))

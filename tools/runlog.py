@@ -32,10 +32,10 @@ from typing import IO, Annotated, Any
 import msgspec
 import numpy as np
 
-from world.engine import FAULT_COLUMNS, History, fault_totals
-from world.geometry import angle_of
-from world.metrics import convergence_error, true_offsets
-from world.scenario import Scenario, parse_scenario, resolve
+from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals
+from ringtrack.world.geometry import angle_of
+from ringtrack.world.metrics import convergence_error, true_offsets
+from ringtrack.world.scenario import Scenario, parse_scenario, resolve
 
 FORMAT = 1
 _encoder = msgspec.json.Encoder()
@@ -85,7 +85,7 @@ class LogWriter:
     def close(self) -> None:
         self._file.close()
 
-    def __enter__(self) -> "LogWriter":
+    def __enter__(self) -> LogWriter:
         return self
 
     def __exit__(self, *exc_info: object) -> None:

@@ -6,10 +6,10 @@ import argparse
 
 from rich.table import Table
 
-from tools.console import out, write_json
-from tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, scenario_from_arguments
-from tools.runlog import write_engine_log
-from world import engine
+from ringtrack.agents import engine
+from ringtrack.tools.console import out, write_json
+from ringtrack.tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, scenario_from_arguments
+from ringtrack.tools.runlog import write_engine_log
 
 
 def register(commands: argparse._SubParsersAction) -> None:

@@ -17,18 +17,25 @@ import sys
 import time
 from pathlib import Path
 
-from bus.config import LOOPBACK_ANY_PORT
-from bus.counting import totals_by_category, totals_by_kind
-from bus.keys import new_run_id
-from tools.console import UsageError, err, out, write_json
-from tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, at_least, positive, scenario_from_arguments
-from tools.runlog import history_from_log, read_log
-from tools.supervisor import Supervisor, Terminated, terminate_as_exception
-from world import engine
-from world.scenario import Scenario
+from ringtrack.agents import engine
+from ringtrack.bus.config import LOOPBACK_ANY_PORT
+from ringtrack.bus.counting import totals_by_category, totals_by_kind
+from ringtrack.bus.keys import new_run_id
+from ringtrack.tools.console import UsageError, err, out, write_json
+from ringtrack.tools.options import (
+    JSON_FILE,
+    LOG_FILE,
+    add_scenario_arguments,
+    at_least,
+    positive,
+    scenario_from_arguments,
+)
+from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
+from ringtrack.world.scenario import Scenario
 
 STALL_TIMEOUT_S = 60.0
-ROLE_COMMAND = [sys.executable, "-m", "tools.roles"]  # the role commands only: a lean start
+ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
 PROCESS_MIB = 80  # resident memory of one robot process (measured 55-75 MiB), for the process budget

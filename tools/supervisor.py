@@ -20,7 +20,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
-from tools.console import UsageError
+from ringtrack.tools.console import UsageError
 
 ANNOUNCE_TIMEOUT_S = 20.0
 STOP_GRACE_S = 1.5  # SIGTERM, then SIGKILL after this long; everything is gone within 2 s
@@ -124,7 +124,7 @@ class Supervisor:
                 with contextlib.suppress(OSError):
                     child.process.stdin.close()
 
-    def __enter__(self) -> "Supervisor":
+    def __enter__(self) -> Supervisor:
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,

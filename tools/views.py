@@ -18,10 +18,10 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from bus.counting import category_of, robot_link_totals
-from bus.keys import robot_index
-from tools.dashboard import Dashboard, TeamModel
-from tools.monitor import COMPARED, MonitorReport
+from ringtrack.bus.counting import category_of, robot_link_totals
+from ringtrack.bus.keys import robot_index
+from ringtrack.tools.dashboard import Dashboard, TeamModel
+from ringtrack.tools.monitor import COMPARED, MonitorReport
 
 LINE_PERIOD_S = 2.0
 FINAL_WAIT_S = 5.0  # leaving the view waits at most this long (wall seconds) for the drawer's last frame
@@ -77,7 +77,7 @@ class LiveView:
         self.mailbox: Mailbox[TeamModel | str] = Mailbox()
         self.drawer = threading.Thread(target=self._draw, name="ringtrack-drawer", daemon=True)
 
-    def __enter__(self) -> "LiveView":
+    def __enter__(self) -> LiveView:
         self.drawer.start()
         return self
 
@@ -122,10 +122,10 @@ def per_robot_table(rows: list) -> Table:
     for name in robots:
         table.add_row(
             name,
-            _sum(rows, lambda kind, source, _: category_of(kind) == "robot" and source == name),
-            _sum(rows, lambda kind, _, destination: category_of(kind) == "robot" and destination == name),
-            _sum(rows, lambda _, source, destination: source == "world" and destination == name),
-            _sum(rows, lambda _, source, destination: source == name and destination == "world"),
+            _sum(rows, lambda kind, source, _, name=name: category_of(kind) == "robot" and source == name),
+            _sum(rows, lambda kind, _, destination, name=name: category_of(kind) == "robot" and destination == name),
+            _sum(rows, lambda _, source, destination, name=name: source == "world" and destination == name),
+            _sum(rows, lambda _, source, destination, name=name: source == name and destination == "world"),
         )
     return table
 

@@ -73,7 +73,7 @@ class ConvexRegion:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_vertices(cls, vertices: ArrayLike) -> "ConvexRegion":
+    def from_vertices(cls, vertices: ArrayLike) -> ConvexRegion:
         """Validate ``vertices`` (a list of (x, y) in metres, either orientation) and build the region.
 
         Refuses fewer than three vertices, non-finite values, repeated vertices, crossing edges

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from agents.ring import midpoint_errors
-from world.geometry import ConvexRegion, FloatArray, angle_of
+from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
+from ringtrack.world.ring import midpoint_errors
 
 
 def convergence_error(offsets: ArrayLike) -> FloatArray:

@@ -22,13 +22,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from bus.config import BusConfig, announce_endpoints
-from bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from bus.messages import SCHEMA, Command, End
-from bus.participant import Delivery, Interrupt, Participant, Presence
-from bus.runtime import Interrupts, Roster, gather_until, joined, linger
-from world.scenario import Scenario
-from world.state import WorldState
+from ringtrack.bus.config import BusConfig, announce_endpoints
+from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.messages import SCHEMA, Command, End
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger
+from ringtrack.world.scenario import Scenario
+from ringtrack.world.state import WorldState
 
 log = logging.getLogger("ringtrack.world")
 

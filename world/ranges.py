@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from world.geometry import ConvexRegion, FloatArray
+from ringtrack.world.geometry import ConvexRegion, FloatArray
 
 
 def uniform_ring(region: ConvexRegion, centre: ArrayLike, robots: int, rotation: ArrayLike = 0.0) -> FloatArray:

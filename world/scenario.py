@@ -54,13 +54,12 @@ from typing import Annotated, Any, Literal, get_args, get_origin, get_type_hints
 import msgspec
 import numpy as np
 
-from agents.estimation import EstimationParams
-from agents.laws import ControlParams
-from agents.ring import ring_gaps
-from world.geometry import ConvexRegion, FloatArray, RegionError
-from bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
-from world.schema import COORDINATE_LIMIT, Coordinate, Finite, NonNegative, Point, Positive, Probability, Spec
-from world.target import Stationary, TargetSpec
+from ringtrack.bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
+from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
+from ringtrack.world.params import ControlParams, EstimationParams
+from ringtrack.world.ring import ring_gaps
+from ringtrack.world.schema import COORDINATE_LIMIT, Coordinate, Finite, NonNegative, Point, Positive, Probability, Spec
+from ringtrack.world.target import Stationary, TargetSpec
 
 MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
 START_DRAWS = 100  # random starts drawn before spreading one out (large teams)
@@ -223,7 +222,7 @@ class Scenario:
 
 
 # ---------------------------------------------------------------------------- loading
-SCENARIO_PACKAGE = "scenarios"
+SCENARIO_PACKAGE = "ringtrack.scenarios"
 
 
 def shipped_scenarios() -> list[str]:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from world.geometry import FloatArray
+from ringtrack.world.geometry import FloatArray
 
 SENSOR_STREAM = 1
 

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from agents.ring import ring_neighbours
-from bus.messages import SCHEMA, Command, Measurement, Tick
-from world.geometry import FloatArray
-from world.metrics import convergence_error, true_offsets
-from world.scenario import Scenario
-from world.sensing import RangeSensor
+from ringtrack.bus.messages import SCHEMA, Command, Measurement, Tick
+from ringtrack.world.geometry import FloatArray
+from ringtrack.world.metrics import convergence_error, true_offsets
+from ringtrack.world.ring import ring_neighbours
+from ringtrack.world.scenario import Scenario
+from ringtrack.world.sensing import RangeSensor
 
 
 class WorldState:

@@ -21,8 +21,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from world.geometry import ConvexRegion, FloatArray, RegionError
-from world.schema import Finite, NonNegative, Point, Positive, Spec
+from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
+from ringtrack.world.schema import Finite, NonNegative, Point, Positive, Spec
 
 TARGET_STREAM = 2  # random-walk draws: numpy.random.default_rng([seed, TARGET_STREAM])
 REDRAWS = 100

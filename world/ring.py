@@ -10,11 +10,9 @@ leading axes (robots, trials).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-TWO_PI = 2.0 * np.pi
-
-FloatArray = NDArray[np.float64]
+from ringtrack.world.geometry import TWO_PI, FloatArray
 
 
 def wrap(angle: ArrayLike) -> FloatArray:

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.controller import MidpointController
-from agents.estimation import Estimator
-from world.geometry import FloatArray, angle_of
-from world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
-from bus.faults import FAULT_COUNTERS, Fate, FaultPlan
-from world.scenario import Scenario
-from world.sensing import RangeSensor
+from ringtrack.agents.controller import MidpointController
+from ringtrack.agents.estimation import Estimator
+from ringtrack.bus.faults import FAULT_COUNTERS, Fate, FaultPlan
+from ringtrack.world.geometry import FloatArray, angle_of
+from ringtrack.world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
+from ringtrack.world.scenario import Scenario
+from ringtrack.world.sensing import RangeSensor
 
 
 @dataclass

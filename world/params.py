@@ -1,0 +1,57 @@
+"""The plain parameter records a scenario resolves into (SI units: metres, seconds, radians).
+
+They hold numbers and choices only, no behaviour beyond derived quantities, so that the world (which
+resolves scenarios) and the agents (which act on them) share one definition.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+Strategy = Literal["self", "constant"]
+FreshLaw = Literal["prop", "deadbeat"]
+Mode = Literal["known", "centralized", "decentralized"]
+Criterion = Literal["trace", "det"]
+
+@dataclass(frozen=True)
+class ControlParams:
+    """Parameters of the midpoint laws.
+
+    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self" or "constant"; ``law`` is the
+    fresh-information law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``).
+    """
+
+    omega_max: float
+    dt: float
+    sigma: float = 0.0
+    strategy: Strategy = "self"
+    law: FreshLaw = "prop"
+
+    @property
+    def max_step(self) -> float:
+        """Largest angular step in one step, ``omega_max * dt`` (radians)."""
+        return self.omega_max * self.dt
+
+
+
+@dataclass(frozen=True)
+class EstimationParams:
+    """How the team estimates the target (section ``[estimation]`` of a scenario).
+
+    ``range_sigma`` (m) and ``process_noise`` (m^2 per step) model the filters' R and Q;
+    ``prior`` is "truth" (the target's position at step 1, as the authors), "trilateration"
+    (centralized; see :class:`Estimator`) or a point; ``prior_variance`` (m^2) sets P0 of "truth"
+    and of a point; decentralized robots fuse their neighbours' beliefs with joint CI ("ci") or
+    pairwise ("sequential"), minimising "trace" or "det"; estimates are clamped ``clamp_margin``
+    metres inside the region before steering by them.
+    """
+
+    mode: Mode = "known"
+    range_sigma: float = 0.2
+    process_noise: float = 0.2
+    prior: str | tuple[float, float] = "truth"
+    prior_variance: float = 1.0
+    fusion: Literal["ci", "sequential"] = "ci"
+    criterion: Criterion = "trace"
+    clamp_margin: float = 0.0
