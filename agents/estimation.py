@@ -137,8 +137,12 @@ class Estimator:
     """The belief about the target of one decentralized robot or of the fusion centre.
 
     Every step: :meth:`measure` (predict, then update with the ranges it has); a decentralized robot
-    that polled then :meth:`fuse` its neighbours' beliefs; :attr:`centre` is the estimate clamped
-    into the region, the point it steers about.
+    that polled then :meth:`fuse` its neighbours' beliefs. After each of these the filter's own mean
+    is kept inside the region shrunk by ``params.margin`` metres (:meth:`keep_inside`), so what it
+    predicts from, replies with and fuses is a centre the boundary map works about: seen from a
+    centre on (or microns from) an edge, boundary speeds ``r^2 / h`` explode, ring order breaks and
+    the self-triggered rule stops firing. :attr:`centre`, the point a robot steers about, is that
+    mean.
 
     With the "trilateration" prior, the ranges of the first step are trilaterated into the prior
     when they fix the target (three or more, from robots not all on one line). When they do not
@@ -153,6 +157,7 @@ class Estimator:
         self.region = region
         self.filter = RangeFilter(*prior_belief(params, region, truth_at_start), params.process_noise,
                                   params.range_sigma)
+        self.keep_inside()
         self.started = False
 
     @property
@@ -162,7 +167,15 @@ class Estimator:
 
     @property
     def centre(self) -> FloatArray:
-        return self.region.clamp_interior(self.filter.mean, self.params.clamp_margin)
+        """The estimate (metres) a robot steers about: the filter's mean, inside by ``params.margin``."""
+        return self.filter.mean
+
+    def keep_inside(self) -> None:
+        """Pull the filter's mean ``params.margin`` metres inside the region if it is not that deep
+        (covariance unchanged); a mean already inside is left exactly as it is."""
+        mean = self.filter.mean
+        if not bool(self.region.is_interior(mean, self.params.margin)):
+            self.filter.ekf.x = self.region.clamp_interior(mean, self.params.margin).reshape(2, 1)
 
     def measure(self, positions: ArrayLike, ranges: ArrayLike) -> None:
         """Fold in one step's ranges from robots at ``positions`` (NaN: no range). With the
@@ -175,8 +188,10 @@ class Estimator:
             except NoFix:
                 pass  # the uninformative prior stands, updated below with the ranges there are
             else:
+                self.keep_inside()
                 return
         self.filter.step(positions, ranges)
+        self.keep_inside()
 
     def fuse(self, beliefs: list[tuple[ArrayLike, ArrayLike]]) -> None:
         """Covariance-intersect the own belief with neighbours' ``(mean, covariance)`` and adopt it."""
@@ -185,3 +200,4 @@ class Estimator:
         combine = covariance_intersection if self.params.fusion == "ci" else sequential_intersection
         fused = combine(means, covariances, self.params.criterion)
         self.filter.adopt(fused.mean, fused.covariance)
+        self.keep_inside()

@@ -21,6 +21,11 @@ from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import midpoint
 
 
+# Angles closer than this (radians) are equal in the trigger's comparisons: far above the rounding
+# error of a step (~1e-15 rad) and far below any meaningful angle (a micro-degree is 1.7e-8 rad).
+TIE_RAD = 1e-12
+
+
 class Trigger(enum.IntFlag):
     """Why a robot polled its neighbours in a step (a bit mask; 0 means it did not)."""
 
@@ -67,16 +72,20 @@ def trigger_reasons(
     """Evaluate the self-triggered rule at the start of a step, before moving.
 
     Returns a :class:`Trigger` mask per robot: T1 ``ubd >= max(|gV - theta|, sigma)``,
-    T2 ``m_plus - omega tau_plus <= theta``, T3 ``m_minus + omega tau_minus >= theta``.
+    T2 ``m_plus - omega tau_plus <= theta``, T3 ``m_minus + omega tau_minus >= theta``. Each
+    comparison is tie-robust: sides within ``TIE_RAD`` count as equal, so equality (which the
+    inequalities include) is decided as in exact arithmetic, not by rounding error. Ties are frequent
+    at coarse settings (e.g. dt 0.5 s, omega_max 1 deg/s, sigma 0.1 deg: every quantity is a multiple
+    of 1/8 degree, exact in degrees but not in radians).
     """
     theta = np.asarray(theta, dtype=float)
     ubd = uncertainty_bound(c_minus, c_plus, params)
     offset = midpoint(m_minus, theta, m_plus) - theta
     reach_minus = params.omega_max * np.asarray(c_minus) * params.dt
     reach_plus = params.omega_max * np.asarray(c_plus) * params.dt
-    t1 = ubd >= np.maximum(np.abs(offset), params.sigma)
-    t2 = np.asarray(m_plus) - reach_plus <= theta
-    t3 = np.asarray(m_minus) + reach_minus >= theta
+    t1 = ubd >= np.maximum(np.abs(offset), params.sigma) - TIE_RAD
+    t2 = np.asarray(m_plus) - reach_plus <= theta + TIE_RAD
+    t3 = np.asarray(m_minus) + reach_minus >= theta - TIE_RAD
     return t1 * int(Trigger.UNCERTAINTY) + t2 * int(Trigger.SUCCESSOR) + t3 * int(Trigger.PREDECESSOR)
 
 

@@ -91,7 +91,7 @@ class RobotNode:
         self.centre: FloatArray = scenario.target.copy()
         if self.mode == "centralized":  # until the first estimate (late, in realtime): the centre's prior
             prior, _ = prior_belief(scenario.estimation, scenario.region, scenario.target)
-            self.centre = scenario.region.clamp_interior(prior, scenario.estimation.clamp_margin)
+            self.centre = scenario.region.clamp_interior(prior, scenario.estimation.margin)
         self.covariance: Covariance | None = None
         self.waiting_for_estimate = False
         self.step = 0
@@ -156,7 +156,7 @@ class RobotNode:
         if not self.waiting_for_estimate or estimate.step != self.step:
             return []  # an estimate of a step this robot has left
         self.waiting_for_estimate = False
-        margin = self.scenario.estimation.clamp_margin
+        margin = self.scenario.estimation.margin
         self.centre = self.scenario.region.clamp_interior(np.asarray(estimate.mean), margin)
         self.covariance = estimate.covariance
         return self._decide()

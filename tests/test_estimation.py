@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import assume, given
@@ -25,7 +26,7 @@ from ringtrack.agents.fusion import covariance_intersection, sequential_intersec
 from ringtrack.world.geometry import ConvexRegion
 from ringtrack.world.params import EstimationParams
 from ringtrack.world.ranges import uniform_ring
-from ringtrack.world.scenario import load_scenario
+from ringtrack.world.scenario import ScenarioError, load_scenario, resolve
 from tests.strategies import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
@@ -352,21 +353,40 @@ def test_estimator_fuse_adopts_the_ci_result(fusion, criterion):
 
 
 @pytest.mark.parametrize("outside", [(12.0, 20.0), (-3.0, 30.0), (3.0, 7.0), (4.0, -100.0)])
-def test_estimator_centre_is_clamped_inside(outside):
+@pytest.mark.parametrize("update", ["fuse", "measure"])
+def test_the_estimate_itself_is_kept_inside_by_the_margin(outside, update):
+    """Whatever an update or a fusion gives, the filter's own mean (what it predicts from, replies with
+    and fuses) ends ``margin`` metres inside, pulled straight towards the Chebyshev centre, and the
+    robot steers about exactly that mean."""
     estimator = Estimator(params(prior=tuple(TARGET)), AUTHORS, TARGET)
-    estimator.filter.adopt(np.array(outside), np.eye(2))
-    margin = estimator.params.clamp_margin
-    assert margin == pytest.approx(1e-6 * AUTHORS.outer_diameter, rel=1e-12)
-    centre = estimator.centre
-    np.testing.assert_array_equal(centre, AUTHORS.clamp_interior(np.array(outside), margin))
-    heights = AUTHORS.heights(centre)
-    assert heights.min() >= margin * (1 - 1e-6)  # inside by the margin, and not farther in than needed
+    margin = estimator.params.margin
+    assert margin == 0.1  # the scenario default, metres
+    if update == "fuse":
+        estimator.fuse([(np.array(outside), 1e-6 * np.eye(2))])  # a confident neighbour far outside
+    else:
+        estimator.filter.adopt(np.array(outside), 1e-6 * np.eye(2))  # as if the last update left it there
+        estimator.filter.ekf.Q = np.zeros((2, 2))
+        estimator.measure(np.array([[8.0, 17.0]]), [np.nan])  # prediction only: the mean stays put, then is kept in
+    before = np.array(estimator.filter.mean)
+    mean, covariance = estimator.belief
+    np.testing.assert_array_equal(estimator.centre, mean)
+    heights = AUTHORS.heights(mean)
+    assert heights.min() >= margin * (1 - 1e-9)  # inside by the margin, and not farther in than needed
     assert heights.min() <= margin + 1e-9 * AUTHORS.outer_diameter
     chebyshev, _ = AUTHORS.chebyshev_centre
-    a, b = centre - chebyshev, np.array(outside) - chebyshev
+    a, b = mean - chebyshev, np.array(outside) - chebyshev
     assert abs(a[0] * b[1] - a[1] * b[0]) <= 1e-9 * np.linalg.norm(a) * np.linalg.norm(b)  # pulled straight in
     assert a @ b > 0
-    np.testing.assert_array_equal(estimator.belief[0], outside)  # the belief itself is not changed
+    assert np.all(np.linalg.eigvalsh(covariance) > 0)
+    estimator.keep_inside()  # idempotent: a mean already inside is left exactly as it is
+    np.testing.assert_array_equal(estimator.filter.mean, before)
+
+
+def test_a_mean_inside_is_never_touched():
+    estimator = Estimator(params(prior=tuple(TARGET)), AUTHORS, TARGET)
+    estimator.filter.adopt(np.array([4.1234567891, 19.87654321]), np.eye(2))
+    estimator.keep_inside()
+    np.testing.assert_array_equal(estimator.filter.mean, [4.1234567891, 19.87654321])
 
 
 def test_trilateration_refuses_collinear_robots():
@@ -424,3 +444,13 @@ def test_estimator_without_a_fix_at_the_first_measure_updates_the_uninformative_
     x, P = reference_step(*before, 0.2, SIGMA, positions, second)
     np.testing.assert_allclose(estimator.belief[0], x, rtol=0, atol=1e-9)
     np.testing.assert_allclose(estimator.belief[1], P, rtol=0, atol=1e-9 * np.trace(P))
+
+
+def test_a_margin_that_leaves_no_room_is_refused():
+    spec = load_scenario("counterexample-square", estimation="centralized").spec  # a unit square: D_in / 2 = 0.5 m
+    spec = msgspec.structs.replace(spec, estimation=msgspec.structs.replace(spec.estimation, margin=0.5))
+    with pytest.raises(ScenarioError) as raised:
+        resolve(spec)
+    assert str(raised.value).endswith(
+        "estimation.margin 0.5 m leaves no room: the region's inscribed radius (D_in / 2) is 0.5 m; "
+        "give a margin below it (default 0.1)")

@@ -196,5 +196,5 @@ def test_trilateration_prior_without_a_fix_at_step_one():
             reports = [RangeReport(SCHEMA, 1, step, robot, tuple(position), None if np.isnan(z) else float(z))
                        for robot, (position, z) in enumerate(zip(positions, ranges, strict=True))]
             (estimate,) = [estimate for report in reports for estimate in centre.on_report(report)]
-            steered = scenario.region.clamp_interior(np.array(estimate.mean), scenario.estimation.clamp_margin)
+            steered = scenario.region.clamp_interior(np.array(estimate.mean), scenario.estimation.margin)
             np.testing.assert_array_equal(steered, history.estimates[step - 1, trial, 0])  # as a robot steers

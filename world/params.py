@@ -43,8 +43,8 @@ class EstimationParams:
     ``prior`` is "truth" (the target's position at step 1, as the authors), "trilateration"
     (centralized; see :class:`Estimator`) or a point; ``prior_variance`` (m^2) sets P0 of "truth"
     and of a point; decentralized robots fuse their neighbours' beliefs with joint CI ("ci") or
-    pairwise ("sequential"), minimising "trace" or "det"; estimates are clamped ``clamp_margin``
-    metres inside the region before steering by them.
+    pairwise ("sequential"), minimising "trace" or "det"; every estimate is kept ``margin`` metres
+    inside the region (the filters' own means, not only what a robot steers by).
     """
 
     mode: Mode = "known"
@@ -54,4 +54,4 @@ class EstimationParams:
     prior_variance: float = 1.0
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Criterion = "trace"
-    clamp_margin: float = 0.0
+    margin: float = 0.1

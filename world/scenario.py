@@ -106,6 +106,7 @@ class EstimationSpec(Spec):
     prior_variance: Positive = 1.0
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Literal["trace", "det"] = "trace"
+    margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
 
 
 class LimitsSpec(Spec):
@@ -378,6 +379,12 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             f"{label}: estimation.prior = 'trilateration' needs the centralized mode (one robot has one range);"
             " use 'truth' or [x, y]"
         )
+    inscribed_radius = region.inner_diameter / 2.0
+    if estimation.mode != "known" and estimation.margin >= inscribed_radius:
+        raise ScenarioError(
+            f"{label}: estimation.margin {estimation.margin:g} m leaves no room: the region's inscribed radius "
+            f"(D_in / 2) is {inscribed_radius:.4g} m; give a margin below it (default 0.1)"
+        )
     if not isinstance(estimation.prior, str):
         try:
             region.require_interior(estimation.prior, "estimation.prior")
@@ -396,7 +403,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             prior_variance=estimation.prior_variance,
             fusion=estimation.fusion,
             criterion=estimation.criterion,
-            clamp_margin=TARGET_MARGIN * region.outer_diameter,
+            margin=estimation.margin,
         ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,
