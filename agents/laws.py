@@ -20,7 +20,6 @@ from numpy.typing import ArrayLike, NDArray
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import midpoint
 
-
 # Angles closer than this (radians) are equal in the trigger's comparisons: far above the rounding
 # error of a step (~1e-15 rad) and far below any meaningful angle (a micro-degree is 1.7e-8 rad).
 TIE_RAD = 1e-12
