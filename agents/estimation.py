@@ -10,6 +10,8 @@ the shape care the spec lists: ``z`` as a column, ``h(x)`` as a column, an expli
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -77,15 +79,15 @@ class RangeFilter:
         the predicted estimate are skipped; with none left the step is prediction only.
         """
         self.ekf.predict()
-        positions = np.asarray(positions, dtype=float).reshape(-1, 2)
-        ranges = np.asarray(ranges, dtype=float).reshape(-1)
-        distances = np.linalg.norm(self.ekf.x[:, 0] - positions, axis=1)
-        usable = np.isfinite(ranges) & (distances > SINGULAR_DISTANCE)
+        points = np.asarray(positions, dtype=float).reshape(-1, 2)
+        measured = np.asarray(ranges, dtype=float).reshape(-1)
+        distances = np.linalg.norm(self.ekf.x[:, 0] - points, axis=1)
+        usable = np.isfinite(measured) & (distances > SINGULAR_DISTANCE)
         if not usable.any():
             return
-        positions, ranges = positions[usable], ranges[usable]
-        noise = self.range_sigma**2 * np.eye(len(ranges))
-        self.ekf.update(ranges.reshape(-1, 1), _jacobian, _ranges, R=noise, args=(positions,), hx_args=(positions,))
+        points, measured = points[usable], measured[usable]
+        noise = self.range_sigma**2 * np.eye(len(measured))
+        self.ekf.update(measured.reshape(-1, 1), _jacobian, _ranges, R=noise, args=(points,), hx_args=(points,))
 
 
 def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, refinements: int = 5,
@@ -96,26 +98,26 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
     ``refinements`` Gauss-Newton steps; covariance ``inflation * sigma_z^2 (H^T H)^{-1}`` (m^2).
     Missing ranges (NaN) are skipped; :class:`NoFix` when the rest do not fix the target.
     """
-    positions = np.asarray(positions, dtype=float)
-    ranges = np.asarray(ranges, dtype=float)
-    usable = np.isfinite(ranges)
-    positions, ranges = positions[usable], ranges[usable]
-    if len(ranges) < 3:
-        raise NoFix(f"trilateration needs ranges from at least 3 robots, got {len(ranges)}")
-    first, rest = positions[0], positions[1:]
+    every_point = np.asarray(positions, dtype=float)
+    every_range = np.asarray(ranges, dtype=float)
+    usable = np.isfinite(every_range)
+    points, measured = every_point[usable], every_range[usable]
+    if len(measured) < 3:
+        raise NoFix(f"trilateration needs ranges from at least 3 robots, got {len(measured)}")
+    first, rest = points[0], points[1:]
     system = 2.0 * (rest - first)
     if np.linalg.matrix_rank(system, rtol=COLLINEAR) < 2:
         raise NoFix("trilateration needs robots that are not all on one line")
-    rhs = ranges[0] ** 2 - ranges[1:] ** 2 + np.sum(rest**2, axis=1) - np.sum(first**2)
+    rhs = measured[0] ** 2 - measured[1:] ** 2 + np.sum(rest**2, axis=1) - np.sum(first**2)
     estimate, *_ = np.linalg.lstsq(system, rhs, rcond=None)
     for _ in range(refinements):
         x = estimate.reshape(2, 1)
-        jacobian = _jacobian(x, positions)
-        residual = ranges - _ranges(x, positions)[:, 0]
+        jacobian = _jacobian(x, points)
+        residual = measured - _ranges(x, points)[:, 0]
         estimate = estimate + np.linalg.lstsq(jacobian, residual, rcond=None)[0]
-    jacobian = _jacobian(estimate.reshape(2, 1), positions)
+    jacobian = _jacobian(estimate.reshape(2, 1), points)
     covariance = inflation * range_sigma**2 * np.linalg.inv(jacobian.T @ jacobian)
-    return estimate, covariance
+    return np.asarray(estimate, dtype=float), np.asarray(covariance, dtype=float)
 
 
 
@@ -193,10 +195,11 @@ class Estimator:
         self.filter.step(positions, ranges)
         self.keep_inside()
 
-    def fuse(self, beliefs: list[tuple[ArrayLike, ArrayLike]]) -> None:
+    def fuse(self, beliefs: Sequence[tuple[ArrayLike, ArrayLike]]) -> None:
         """Covariance-intersect the own belief with neighbours' ``(mean, covariance)`` and adopt it."""
-        means = [self.filter.mean, *(mean for mean, _ in beliefs)]
-        covariances = [self.filter.covariance, *(covariance for _, covariance in beliefs)]
+        means = np.array([self.filter.mean, *(np.asarray(mean, dtype=float) for mean, _ in beliefs)])
+        covariances = np.array([self.filter.covariance,
+                                *(np.asarray(covariance, dtype=float) for _, covariance in beliefs)])
         combine = covariance_intersection if self.params.fusion == "ci" else sequential_intersection
         fused = combine(means, covariances, self.params.criterion)
         self.filter.adopt(fused.mean, fused.covariance)

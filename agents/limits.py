@@ -16,6 +16,8 @@ distances in metres; every function broadcasts over robots and trials.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -49,7 +51,7 @@ def clip_to_range(
     centre: ArrayLike,
     theta: ArrayLike,
     step: ArrayLike,
-    anchors: list[tuple[ArrayLike, ArrayLike, ArrayLike]],
+    anchors: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike]],
     communication_range: float,
 ) -> FloatArray:
     """Shorten ``step`` so that, for every ``(anchor position, applies, slack)`` where ``applies``,

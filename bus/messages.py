@@ -37,7 +37,7 @@ class Message(msgspec.Struct, array_like=True, frozen=True, tag=True):
     category: ClassVar[str] = ""  # "robot" (robot-to-robot), "world", "estimation" or "monitoring"
 
 
-class Measurement(Message, tag=1):
+class Measurement(Message, tag=1, frozen=True):
     """World -> robot: the robot's exact position and a noisy range to the target (None: beyond
     r_s), with a limited communication range the live robots it can reach this step, and ``live``,
     the robots in the ring from this step on, when that changed (a robot came back) or is news to
@@ -54,7 +54,7 @@ class Measurement(Message, tag=1):
     category: ClassVar[str] = "world"
 
 
-class Command(Message, tag=2):
+class Command(Message, tag=2, frozen=True):
     """Robot -> world: where to move this step, why it polled (a Trigger mask), and its view.
 
     ``guaranteed_offset`` is ``gV - theta`` (radians) and ``ages`` the ages (steps) of its memory of
@@ -75,7 +75,7 @@ class Command(Message, tag=2):
     category: ClassVar[str] = "world"
 
 
-class Request(Message, tag=3):
+class Request(Message, tag=3, frozen=True):
     """Robot -> ring neighbour: send me your state at the start of ``step``."""
 
     step: Step
@@ -86,7 +86,7 @@ class Request(Message, tag=3):
     category: ClassVar[str] = "robot"
 
 
-class Reply(Message, tag=4):
+class Reply(Message, tag=4, frozen=True):
     """Ring neighbour -> robot: its position at the start of ``step`` (and belief when estimating),
     answering the request with ``nonce``."""
 
@@ -101,7 +101,7 @@ class Reply(Message, tag=4):
     category: ClassVar[str] = "robot"
 
 
-class Tick(Message, tag=5):
+class Tick(Message, tag=5, frozen=True):
     """World -> monitor: the true state at the start of ``step`` (never sent to robots)."""
 
     step: Step
@@ -113,7 +113,7 @@ class Tick(Message, tag=5):
     category: ClassVar[str] = "world"
 
 
-class End(Message, tag=6):
+class End(Message, tag=6, frozen=True):
     """World -> everyone: the run is over after ``step`` steps (``reason``: "done", "stopped", ...)."""
 
     step: Count  # 0: stopped before its first step
@@ -126,7 +126,7 @@ class End(Message, tag=6):
 Traffic = tuple[str, str, str, int, int]  # (kind, source, destination, messages, bytes)
 
 
-class Stats(Message, tag=7):
+class Stats(Message, tag=7, frozen=True):
     """Any process -> monitor: what it has sent and received so far, by kind and link, payloads it
     rejected by reason, what the fault layer did to its robot-to-robot messages, and protocol
     counters (``notes``: e.g. replies ignored for a wrong nonce, probes of unreachable neighbours)."""
@@ -143,7 +143,7 @@ class Stats(Message, tag=7):
     category: ClassVar[str] = "monitoring"
 
 
-class FaultNotice(Message, tag=10):
+class FaultNotice(Message, tag=10, frozen=True):
     """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone),
     ``duplicated`` or ``delayed`` (by ``delay_s``) the ``subject`` message ``sender -> receiver``."""
 
@@ -158,7 +158,7 @@ class FaultNotice(Message, tag=10):
     category: ClassVar[str] = "monitoring"
 
 
-class RangeReport(Message, tag=8):
+class RangeReport(Message, tag=8, frozen=True):
     """Robot -> fusion centre (centralized estimation): its position and measured range (None:
     beyond the sensing range) at the start of ``step``, and the ring from this step on when the
     world announced a change (:attr:`Measurement.live`)."""
@@ -172,7 +172,7 @@ class RangeReport(Message, tag=8):
     category: ClassVar[str] = "estimation"
 
 
-class Estimate(Message, tag=9):
+class Estimate(Message, tag=9, frozen=True):
     """Fusion centre -> every robot: the centralized estimate of the target after ``step``'s ranges."""
 
     step: Step

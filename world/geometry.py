@@ -194,9 +194,10 @@ class ConvexRegion:
 
     def point_at(self, s: ArrayLike) -> FloatArray:
         """The boundary point at arc length ``s`` (metres, taken modulo the perimeter)."""
-        s = np.mod(np.asarray(s, dtype=float), self.perimeter)
-        edge = np.clip(np.searchsorted(self.vertex_arc, s, side="right") - 1, 0, len(self.vertices) - 1)
-        return self.vertices[edge] + (s - self.vertex_arc[edge])[..., None] * self.directions[edge]
+        along = np.mod(np.asarray(s, dtype=float), self.perimeter)
+        edge = np.clip(np.searchsorted(self.vertex_arc, along, side="right") - 1, 0, len(self.vertices) - 1)
+        point: FloatArray = self.vertices[edge] + (along - self.vertex_arc[edge])[..., None] * self.directions[edge]
+        return point
 
     def move_along(self, start: ArrayLike, goal: ArrayLike, max_distance: float | None) -> FloatArray:
         """Move from boundary point ``start`` towards ``goal`` along the shorter boundary arc, at most

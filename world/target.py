@@ -28,7 +28,7 @@ TARGET_STREAM = 2  # random-walk draws: numpy.random.default_rng([seed, TARGET_S
 REDRAWS = 100
 
 
-class Stationary(Spec, tag_field="motion", tag="stationary"):
+class Stationary(Spec, tag_field="motion", tag="stationary", frozen=True):
     position: Point
 
     def path(self, steps: int, dt: float, region: ConvexRegion, seed: int, margin: float) -> FloatArray:
@@ -38,7 +38,7 @@ class Stationary(Spec, tag_field="motion", tag="stationary"):
         _require_inside(region, self.position, "target.position", margin)
 
 
-class Circle(Spec, tag_field="motion", tag="circle"):
+class Circle(Spec, tag_field="motion", tag="circle", frozen=True):
     centre: Point
     speed: Positive
     angular_speed: Finite  # rad/s, counter-clockwise positive
@@ -64,7 +64,7 @@ class Circle(Spec, tag_field="motion", tag="circle"):
             )
 
 
-class RandomWalk(Spec, tag_field="motion", tag="random_walk"):
+class RandomWalk(Spec, tag_field="motion", tag="random_walk", frozen=True):
     position: Point
     speed_std: NonNegative  # m/s
 
@@ -87,7 +87,7 @@ class RandomWalk(Spec, tag_field="motion", tag="random_walk"):
         _require_inside(region, self.position, "target.position", margin)
 
 
-class Waypoints(Spec, tag_field="motion", tag="waypoints"):
+class Waypoints(Spec, tag_field="motion", tag="waypoints", frozen=True):
     waypoints: Annotated[list[Point], msgspec.Meta(min_length=2)]
     speed: Positive
     loop: bool = True
