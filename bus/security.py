@@ -162,7 +162,8 @@ def _load_certificate(path: Path) -> x509.Certificate:
     except FileNotFoundError:
         raise SecurityError(f"{path} is missing; copy it from the team folder made by ringtrack certs") from None
     except ValueError:
-        raise SecurityError(f"{path} is not a PEM certificate; make the team folder again with ringtrack certs") from None
+        raise SecurityError(f"{path} is not a PEM certificate; make the team folder again with ringtrack certs") \
+            from None
 
 
 def list_team(directory: Path) -> list[Listed]:
@@ -222,8 +223,8 @@ class Team:
             raise SecurityError(f"{self.key(name)} is missing; copy {name}'s key from the team folder made by "
                                 "ringtrack certs")
         if common_name(certificate) != name:
-            raise SecurityError(f"{self.certificate(name)} is the certificate of {common_name(certificate)!r}, not of "
-                                f"{name!r}; copy {name}.pem and {name}.key from the team folder made by ringtrack certs")
+            raise SecurityError(f"{self.certificate(name)} is the certificate of {common_name(certificate)!r}, not "
+                                f"of {name!r}; copy {name}.pem and {name}.key from the team folder of ringtrack certs")
         try:
             certificate.verify_directly_issued_by(authority)
         except (ValueError, TypeError, InvalidSignature):
@@ -370,7 +371,8 @@ class Security:
                 return
         except ssl.SSLCertVerificationError as error:
             raise SecurityError(f"--connect {endpoint}: the participant there is not of this team "
-                                f"({error.verify_message}); give it the certificates of {self.team.directory}") from None
+                                f"({error.verify_message}); give it the certificates of {self.team.directory}") \
+                from None
         except (TimeoutError, ssl.SSLError, ConnectionResetError, BrokenPipeError) as error:
             raise SecurityError(f"--connect {endpoint}: the participant there does not speak TLS "
                                 f"({type(error).__name__}): it is a plain one; start it with --secure "

@@ -203,7 +203,8 @@ def run_fusion_role(args: argparse.Namespace) -> int:
         raise UsageError(f"the scenario's estimation.mode is {scenario.estimation.mode!r}; a fusion centre serves "
                          "only 'centralized'")
     return finished("fusion", asyncio.run(
-        run_fusion(scenario, args.run, bus_config(args, [FUSION], scenario.robots), args.monitor, args.exit_with_parent)))
+        run_fusion(scenario, args.run, bus_config(args, [FUSION], scenario.robots), args.monitor,
+                   args.exit_with_parent)))
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
@@ -219,8 +220,8 @@ def run_monitor_role(args: argparse.Namespace) -> int:
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     with LiveView(console, model, dashboard) as view:
         code, report = asyncio.run(
-            run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots), args.log, scenario.max_steps,
-                        args.clock, model, view.refresh, args.exit_with_parent)
+            run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots), args.log,
+                        scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent)
         )
     if report is not None:
         print_report(out, report)
