@@ -66,7 +66,8 @@ def team_table(directory: Path) -> Table:
     now = datetime.datetime.now(datetime.UTC)
     entries = list_team(directory)
     hosts = next((entry.hosts for entry in entries if entry.hosts), ())
-    table = Table(title=f"{directory}: a team of {team.robots} robots, listening on {', '.join(hosts)}")
+    table = Table(title=f"{directory.name}: a team of {team.robots} robots",
+                  caption=f"certificates valid for {', '.join(hosts)}")
     for column in ("file", "common name", "expires (UTC)", "key file mode"):
         table.add_column(column)
     for entry in entries:
