@@ -154,8 +154,8 @@ def test_a_team_over_three_hosts_converges_and_equals_the_engine(hosts: Hosts, t
     assert log.end["reason"] == "converged" and len(log.steps) == CONVERGED_AT
     assert log.end["consistent"] is True  # the monitor saw exactly what the senders sent
     assert_equals_engine(log)
-    print(f"three hosts ({'router' if via_router else 'direct'}{', secure' if secure else ''}): converged at step {len(log.steps)}, "
-          f"{log.end['wall_s']:.1f} s stepping")
+    how = ("router" if via_router else "direct") + (", secure" if secure else "")
+    print(f"three hosts ({how}): converged at step {len(log.steps)}, {log.end['wall_s']:.1f} s stepping")
 
 
 @pytest.mark.skipif(shutil.which("nft") is None, reason="nftables ('nft') is not installed: apt-get install nftables")

@@ -25,8 +25,8 @@ from cryptography.hazmat.primitives import serialization
 from ringtrack.bus.config import BusConfig, BusError
 from ringtrack.bus.keys import Keys, robot_name
 from ringtrack.bus.security import (
-    SecurityError,
     Security,
+    SecurityError,
     access_policy,
     check_team,
     common_name,
