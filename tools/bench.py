@@ -250,6 +250,9 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
         row["wire_bytes_per_message"] = (
             {"plain": median_of(plain, "wire_bytes_per_message"),
              "secure": median_of(secured_runs, "wire_bytes_per_message")} if isolated else None)
+        row["startup_wire_bytes"] = (
+            {"plain": median_of(plain, "startup_wire_bytes"),
+             "secure": median_of(secured_runs, "startup_wire_bytes")} if isolated else None)
     return row
 
 
@@ -275,7 +278,8 @@ def isolation_works() -> bool:
 
 def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: Path) -> dict:
     """One lockstep team in a private network namespace (``tools/wire.py``): its summary with
-    ``wire_bytes_per_message``, the bytes its loopback carried divided by the messages of the run."""
+    ``wire_bytes_per_message``, the bytes its loopback carried while stepping divided by the
+    messages of the run, and ``startup_wire_bytes``, those before its first step."""
     from ringtrack.tools.wire import UNSHARE
 
     scenario_path, out = scratch / "scenario.toml", scratch / "isolated.json"
