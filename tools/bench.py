@@ -95,7 +95,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def machine() -> dict[str, object]:
     """Core count, Python and library versions that a benchmark result depends on."""
-    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy")}
+    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy",
+                                                            "cryptography")}
     return {
         "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "python": platform.python_version(),
