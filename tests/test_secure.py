@@ -61,6 +61,8 @@ def one_line_error(completed: subprocess.CompletedProcess[str]) -> str:
 
 
 # ---------------------------------------------------------------------------------- certificates
+@pytest.mark.processes  # the command line, as a user runs it
+@pytest.mark.timeout(120)
 def test_certs_makes_one_certificate_per_participant_private_keys_and_refuses_to_overwrite(tmp_path: Path) -> None:
     directory = tmp_path / "team"
     made = ringtrack("certs", str(directory), "--robots", "3", "--hosts", "10.0.0.1,robot-b.local")
@@ -106,6 +108,8 @@ def test_the_policy_is_generated_from_the_key_scheme() -> None:
     assert "router" not in subjects and "router" in {s["id"] for s in access_policy(6, routers=True)["subjects"]}
 
 
+@pytest.mark.processes
+@pytest.mark.timeout(180)
 def test_errors_name_the_fix(team: Path, tmp_path: Path) -> None:
     broken = tmp_path / "broken"
     shutil.copytree(team, broken)
@@ -276,3 +280,27 @@ def test_a_security_config_is_tls_only_and_carries_the_policy_for_peers_not_clie
     with pytest.raises(BusError, match="speaks only TLS"):
         BusConfig(security=security)  # the plain default listener
     BusConfig(listen=("tls/127.0.0.1:0",), security=security).to_zenoh("r0")
+
+
+@pytest.mark.processes
+@pytest.mark.timeout(300)
+def test_the_benchmark_compares_plain_and_secure_runs(tmp_path: Path) -> None:
+    from ringtrack.tools.bench import isolation_works
+    from ringtrack.tools.cli import main
+
+    path = tmp_path / "bench.json"
+    assert main(["bench", "emulator", "--robots", "3", "--steps", "40", "--secure", "compare",
+                 "--runs", str(tmp_path / "runs"), "--json", str(path)]) == 0
+    (row,) = json.loads(path.read_text())["rows"]
+    assert len(row["runs_steps_per_s"]) == len(row["runs_steps_per_s_secure"]) == 1
+    assert row["steps_per_s"] > 0 and row["steps_per_s_secure"] > 0
+    assert row["security_cost"] == pytest.approx(1 - row["steps_per_s_secure"] / row["steps_per_s"])
+    for kind in ("request", "reply", "measurement", "command"):  # TLS works below the payloads
+        assert row["bytes_per_message_secure"][kind] == row["bytes_per_message"][kind]
+    if isolation_works():
+        # every message crosses the namespace's loopback at least once, with its payload
+        least = min(row["bytes_per_message"].values())
+        assert row["wire_bytes_per_message"]["plain"] > least and row["wire_bytes_per_message"]["secure"] > least
+        assert row["startup_wire_bytes"]["secure"] > 0 and row["startup_wire_bytes"]["plain"] > 0
+    else:
+        assert row["wire_bytes_per_message"] is None
