@@ -12,9 +12,12 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import zenoh
+
+if TYPE_CHECKING:  # bus.security needs the cryptography library: imported only by secure roles
+    from ringtrack.bus.security import Security
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(\[[0-9a-fA-F:.]+\]|[^/:\s]+):\d{1,5}$")
@@ -40,18 +43,26 @@ class BusConfig:
     lease_ms: int = 10_000
     admin_space: bool = False  # needed to read back the locators a session bound (see listening_locators)
     extra: dict[str, object] = field(default_factory=dict)  # further "path": value JSON5 settings
+    security: Security | None = None  # --secure: mutual TLS and access control (bus.security)
 
     def __post_init__(self) -> None:
         for flag, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
             for endpoint in endpoints:
                 if not ENDPOINT.match(endpoint):
                     raise BusError(f"{flag} {endpoint!r} is not an endpoint; write it like tcp/127.0.0.1:7447")
+                address = endpoint.partition("/")[2]
+                if self.security is not None and not endpoint.startswith("tls/"):
+                    raise BusError(f"{flag} {endpoint}: a --secure participant speaks only TLS; write tls/{address}")
+                if self.security is None and endpoint.startswith("tls/"):
+                    raise BusError(f"{flag} {endpoint}: TLS needs the team's certificates; add --secure DIR")
         if self.mode not in ("peer", "router", "client"):
             raise BusError(f"--mode {self.mode!r}: use peer, router or client")
         if self.mode == "client" and not self.connect:
             raise BusError("--mode client needs --connect ENDPOINT of a router or peer")
 
-    def to_zenoh(self) -> zenoh.Config:
+    def to_zenoh(self, name: str | None = None) -> zenoh.Config:
+        """The Zenoh configuration of participant ``name`` (needed with ``security``: it picks the
+        key and certificate)."""
         settings: dict[str, object] = {
             "mode": self.mode,
             "listen/endpoints": [] if self.mode == "client" else list(self.listen),
@@ -61,6 +72,10 @@ class BusConfig:
             "adminspace/enabled": self.admin_space,
             **self.extra,
         }
+        if self.security is not None:
+            if name is None:
+                raise BusError("a secure session needs the participant's name")
+            settings.update(self.security.settings(name, self.mode))
         config = zenoh.Config()
         for path, value in settings.items():
             config.insert_json5(path, json.dumps(value))
@@ -73,11 +88,17 @@ class BusConfig:
 COMPACT_RUNTIME = "(app: (worker_threads: 1), acc: (handover: app), rx: (handover: app), tx: (handover: app), net: (handover: app))"
 
 
-def open_session(config: BusConfig) -> zenoh.Session:
-    """Open a Zenoh session; close it with ``with`` or ``session.close()`` in ``finally``."""
+def open_session(config: BusConfig, name: str | None = None) -> zenoh.Session:
+    """Open a Zenoh session for participant ``name``; close it with ``with`` or ``session.close()``
+    in ``finally``. A secure participant first checks its certificate and that whatever answers at
+    each ``connect`` endpoint is a secure participant of its team (else a one-line error)."""
     os.environ.setdefault("ZENOH_RUNTIME", COMPACT_RUNTIME)
+    if config.security is not None and name is not None:
+        config.security.team.check(name)
+        for endpoint in config.connect:
+            config.security.probe(name, endpoint)
     try:
-        return zenoh.open(config.to_zenoh())
+        return zenoh.open(config.to_zenoh(name))
     except zenoh.ZError as error:
         raise BusError(f"cannot open the Zenoh session ({error}); check --listen/--connect") from None
 

@@ -17,6 +17,7 @@ ROOT = "ringtrack"
 WORLD = "world"
 MONITOR = "monitor"
 FUSION = "fusion"
+ROUTER = "router"  # a Zenoh router of a secure team (not a run participant: it has a certificate, no keys)
 BROADCAST = "all"
 
 ROBOT_NAME = re.compile(r"^r(0|[1-9][0-9]{0,5})$")

@@ -77,7 +77,7 @@ async def joined(
     """Open a session and yield the :class:`Participant` ``name`` of run ``keys.run``; signals reach
     it through ``interrupts``, shared by the participants of one process."""
     loop = asyncio.get_running_loop()
-    session = open_session(config)
+    session = open_session(config, name)
     participant = Participant(session, keys, name, robots, loop)
     interrupts.add(participant)
     try:

@@ -8,8 +8,10 @@ one process per host. B and C reach each other only through A. Two ways to conne
 * directly: every process is a Zenoh peer listening on its host's address, A forwards IP packets,
   and gossip links every pair across the hosts.
 
-Lockstep runs must equal the engine either way, and still complete when nftables drops a share of
-the packets on B's link (TCP retransmits: loss becomes delay, never a lost message).
+Lockstep runs must equal the engine either way, also as a secure team through ``ringtrack router
+--secure`` (mutual TLS on every link, the router enforcing the team's access control), and still
+complete when nftables drops a share of the packets on B's link (TCP retransmits: loss becomes
+delay, never a lost message).
 """
 
 from __future__ import annotations
@@ -24,11 +26,14 @@ from pathlib import Path
 
 import pytest
 
+from ringtrack.bus.security import create_team
 from ringtrack.tools.runlog import read_log
 from tests.emulation import assert_equals_engine
 
 pytestmark = [
     pytest.mark.timeout(300),
+    pytest.mark.processes,
+    pytest.mark.root,
     pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root"),
     pytest.mark.skipif(shutil.which("ip") is None, reason="iproute2 ('ip') is not installed"),
 ]
@@ -102,46 +107,55 @@ def hosts() -> Iterator[Hosts]:
         created.close()
 
 
-def run_team(hosts: Hosts, log: Path, via_router: bool, steps: int | None = None) -> tuple[list[int], float]:
+def run_team(hosts: Hosts, log: Path, via_router: bool, steps: int | None = None,
+             secure: Path | None = None) -> tuple[list[int], float]:
     """World and monitor on a, robots 0-2 on b and 3-5 on c, through a router on a or as direct
-    peers; at most ``steps`` steps, or until convergence. Returns the exit codes and wall seconds."""
+    peers, with the team folder ``secure`` over mutual TLS; at most ``steps`` steps, or until
+    convergence. Returns the exit codes and wall seconds."""
     run = f"{os.getpid() & 0xFFFFFFF:08x}"
-    common = ["paper-stationary", "--run", run, "--monitor"]
+    protection = [] if secure is None else ["--secure", str(secure)]
+    common = ["paper-stationary", "--run", run, "--monitor", *protection]
     common += ["--steps", str(steps)] if steps else []
-    hub = [f"tcp/{address}:{PORT}" for address in hosts.addresses["a"]]
+    protocol = "tcp" if secure is None else "tls"
+    hub = [f"{protocol}/{address}:{PORT}" for address in hosts.addresses["a"]]
     world_listen = [flag for endpoint in hub for flag in ("--listen", endpoint)]
     stop = [] if steps else ["--until-converged"]
     started = time.monotonic()
     if via_router:
-        hosts.start("a", "router", *world_listen)
+        hosts.start("a", "router", *world_listen, *protection)
         time.sleep(0.5)
         world = hosts.start("a", "world", *common, *stop, "--mode", "client", "--connect", hub[0])
     else:
         world = hosts.start("a", "world", *common, *stop, *world_listen)
     time.sleep(0.5)
     joining = ["--mode", "client"] if via_router else []
-    reachable = [] if via_router else ["--listen", f"tcp/{hosts.addresses['a'][0]}:0"]
+    reachable = [] if via_router else ["--listen", f"{protocol}/{hosts.addresses['a'][0]}:0"]
     monitor = hosts.start("a", "monitor", *common, *joining, *reachable, "--connect", hub[0],
                           "--log", str(log), "--no-dashboard")
     robots = []
     for host, ids, endpoint in (("b", "0-2", hub[0]), ("c", "3-5", hub[1])):
-        own = [] if via_router else ["--listen", f"tcp/{hosts.addresses[host][0]}:0"]
+        own = [] if via_router else ["--listen", f"{protocol}/{hosts.addresses[host][0]}:0"]
         robots.append(hosts.start(host, "robot", *common, *joining, *own, "--connect", endpoint, "--id", ids))
     codes = [process.wait(timeout=240) for process in (world, monitor, *robots)]
     return codes, time.monotonic() - started
 
 
-@pytest.mark.parametrize("via_router", [True, False], ids=["router", "direct"])
+@pytest.mark.parametrize(("via_router", "secure"), [(True, False), (False, False), (True, True)],
+                         ids=["router", "direct", "router-secure"])
 def test_a_team_over_three_hosts_converges_and_equals_the_engine(hosts: Hosts, tmp_path: Path,
-                                                                  via_router: bool) -> None:
-    codes, _ = run_team(hosts, tmp_path / "log.jsonl", via_router)
+                                                                  via_router: bool, secure: bool) -> None:
+    team = None
+    if secure:
+        team = tmp_path / "team"  # every certificate valid for every host's addresses
+        create_team(team, 6, hosts=(*hosts.addresses["a"], *hosts.addresses["b"], *hosts.addresses["c"]))
+    codes, _ = run_team(hosts, tmp_path / "log.jsonl", via_router, secure=team)
     assert codes == [0, 0, 0, 0], hosts.errors()
     log = read_log(tmp_path / "log.jsonl")
     assert log.end["reason"] == "converged" and len(log.steps) == CONVERGED_AT
     assert log.end["consistent"] is True  # the monitor saw exactly what the senders sent
     assert_equals_engine(log)
-    print(f"three hosts ({'router' if via_router else 'direct'}): converged at step {len(log.steps)}, "
-          f"{log.end['wall_s']:.1f} s stepping")
+    how = ("router" if via_router else "direct") + (", secure" if secure else "")
+    print(f"three hosts ({how}): converged at step {len(log.steps)}, {log.end['wall_s']:.1f} s stepping")
 
 
 @pytest.mark.skipif(shutil.which("nft") is None, reason="nftables ('nft') is not installed: apt-get install nftables")

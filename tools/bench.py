@@ -16,6 +16,7 @@ import json
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -30,7 +31,7 @@ from ringtrack.tools.console import UsageError, err, out, write_json
 from ringtrack.tools.experiment import robot_list, stationary_experiment
 from ringtrack.tools.options import JSON_FILE, at_least
 from ringtrack.tools.supervisor import Supervisor
-from ringtrack.world.scenario import load_scenario
+from ringtrack.world.scenario import Scenario, load_scenario
 
 LATENCY_COMMAND = [sys.executable, "-m", "ringtrack.tools.latency"]
 MESSAGE_KINDS = ("request", "reply", "measurement", "command")
@@ -65,6 +66,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     emulator_parser.add_argument("--dashboard", choices=["off", "on", "compare"], default="off",
                                  help="draw the dashboard (to RUN_FOLDER/monitor.stdout), or alternate runs "
                                  "without and with it to measure what it costs")
+    emulator_parser.add_argument("--secure", choices=["off", "on", "compare"], default="off",
+                                 help="run secure teams (mutual TLS, access control; certificates made in a "
+                                 "temporary folder), or alternate plain and secure runs to measure the cost; compare "
+                                 "runs each team in a private network namespace when it can, to count the bytes "
+                                 "on the wire")
     emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
     emulator_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
     emulator_parser.set_defaults(handler=run_emulator_bench)
@@ -89,7 +95,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def machine() -> dict[str, object]:
     """Core count, Python and library versions that a benchmark result depends on."""
-    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy")}
+    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy",
+                                                            "cryptography")}
     return {
         "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "python": platform.python_version(),
@@ -163,32 +170,57 @@ class BenchFailed(RuntimeError):
 
 
 def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 1, dashboard: str = "off",
-                 runs: Path = Path("runs"), robots_per_process: int = 1, topology: str | None = None) -> dict:
-    """Run ``repeat`` lockstep teams of ``robots`` robots for ``steps`` steps (with ``dashboard``
-    "compare", alternately without and with the dashboard) and report medians of steps per second
-    and start-up seconds (spawn to the first logged step), payload bytes per message kind and
-    resident memory (MiB) of the largest robot process."""
-    from ringtrack.tools.spawn import spawn_team
-
+                 runs: Path = Path("runs"), robots_per_process: int = 1, topology: str | None = None,
+                 secure: str = "off") -> dict:
+    """Run ``repeat`` lockstep teams of ``robots`` robots for ``steps`` steps and report medians of
+    steps per second and start-up seconds (spawn to the first logged step), payload bytes per message
+    kind and resident memory (MiB) of the largest robot process. With ``dashboard`` "compare"
+    alternately without and with the dashboard; with ``secure`` "compare" alternately plain and
+    secure (each run in a private network namespace when :func:`isolation_works`, which also gives
+    the bytes on the wire per message)."""
     if repeat < 1:
         raise UsageError(f"--repeat {repeat}: give at least 1")
     if steps < 1:
         raise UsageError(f"--steps {steps}: give at least 1")
-    modes = [False, True] if dashboard == "compare" else [dashboard == "on"]
+    if dashboard == "compare" and secure == "compare":
+        raise UsageError("--dashboard compare --secure compare: compare one thing at a time")
+    if secure == "compare":
+        variants = [(dashboard == "on", False), (dashboard == "on", True)]
+    elif dashboard == "compare":
+        variants = [(False, secure == "on"), (True, secure == "on")]
+    else:
+        variants = [(dashboard == "on", secure == "on")]
+    isolated = secure == "compare" and dashboard == "off" and isolation_works()
     scenario = load_scenario("paper-stationary", robots=robots, strategy=strategy, max_steps=steps)
-    speeds: dict[bool, list[float]] = {mode: [] for mode in modes}
+    results: dict[tuple[bool, bool], list[dict]] = {variant: [] for variant in variants}
     startups: list[float] = []
-    for attempt in range(repeat):
-        for with_dashboard in modes:
-            err.print(f"{robots} robots ({robots_per_process} per process), {steps} lockstep steps, dashboard "
-                      f"{'on' if with_dashboard else 'off'} (run {attempt + 1}/{repeat}) ...")
-            result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=with_dashboard, quiet=True,
-                                robots_per_process=robots_per_process, topology=topology)
-            if result["exit_code"] != 0 or "steps_per_s" not in result:
-                raise BenchFailed(f"the {robots}-robot run failed: {result.get('failures')}; see {result['folder']}")
-            speeds[with_dashboard].append(result["steps_per_s"])
-            if result.get("startup_s") is not None:
-                startups.append(result["startup_s"])
+    with tempfile.TemporaryDirectory(prefix="ringtrack-bench-") as scratch:
+        team = Path(scratch) / "team"
+        if any(with_security for _, with_security in variants):
+            from ringtrack.bus.security import create_team
+
+            create_team(team, robots)
+        for attempt in range(repeat):
+            for with_dashboard, with_security in variants:
+                err.print(f"{robots} robots ({robots_per_process} per process), {steps} lockstep steps, dashboard "
+                          f"{'on' if with_dashboard else 'off'}, {'secure' if with_security else 'plain'}"
+                          f"{', own network namespace' if isolated else ''} (run {attempt + 1}/{repeat}) ...")
+                secured = team if with_security else None
+                if isolated:
+                    result = isolated_run(scenario, runs, secured, Path(scratch))
+                else:
+                    from ringtrack.tools.spawn import spawn_team
+
+                    result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=with_dashboard, quiet=True,
+                                        robots_per_process=robots_per_process, topology=topology, secure=secured)
+                if result["exit_code"] != 0 or "steps_per_s" not in result:
+                    raise BenchFailed(f"the {robots}-robot run failed: {result.get('failures')}; see "
+                                      f"{result['folder']}")
+                results[(with_dashboard, with_security)].append(result)
+                if result.get("startup_s") is not None:
+                    startups.append(result["startup_s"])
+    first = variants[0]
+    result = results[first][-1]
     # Every participant reports its process's peak RSS: participants of one process report the same.
     robot_rss = [kib for name, kib in result["rss_kib"].items() if name.startswith("r")]
     row = {
@@ -196,30 +228,84 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
         "robots_per_process": robots_per_process,
         "topology": result["topology"],
         "steps": result["steps"],
-        "steps_per_s": statistics.median(speeds[modes[0]]),
-        "runs_steps_per_s": speeds[modes[0]],
+        "secure": first[1],
+        "steps_per_s": median_of(results[first], "steps_per_s"),
+        "runs_steps_per_s": [run["steps_per_s"] for run in results[first]],
         "startup_s": statistics.median(startups) if startups else None,
-        "bytes_per_message": {
-            kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(result["by_kind"].items())
-            if entry["messages"]
-        },
+        "bytes_per_message": payload_bytes(result),
         "robot_process_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
         "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
         "run_folder": result["folder"],
     }
     if dashboard == "compare":
-        row["runs_steps_per_s_with_dashboard"] = speeds[True]
-        row["steps_per_s_with_dashboard"] = statistics.median(speeds[True])
+        with_dashboard = results[variants[1]]
+        row["runs_steps_per_s_with_dashboard"] = [run["steps_per_s"] for run in with_dashboard]
+        row["steps_per_s_with_dashboard"] = median_of(with_dashboard, "steps_per_s")
         row["dashboard_cost"] = 1.0 - row["steps_per_s_with_dashboard"] / row["steps_per_s"]
+    if secure == "compare":
+        plain, secured_runs = results[variants[0]], results[variants[1]]
+        row["runs_steps_per_s_secure"] = [run["steps_per_s"] for run in secured_runs]
+        row["steps_per_s_secure"] = median_of(secured_runs, "steps_per_s")
+        row["security_cost"] = 1.0 - row["steps_per_s_secure"] / row["steps_per_s"]
+        row["bytes_per_message_secure"] = payload_bytes(secured_runs[-1])
+        row["wire_bytes_per_message"] = (
+            {"plain": median_of(plain, "wire_bytes_per_message"),
+             "secure": median_of(secured_runs, "wire_bytes_per_message")} if isolated else None)
+        row["startup_wire_bytes"] = (
+            {"plain": median_of(plain, "startup_wire_bytes"),
+             "secure": median_of(secured_runs, "startup_wire_bytes")} if isolated else None)
     return row
+
+
+def median_of(results: list[dict], key: str) -> float:
+    return statistics.median(result[key] for result in results)
+
+
+def payload_bytes(result: dict) -> dict[str, float]:
+    """Payload bytes per message of each kind in a run's summary."""
+    return {kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(result["by_kind"].items())
+            if entry["messages"]}
+
+
+def isolation_works() -> bool:
+    """Whether this machine lets us run a team in a private network namespace (``unshare``)."""
+    from ringtrack.tools.wire import UNSHARE
+
+    try:
+        return subprocess.run([*UNSHARE, "true"], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: Path) -> dict:
+    """One lockstep team in a private network namespace (``tools/wire.py``): its summary with
+    ``wire_bytes_per_message``, the bytes its loopback carried while stepping divided by the
+    messages of the run, and ``startup_wire_bytes``, those before its first step."""
+    from ringtrack.tools.wire import UNSHARE
+
+    scenario_path, out = scratch / "scenario.toml", scratch / "isolated.json"
+    scenario_path.write_bytes(scenario.to_toml())
+    out.unlink(missing_ok=True)
+    command = [*UNSHARE, sys.executable, "-m", "ringtrack.tools.wire", str(out), str(scenario_path),
+               str(runs.resolve()), *([str(secure)] if secure is not None else [])]
+    completed = subprocess.run(command, capture_output=True, text=True)
+    if completed.returncode != 0 or not out.exists():
+        raise BenchFailed(f"the isolated run failed: {completed.stderr.strip()[-300:]}")
+    result = json.loads(out.read_text())
+    messages = sum(entry["messages"] for entry in result.get("by_kind", {}).values())
+    result["wire_bytes_per_message"] = result["wire_bytes"] / messages if messages else float("nan")
+    return result
 
 
 def emulator_table(rows: list[dict], title: str) -> Table:
     compare = any("dashboard_cost" in row for row in rows)
+    secure = any("security_cost" in row for row in rows)
     table = Table(title=title)
     columns = ["robots", "per process", "steps/s", "start-up s", *(f"{kind} B" for kind in MESSAGE_KINDS),
                "robot process MiB"]
-    for column in columns + (["with dashboard", "cost"] if compare else []):
+    extra = (["with dashboard", "cost"] if compare else []) + (
+        ["secure steps/s", "cost", "wire B/msg plain", "wire B/msg secure"] if secure else [])
+    for column in columns + extra:
         table.add_column(column, justify="right")
     for row in rows:
         size = row["bytes_per_message"]
@@ -231,14 +317,21 @@ def emulator_table(rows: list[dict], title: str) -> Table:
             *(f"{size.get(kind, 0):.1f}" for kind in MESSAGE_KINDS),
             f"{row['robot_process_rss_mib']:.1f}" if row["robot_process_rss_mib"] else "-",
             *([f"{row['steps_per_s_with_dashboard']:.0f}", f"{row['dashboard_cost']:+.1%}"] if compare else []),
+            *(security_cells(row) if secure else []),
         )
     return table
+
+
+def security_cells(row: dict) -> list[str]:
+    wire = row.get("wire_bytes_per_message") or {}
+    return [f"{row['steps_per_s_secure']:.0f}", f"{row['security_cost']:+.1%}",
+            *(f"{wire[way]:.1f}" if way in wire else "-" for way in ("plain", "secure"))]
 
 
 def run_emulator_bench(args: argparse.Namespace) -> int:
     try:
         rows = [emulator_row(robots, args.steps, args.strategy, args.repeat, args.dashboard, args.runs,
-                             args.robots_per_process, args.topology) for robots in args.robots]
+                             args.robots_per_process, args.topology, args.secure) for robots in args.robots]
     except BenchFailed as failure:
         err.print(str(failure), highlight=False)
         return 1

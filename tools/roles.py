@@ -8,8 +8,11 @@ import asyncio
 from pathlib import Path
 
 from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
+from ringtrack.bus.keys import FUSION, MONITOR, ROUTER, WORLD, robot_name
 from ringtrack.tools.console import UsageError, err, out
 from ringtrack.tools.options import LOG_FILE, add_scenario_arguments, positive, scenario_from_arguments
+
+SECURE_HELP = "team folder made by ringtrack certs: mutual TLS on every link (tls/ endpoints), access control"
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -45,6 +48,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     router.add_argument("--connect", action="append", metavar="ENDPOINT", help="another router; repeatable")
     router.add_argument("--announce", type=Path, metavar="PATH",
                         help="write the endpoints the router listens on to PATH (JSON; useful with port 0)")
+    router.add_argument("--secure", type=Path, metavar="DIR", help=SECURE_HELP)
     router.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     router.set_defaults(handler=run_router_role)
 
@@ -70,6 +74,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
                         help=f"endpoint to listen on (default {LOOPBACK_ANY_PORT}); repeatable")
     parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="endpoint to connect to; repeatable")
     parser.add_argument("--monitor", action="store_true", help="a monitor is part of the team: wait for it")
+    parser.add_argument("--secure", type=Path, metavar="DIR", help=SECURE_HELP)
     parser.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -100,13 +105,15 @@ def run_id(text: str) -> int:
     return value
 
 
-def bus_config(args: argparse.Namespace, admin_space: bool = False) -> BusConfig:
-    return BusConfig(
-        mode=args.mode,
-        listen=tuple(args.listen or (LOOPBACK_ANY_PORT,)),
-        connect=tuple(args.connect or ()),
-        admin_space=admin_space,
-    )
+def bus_config(args: argparse.Namespace, names: list[str], robots: int | None, admin_space: bool = False) -> BusConfig:
+    """The bus of participants ``names`` (of a team of ``robots``) from the role's flags; with
+    ``--secure DIR`` mutual TLS and access control (:func:`ringtrack.bus.security.secure_config`)."""
+    listen, connect = tuple(args.listen or (LOOPBACK_ANY_PORT,)), tuple(args.connect or ())
+    if args.secure is None:
+        return BusConfig(mode=args.mode, listen=listen, connect=connect, admin_space=admin_space)
+    from ringtrack.bus.security import secure_config
+
+    return secure_config(args.secure, names, robots, args.mode, listen, connect, admin_space)
 
 
 def run_world_role(args: argparse.Namespace) -> int:
@@ -121,7 +128,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         announce=args.announce,
         until_converged=args.until_converged,
     )
-    config = bus_config(args, admin_space=args.announce is not None)
+    config = bus_config(args, [WORLD], scenario.robots, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))
 
 
@@ -135,7 +142,8 @@ def run_robot_role(args: argparse.Namespace) -> int:
         if not 0 <= robot < scenario.robots:
             raise UsageError(f"--id {robot}: the team has robots 0..{scenario.robots - 1}")
     return finished("robot", asyncio.run(
-        run_robots(args.id, scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent,
+        run_robots(args.id, scenario, args.run, bus_config(args, [robot_name(robot) for robot in args.id],
+                                                           scenario.robots), args.monitor, args.exit_with_parent,
                    args.reply_timeout)
     ))
 
@@ -152,6 +160,8 @@ def join(args: argparse.Namespace) -> None:
     args.run = int(run["run"], 16)
     args.connect = run["connect"]
     args.monitor = True
+    if args.secure is None and run.get("secure"):
+        args.secure = Path(run["secure"])
     if args.reply_timeout is None:
         args.reply_timeout = run["reply_timeout"]
 
@@ -165,7 +175,8 @@ def run_router_role(args: argparse.Namespace) -> int:
 
     from ringtrack.bus.config import announce_endpoints, listening_locators, open_session
 
-    config = BusConfig(mode="router", listen=tuple(args.listen), connect=tuple(args.connect or ()), admin_space=True)
+    args.mode = "router"
+    config = bus_config(args, [ROUTER], None, admin_space=True)
     stop = threading.Event()
     for number in (signal.SIGINT, signal.SIGTERM):
         signal.signal(number, lambda *_: stop.set())
@@ -176,7 +187,7 @@ def run_router_role(args: argparse.Namespace) -> int:
             stop.set()
 
         threading.Thread(target=wait_for_parent, daemon=True).start()
-    with open_session(config) as session:
+    with open_session(config, ROUTER) as session:
         if args.announce is not None:
             announce_endpoints(session, args.announce)
         err.print(f"router listening on {', '.join(listening_locators(session))}; Ctrl-C to stop", highlight=False)
@@ -192,7 +203,8 @@ def run_fusion_role(args: argparse.Namespace) -> int:
         raise UsageError(f"the scenario's estimation.mode is {scenario.estimation.mode!r}; a fusion centre serves "
                          "only 'centralized'")
     return finished("fusion", asyncio.run(
-        run_fusion(scenario, args.run, bus_config(args), args.monitor, args.exit_with_parent)))
+        run_fusion(scenario, args.run, bus_config(args, [FUSION], scenario.robots), args.monitor,
+                   args.exit_with_parent)))
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
@@ -208,8 +220,8 @@ def run_monitor_role(args: argparse.Namespace) -> int:
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     with LiveView(console, model, dashboard) as view:
         code, report = asyncio.run(
-            run_monitor(scenario, scenario.seed, args.run, bus_config(args), args.log, scenario.max_steps,
-                        args.clock, model, view.refresh, args.exit_with_parent)
+            run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots), args.log,
+                        scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent)
         )
     if report is not None:
         print_report(out, report)

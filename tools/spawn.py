@@ -61,6 +61,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--topology", choices=["mesh", "star"],
                         help=f"mesh: every pair linked; star: the world is a Zenoh router (default: mesh up to "
                         f"{MESH_LIMIT} participants)")
+    parser.add_argument("--secure", type=Path, metavar="DIR",
+                        help="team folder made by ringtrack certs: mutual TLS on every link and access control")
     display = parser.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true",
                          help="draw the live dashboard even without a terminal (the default on a terminal)")
@@ -80,6 +82,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         until_converged=args.steps is None,
         topology=args.topology,
         robots_per_process=args.robots_per_process,
+        secure=args.secure,
     )
     if args.json:
         write_json(args.json, result)
@@ -105,6 +108,7 @@ def spawn_team(
     quiet: bool = False,
     topology: str | None = None,
     robots_per_process: int = 1,
+    secure: Path | None = None,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -113,7 +117,8 @@ def spawn_team(
     "mesh" links every pair of processes directly (Zenoh peers), "star" makes the world a Zenoh
     router that every other process reaches as a client; None picks mesh up to
     ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
-    still its own Zenoh participant."""
+    still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
+    mutual TLS and every participant enforce the team's access control."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -123,6 +128,7 @@ def spawn_team(
             f"this machine holds ({budget}); host several per process with --robots-per-process "
             f"{math.ceil(scenario.robots / budget)}"
         )
+    listen = LOOPBACK_ANY_PORT if secure is None else secured(secure, scenario)
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -130,6 +136,7 @@ def spawn_team(
     log_path = log_path or folder / "log.jsonl"
     announce = folder / "world-endpoints.json"
     common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
+    common += [] if secure is None else ["--secure", str(secure.resolve())]
     started = time.perf_counter()
     interrupted = ""
     participants = scenario.robots + 2 + (scenario.estimation.mode == "centralized")  # Zenoh sessions
@@ -141,12 +148,13 @@ def spawn_team(
             with terminate_as_exception():
                 stop_rule = ["--until-converged"] if until_converged else []
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
-                                           "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
+                                           "--rate", str(rate), "--listen", listen,
                                            "--announce", str(announce), *stop_rule])
                 endpoints = supervisor.endpoints(announce, "world")
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
+                                                 "secure": None if secure is None else str(secure.resolve()),
                                                  "reply_timeout": None if clock == "lockstep" else
                                                  scenario.control.dt / rate})
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
@@ -188,6 +196,17 @@ def spawn_team(
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
+
+
+def secured(directory: Path, scenario: Scenario) -> str:
+    """Check the team folder serves every participant of ``scenario`` (before anything starts) and
+    return the endpoint the world listens on."""
+    from ringtrack.bus.keys import FUSION, MONITOR, WORLD, robot_name
+    from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
+
+    names = [WORLD, MONITOR, *([FUSION] if scenario.estimation.mode == "centralized" else [])]
+    check_team(directory, [*names, *(robot_name(robot) for robot in range(scenario.robots))], scenario.robots)
+    return SECURE_LOOPBACK_ANY_PORT
 
 
 def process_budget() -> int:
