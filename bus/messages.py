@@ -13,6 +13,7 @@ from typing import Annotated, ClassVar
 
 import msgspec
 
+from ringtrack.bus.faults import POLL_MESSAGES
 from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Route, robot_name
 
 SCHEMA = 1
@@ -272,9 +273,10 @@ def endpoints(message: Message) -> tuple[str, str | None]:
 
 
 def poll_bytes(with_belief: bool) -> int:
-    """Payload bytes of one poll (2 requests + 2 replies) with typical field sizes (a step in the
-    thousands, a 32-bit nonce; floats are always 9 bytes), for counts the engine only infers."""
+    """Payload bytes of one poll that meets no fault (:data:`bus.faults.POLL_MESSAGES`: a request
+    and a reply per neighbour) with typical field sizes (a step in the thousands, a 32-bit nonce;
+    floats are always 9 bytes), for counts the engine only infers."""
     request = Request(SCHEMA, 2**31, 1000, 1, 2, 2**31)
     belief = ((0.0, 0.0), (0.0, 0.0, 0.0)) if with_belief else (None, None)
     reply = Reply(SCHEMA, 2**31, 1000, 2, 1, 2**31, (0.0, 0.0), *belief)
-    return 2 * len(encode(request)) + 2 * len(encode(reply))
+    return POLL_MESSAGES // 2 * (len(encode(request)) + len(encode(reply)))

@@ -23,6 +23,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ringtrack.agents.laws import Trigger
+from ringtrack.bus.faults import POLL_MESSAGES
 from ringtrack.tools.runlog import LINK_EVENTS
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import convergence_error, true_offsets
@@ -172,8 +173,9 @@ class TeamModel:
 
     def saved(self) -> tuple[int, float]:
         """Robot-to-robot messages saved against the constant strategy (every robot polls both
-        neighbours every step: 4 messages per robot per step), and as a fraction of its total."""
-        constant = 4 * len(self.robots) * self.step
+        neighbours every step: :data:`bus.faults.POLL_MESSAGES` per robot per step), and as a
+        fraction of its total."""
+        constant = POLL_MESSAGES * len(self.robots) * self.step
         spent = self.totals["robot"][0]
         return constant - spent, (constant - spent) / constant if constant else 0.0
 

@@ -13,11 +13,12 @@ import asyncio
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
+from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic
 from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from ringtrack.bus.messages import (
     Command,
@@ -61,18 +62,23 @@ class PendingStep:
     notices: list[FaultNotice] = field(default_factory=list)
 
     def complete(self) -> bool:
-        """Tick and every live robot's command are in, and every message its polls published: 4 per
-        poll, less a request and its answer for each poll request the fault layer dropped before
-        sending, plus both for each duplicated request."""
+        """Tick and every live robot's command are in, and every robot-to-robot message its polls
+        published: :func:`bus.faults.request_traffic` of each poll request, whose fate the fault
+        notices tell (none: delivered once)."""
         if self.tick is None or not set(self.tick.live) <= set(self.commands):
             return False
         polling = {robot for robot, command in self.commands.items() if command.trigger}
-        expected = 4 * len(polling)
+        fates: dict[tuple[int, int], Fate] = {}
         for notice in self.notices:
-            if notice.subject == "request" and notice.what == "dropped" and notice.sender in polling:
-                expected -= 2
-            elif notice.subject == "request" and notice.what == "duplicated":
-                expected += 2
+            if notice.subject == "request" and notice.sender in polling:
+                fate = fates.get((notice.sender, notice.receiver), DELIVERED)
+                if notice.what == "dropped":
+                    fate = Fate(dropped=True)
+                elif notice.what == "duplicated":
+                    fate = replace(fate, copies=2)
+                fates[notice.sender, notice.receiver] = fate
+        expected = 2 * len(polling) * request_traffic(DELIVERED)
+        expected += sum(request_traffic(fate) - request_traffic(DELIVERED) for fate in fates.values())
         return self.sent_messages.total() >= expected
 
 
@@ -263,8 +269,7 @@ async def run_monitor(
                     "late": recorder.late,
                     "rss_kib": report.rss_kib,
                     "consistent": report.consistent(),
-                    "faults": {name: report.faults[name] for name in ("sent", "delivered", "dropped", "duplicated",
-                                                                      "delayed")},
+                    "faults": {name: report.faults[name] for name in FAULT_COUNTERS},
                     "notes": dict(report.notes),
                     "rejected_by": report.rejected_by,
                 }

@@ -32,7 +32,7 @@ from typing import IO, Annotated, Any
 import msgspec
 import numpy as np
 
-from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals
+from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals, link_traffic
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import convergence_error, true_offsets
 from ringtrack.world.scenario import Scenario, parse_scenario, resolve
@@ -158,20 +158,8 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                 )
             )
         writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
-                      "traffic": _engine_traffic(history.triggers[:, trial] != 0), "senders": {}, "rejected": {},
+                      "traffic": [list(row) for row in link_traffic(history, trial)], "senders": {}, "rejected": {},
                       "late": 0, "faults": fault_totals(history, trial)})
-
-
-def _engine_traffic(polled: np.ndarray) -> list[list[Any]]:
-    """Robot-to-robot message counts per link implied by the polls (no bytes: nothing was sent)."""
-    robots = polled.shape[1]
-    polls = polled.sum(axis=0)
-    rows: list[list[Any]] = []
-    for robot in range(robots):
-        for neighbour in ((robot - 1) % robots, (robot + 1) % robots):
-            rows.append(["request", f"r{robot}", f"r{neighbour}", int(polls[robot]), None])
-            rows.append(["reply", f"r{neighbour}", f"r{robot}", int(polls[robot]), None])
-    return rows
 
 
 # ---------------------------------------------------------------------------- reading
@@ -380,6 +368,7 @@ def history_from_log(log: RunLog) -> History:
         estimates=estimates,
         sent=np.array([record["sent_messages"] for record in log.steps], dtype=np.int64)[:, None],
         received=np.array([record["received_messages"] for record in log.steps], dtype=np.int64)[:, None],
+        requests=None,
         faults=np.zeros((len(log.steps), 1, len(FAULT_COLUMNS)), dtype=np.int64),  # per run only: see the end record
         probes=np.zeros((len(log.steps), 1), dtype=np.int64),
     )
