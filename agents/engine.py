@@ -18,9 +18,18 @@ from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
 from ringtrack.bus.faults import FAULT_COUNTERS, POLL_MESSAGES, Fate, FaultCounter, FaultPlan
 from ringtrack.world.geometry import FloatArray, angle_of
-from ringtrack.world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
+from ringtrack.world.metrics import (
+    converged,
+    convergence_step,
+    mean_communication_rate,
+    memory_cerr,
+    strategy_cerr,
+    target_error,
+    true_cerr,
+)
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
+from ringtrack.world.state import motion_step
 
 
 @dataclass
@@ -28,8 +37,10 @@ class History:
     """Per-step record of a batch of runs of one scenario.
 
     ``angles`` are radians about the true target, unwrapped along time; ``positions`` metres (or
-    ``None`` when not recorded); ``triggers`` the :class:`agents.laws.Trigger` masks; ``offsets`` each
-    robot's ``gV - theta`` (radians) from memory before polling and ``ages`` its memory ages (steps,
+    ``None`` when not recorded); ``live`` the robots in the ring (the engine's team is always
+    whole; a logged one may lose robots); ``triggers`` the :class:`agents.laws.Trigger` masks; ``offsets`` each
+    robot's ``gV - theta`` (radians) from memory before polling (NaN while it knows nothing of a
+    neighbour) and ``ages`` its memory ages (steps,
     predecessor and successor) at that moment; ``cerr_true`` degrees (see
     :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
     over robots of the distance from the estimate each steered by to the target); ``estimates`` those
@@ -43,6 +54,7 @@ class History:
     seeds: list[int]
     angles: FloatArray  # (K, T, N)
     positions: FloatArray | None  # (K, T, N, 2)
+    live: NDArray[np.bool_]  # (K, T, N)
     triggers: NDArray[np.uint8]  # (K, T, N)
     offsets: FloatArray  # (K, T, N)
     ages: NDArray[np.int32]  # (K, T, N, 2)
@@ -62,13 +74,14 @@ class History:
 
     @property
     def cerr_memory(self) -> FloatArray:
-        """Cerr from each robot's memory before polling (degrees, shape (K, T))."""
-        return convergence_error(self.offsets)
+        """Cerr from each live robot's memory before polling (degrees, shape (K, T); NaN where a
+        live robot's offset is unknown)."""
+        return memory_cerr(self.offsets, self.live)
 
     @property
     def cerr(self) -> FloatArray:
         """The paper's Cerr of the run's strategy: memory-based for "self", true for "constant"."""
-        return self.cerr_memory if self.scenario.control.strategy == "self" else self.cerr_true
+        return strategy_cerr(self.scenario.control.strategy, self.cerr_memory, self.cerr_true)
 
     @property
     def ctime(self) -> NDArray[np.int64]:
@@ -253,7 +266,6 @@ def run(
     steps = scenario.max_steps if steps is None else steps
     region, params = scenario.region, scenario.control
     threshold_deg = np.rad2deg(scenario.threshold)
-    max_move = None if scenario.v_max is None else scenario.v_max * params.dt
 
     paths = np.stack([scenario.target_path(seed, steps) for seed in seeds])  # (T, K, 2)
     positions = np.stack([scenario.start_positions(seed) for seed in seeds])
@@ -272,7 +284,7 @@ def run(
     limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
-    converged = np.zeros(trials, dtype=bool)
+    done = np.zeros(trials, dtype=bool)
 
     for k in range(1, steps + 1):
         row = k - 1
@@ -280,7 +292,7 @@ def run(
         if recorded is not None:
             recorded[row] = positions
         angles[row] = angle_of(positions, targets[:, None, :])
-        cerr_true[row] = convergence_error(true_offsets(positions, targets))
+        cerr_true[row] = true_cerr(positions, targets)
         centres = team.measure(positions, targets)
         neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
         reach = tuple(np.linalg.norm(neighbour - positions, axis=-1) <= (limit or np.inf) for neighbour in neighbours)
@@ -295,16 +307,15 @@ def run(
             controller.recentre(centres)
         goal = controller.goal(reach if limit else None, limit)
         requests[row], faults[row], probes[row] = outcome.requests, outcome.faults, outcome.probes
-        offsets[row] = controller.guaranteed_offset
-        terr[row] = np.linalg.norm(centres - targets[:, None, :], axis=-1).mean(axis=-1)
+        offsets[row] = np.where(controller.offset_known, controller.guaranteed_offset, np.nan)
+        terr[row] = target_error(centres, targets)
         if estimates is not None:
             estimates[row] = centres
-        positions = region.move_along(positions, goal, max_move)
+        positions = motion_step(scenario, positions, goal)
         if on_step is not None:
             on_step(k)
-        paper_cerr = convergence_error(offsets[row]) if params.strategy == "self" else cerr_true[row]
-        converged |= paper_cerr < threshold_deg
-        if until_converged and converged.all():
+        done |= converged(strategy_cerr(params.strategy, memory_cerr(offsets[row]), cerr_true[row]), threshold_deg)
+        if until_converged and done.all():
             steps = k
             break
 
@@ -313,6 +324,7 @@ def run(
         seeds=seeds,
         angles=np.unwrap(angles[:steps], axis=0),
         positions=None if recorded is None else recorded[:steps],
+        live=np.ones((steps, trials, robots), dtype=bool),
         triggers=triggers[:steps],
         offsets=offsets[:steps],
         ages=ages[:steps],
@@ -348,10 +360,15 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "ctime_true": ctime_true or None,
         "com_bar": com_bar if ctime else None,
         "triggers": {"total": int(polled.sum()), "per_robot": polled.tolist()},
-        "cerr_final_deg": float(history.cerr[-1, trial]),
+        "cerr_final_deg": _known(history.cerr[-1, trial]),
         "cerr_true_final_deg": float(history.cerr_true[-1, trial]),
         "estimation": scenario.estimation.mode,
         "terr_mean": float(history.terr[:, trial].mean()),
         "terr_final": float(history.terr[-1, trial]),
         "faults": fault_totals(history, trial),
     }
+
+
+def _known(value: float) -> float | None:
+    """A figure for JSON: None where it is unknown (NaN)."""
+    return None if np.isnan(value) else float(value)

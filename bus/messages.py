@@ -58,7 +58,8 @@ class Measurement(Message, tag=1):
 class Command(Message, tag=2):
     """Robot -> world: where to move this step, why it polled (a Trigger mask), and its view.
 
-    ``guaranteed_offset`` is ``gV - theta`` (radians) and ``ages`` the ages (steps) of its memory of
+    ``guaranteed_offset`` is ``gV - theta`` (radians; None while the robot knows nothing of a
+    neighbour, so its offset is no value of the ring) and ``ages`` the ages (steps) of its memory of
     its predecessor and successor, both as they were when it decided whether to poll; ``centre`` is
     the point it steers about (the known target or its estimate) with ``covariance`` when it
     estimates.
@@ -68,7 +69,7 @@ class Command(Message, tag=2):
     robot: int
     goal: Point
     trigger: Count
-    guaranteed_offset: Real
+    guaranteed_offset: Real | None
     ages: tuple[Count, Count]
     centre: Point
     covariance: Covariance | None = None
