@@ -19,7 +19,7 @@ import numpy as np
 from ringtrack.agents.estimation import Estimator
 from ringtrack.agents.node import pack_covariance, pack_point
 from ringtrack.bus.config import BusConfig
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import SCHEMA, End, Estimate, RangeReport
 from ringtrack.bus.participant import Delivery, Interrupt, Presence
 from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
@@ -86,7 +86,7 @@ async def run_fusion(
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
         participant.announce("alive")
-        needed = {WORLD} | {robot_name(i) for i in range(scenario.robots)} | ({MONITOR} if expect_monitor else set())
+        needed = participants(range(scenario.robots), centralized=False, monitor=expect_monitor)
         roster = Roster()
         started, events = await gather_until(participant, roster, lambda: needed <= roster.alive)
         if not started:

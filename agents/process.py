@@ -18,7 +18,7 @@ from typing import Literal
 
 from ringtrack.agents.node import Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
@@ -60,9 +60,7 @@ async def run_robot(
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
         participant.announce("alive")
-        needed = {WORLD, robot_name(node.predecessor), robot_name(node.successor)}
-        needed |= {MONITOR} if expect_monitor else set()
-        needed |= {FUSION} if node.mode == "centralized" else set()
+        needed = participants((node.predecessor, node.successor), node.mode == "centralized", expect_monitor)
         roster = Roster()
         joined_team, events = await gather_until(participant, roster, lambda: needed <= roster.alive)
         if not joined_team:

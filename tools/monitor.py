@@ -19,7 +19,7 @@ from pathlib import Path
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
 from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic
-from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.keys import MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import (
     Command,
     End,
@@ -185,10 +185,9 @@ class Recorder:
         self.record(record)
 
 
-def participants(scenario: Scenario) -> set[str]:
+def senders(scenario: Scenario) -> set[str]:
     """Everyone who sends in a run of ``scenario`` (the monitor only listens)."""
-    fusion = {FUSION} if scenario.estimation.mode == "centralized" else set()
-    return {WORLD} | {robot_name(i) for i in range(scenario.robots)} | fusion
+    return participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=False)
 
 
 @dataclass
@@ -246,7 +245,7 @@ async def run_monitor(
         participant.watch("alive")
         participant.announce("alive")
         roster = Roster()
-        everyone = participants(scenario)
+        everyone = senders(scenario)
         started, held = await gather_until(participant, roster, lambda: everyone <= roster.alive)
         if not started:
             return 130, None
@@ -297,7 +296,7 @@ async def _watch(
     last_view = 0.0
     loop = asyncio.get_running_loop()
     last_event_at = loop.time()
-    senders = participants(recorder.scenario)
+    team = senders(recorder.scenario)
     while True:
         for event in events:
             if isinstance(event, Delivery):
@@ -320,7 +319,7 @@ async def _watch(
         if code and (end is not None or loop.time() - interrupted_at > END_AFTER_INTERRUPT_S):
             break  # stopped: keep what the world's End says completed, if it comes in time
         if end is not None:
-            accounted = all(name in finals or roster.gone_for_good(name) for name in senders)
+            accounted = all(name in finals or roster.gone_for_good(name) for name in team)
             if (accounted and _seen_everything(participant.counter, finals)) or (
                 loop.time() - last_event_at > FINAL_STATS_GRACE_S
             ):

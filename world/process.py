@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
 from ringtrack.bus.messages import SCHEMA, Command, End
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger
@@ -65,9 +65,9 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         participant.announce("alive")
         if options.announce is not None:
             announce_endpoints(participant.session, options.announce)
-        team = {robot_name(i) for i in range(scenario.robots)}
-        needed = team | ({MONITOR} if options.expect_monitor else set())
-        needed |= {FUSION} if scenario.estimation.mode == "centralized" else set()
+        team = participants(range(scenario.robots), centralized=False, monitor=options.expect_monitor) - {WORLD}
+        needed = participants(range(scenario.robots), scenario.estimation.mode == "centralized",
+                              options.expect_monitor) - {WORLD}
         roster = Roster()
         started, _ = await gather_until(participant, roster, lambda: needed <= roster.ready)
         if not started:
@@ -93,7 +93,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
         log.info("run %s after %d steps in %.2f s (%.0f steps/s)", reason, last, wall, last / wall if wall else 0.0)
         participant.send(MONITOR, participant.stats(final=True))
-        await linger(participant, roster, team | ({MONITOR} if options.expect_monitor else set()))
+        await linger(participant, roster, team)
         return code
 
 
