@@ -34,7 +34,7 @@ from ringtrack.bus.messages import (
     Traffic,
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
-from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined
+from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.tools.dashboard import TeamModel
 from ringtrack.tools.runlog import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
@@ -239,17 +239,10 @@ async def run_monitor(
     times per second, and once more with True when the log is complete; returns the exit code and
     the report (None when stopped before the start)."""
     keys = Keys(run)
-    robots = scenario.robots
-    async with joined(bus, keys, MONITOR, robots, Interrupts(exit_with_parent)) as participant:
-        participant.collect(keys.everything)
-        participant.watch("alive")
-        participant.announce("alive")
-        roster = Roster()
-        everyone = senders(scenario)
-        started, held = await gather_until(participant, roster, lambda: everyone <= roster.alive)
-        if not started:
-            return 130, None
-        participant.announce("ready")
+    report: MonitorReport | None = None
+
+    async def main(participant: Participant, roster: Roster, held: list) -> int:
+        nonlocal report
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
             recorder = Recorder(writer, scenario, None if model is None else model.add)
@@ -274,10 +267,15 @@ async def run_monitor(
                 }
             )
         if model is not None:
-            model.status = report.end.reason if report.end else "stopped" if code == 130 else "world lost"
+            model.status = report.end.reason if report.end else "stopped" if code == STOPPED else "world lost"
         if refresh is not None:
             refresh(True)
-        return code, report
+        return code
+
+    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=(keys.everything,),
+                stats=lambda participant, code: None)
+    code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
+    return code, report
 
 
 async def _watch(
@@ -312,7 +310,7 @@ async def _watch(
                     recorder.record({"type": "event", "event": "joined" if event.up else "left",
                                      "robot": event.name, "step": recorder.latest_tick, "wall": time.time()})
             elif isinstance(event, Interrupt) and not code:
-                code, interrupted_at = 130, loop.time()
+                code, interrupted_at = STOPPED, loop.time()
         if events:
             last_event_at = loop.time()
         recorder.flush()
