@@ -19,10 +19,10 @@ import numpy as np
 from ringtrack.agents.estimation import Estimator
 from ringtrack.agents.node import pack_covariance, pack_point
 from ringtrack.bus.config import BusConfig
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import SCHEMA, End, Estimate, RangeReport
-from ringtrack.bus.participant import Delivery, Interrupt, Presence
-from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
 from ringtrack.world.scenario import Scenario
 
 
@@ -81,17 +81,8 @@ async def run_fusion(
     """Serve the run's centralized estimate; returns the exit code (0 done, 1 world lost, 130 stopped)."""
     keys = Keys(run)
     centre = FusionCentre(scenario, run)
-    async with joined(bus, keys, FUSION, scenario.robots, Interrupts(exit_with_parent)) as participant:
-        participant.listen(keys.inbox(FUSION))
-        participant.listen(keys.inbox(BROADCAST))
-        participant.watch("alive")
-        participant.announce("alive")
-        needed = {WORLD} | {robot_name(i) for i in range(scenario.robots)} | ({MONITOR} if expect_monitor else set())
-        roster = Roster()
-        started, events = await gather_until(participant, roster, lambda: needed <= roster.alive)
-        if not started:
-            return 130
-        participant.announce("ready")
+
+    async def main(participant: Participant, roster: Roster, events: list) -> int:
         code = None
         while code is None:
             for event in events:
@@ -101,7 +92,7 @@ async def run_fusion(
                 elif isinstance(event, Delivery) and isinstance(event.message, End):
                     code = 0
                 elif isinstance(event, Interrupt):
-                    code = 130
+                    code = STOPPED
                 elif isinstance(event, Presence):
                     roster.update(event)
                     estimates = _on_presence(centre, event)
@@ -111,10 +102,16 @@ async def run_fusion(
                 code = 1
             if code is None:
                 events = await next_events(participant, roster)
-        participant.send(MONITOR, participant.stats(final=True))
-        if expect_monitor and code != 130:
-            await linger(participant, roster, {MONITOR})
         return code
+
+    role = Role(
+        name=FUSION,
+        needed=participants(range(scenario.robots), centralized=False, monitor=expect_monitor),
+        main=main,
+        listen=(keys.inbox(FUSION), keys.inbox(BROADCAST)),
+        linger_for=lambda code: {MONITOR} if expect_monitor and code != STOPPED else set(),
+    )
+    return await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
 
 
 def _on_presence(centre: FusionCentre, presence: Presence) -> list[Estimate]:

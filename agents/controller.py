@@ -33,7 +33,8 @@ class MidpointController:
     ``predecessor_position``/``successor_position`` (shape ``S + (2,)``) are the remembered
     neighbour positions, ``predecessor_age``/``successor_age`` (shape ``S``, int) their ages in steps,
     and ``guaranteed_offset`` the last observed ``gV - theta`` (radians) from memory as it was before
-    polling, the quantity of the paper's self-triggered Cerr. A new controller knows nothing: its
+    polling, the quantity of the paper's self-triggered Cerr, with ``offset_known`` whether that
+    memory held something of both neighbours (else the offset is no value of the ring). A new controller knows nothing: its
     memory holds its own position until the exchange of step 1, after which ``guaranteed_offset``
     is the exact step-1 offset.
 
@@ -51,6 +52,7 @@ class MidpointController:
         self.predecessor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.successor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
         self.guaranteed_offset: FloatArray = np.zeros(shape)
+        self.offset_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
         # Whether anything is known of each neighbour: not before the first exchange, nor after the
         # neighbour changed until it answers; a robot polls (UNKNOWN) and holds still meanwhile.
         self.predecessor_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
@@ -81,7 +83,7 @@ class MidpointController:
         self.step = step
         self.own_position = np.asarray(own_position, dtype=float)
         self.recentre(centre)
-        self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta
+        self._take_offset()
         if step == 1:
             return np.full(self.theta.shape, int(Trigger.START))
         if self.params.strategy == "constant":
@@ -89,6 +91,10 @@ class MidpointController:
         return trigger_reasons(
             self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, self.params
         )
+
+    def _take_offset(self) -> None:
+        self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta
+        self.offset_known = self.predecessor_known & self.successor_known
 
     def recentre(self, centre: ArrayLike) -> None:
         """See the ring from ``centre`` (the target or its estimate, metres)."""
@@ -139,7 +145,7 @@ class MidpointController:
         modified strategy of :mod:`agents.limits` applies.
         """
         if self.step == 1:
-            self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta
+            self._take_offset()
         fresh = (self.predecessor_age == 0) & (self.successor_age == 0)
         step = angular_step(
             self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, fresh, self.params

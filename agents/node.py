@@ -280,6 +280,7 @@ class RobotNode:
         limit = self.scenario.communication_range
         reach = (self.reachable(self.predecessor), self.reachable(self.successor))
         goal = self.position if hold else self.controller.goal(reach, limit)
+        offset = float(self.controller.guaranteed_offset) if bool(self.controller.offset_known) else None
         command = Command(
             SCHEMA,
             self.run,
@@ -287,7 +288,7 @@ class RobotNode:
             robot=self.robot,
             goal=pack_point(goal),
             trigger=self.trigger,
-            guaranteed_offset=float(self.controller.guaranteed_offset),
+            guaranteed_offset=offset,
             ages=self.ages,
             centre=pack_point(self.centre),
             covariance=self.covariance,

@@ -18,10 +18,10 @@ from typing import Literal
 
 from ringtrack.agents.node import Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
-from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
+from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request, Stats
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
-from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger, next_events
+from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
 from ringtrack.bus.shim import LinkShim
 from ringtrack.world.scenario import Scenario
 
@@ -55,27 +55,28 @@ async def run_robot(
     """
     node = RobotNode(robot, scenario, run)
     keys = Keys(run)
-    async with joined(bus, keys, node.name, scenario.robots, interrupts) as participant:
-        participant.listen(keys.inbox(node.name))
-        participant.listen(keys.inbox(BROADCAST))
-        participant.watch("alive")
-        participant.announce("alive")
-        needed = {WORLD, robot_name(node.predecessor), robot_name(node.successor)}
-        needed |= {MONITOR} if expect_monitor else set()
-        needed |= {FUSION} if node.mode == "centralized" else set()
-        roster = Roster()
-        joined_team, events = await gather_until(participant, roster, lambda: needed <= roster.alive)
-        if not joined_team:
-            return 130
-        participant.announce("ready")
+    link: RobotLink | None = None
+
+    async def main(participant: Participant, roster: Roster, events: list) -> int:
+        nonlocal link
         link = RobotLink(participant, node, reply_timeout)
-        code = await _serve(link, roster, events)
+        return await _serve(link, roster, events)
+
+    def stats(participant: Participant, code: int) -> Stats:
+        assert link is not None
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests}
-        participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
-        if expect_monitor and code != 130:
-            await linger(participant, roster, {MONITOR})
-        return code
+        return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes)
+
+    role = Role(
+        name=node.name,
+        needed=participants((node.predecessor, node.successor), node.mode == "centralized", expect_monitor),
+        main=main,
+        listen=(keys.inbox(node.name), keys.inbox(BROADCAST)),
+        stats=stats,
+        linger_for=lambda code: {MONITOR} if expect_monitor and code != STOPPED else set(),
+    )
+    return await perform(role, bus, keys, scenario.robots, interrupts)
 
 
 async def run_robots(
@@ -162,7 +163,7 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
             elif isinstance(event, Deadline):
                 link.deadline(event)
             elif isinstance(event, Interrupt):
-                return 130
+                return STOPPED
             elif isinstance(event, Presence):
                 roster.update(event)
                 robot = robot_index(event.name)

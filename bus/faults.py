@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 Reason = Literal["drop", "outage", "range", "gone"]
-FAULT_COUNTERS = ("sent", "delivered", "dropped", "duplicated", "delayed")
+FAULT_COUNTERS = ("sent", "delivered", "dropped", "duplicated", "delayed", "published")
+POLL_MESSAGES = 4  # a poll that meets no fault: a request to each ring neighbour and each one's reply
 
 
 def link(a: int, b: int) -> frozenset[int]:
@@ -56,8 +57,25 @@ class Fate:
     copies: int = 1
     delay_s: float = 0.0
 
+    @property
+    def faults(self) -> tuple[str, ...]:
+        """What the fault layer did to the message: ``("dropped",)``, or any of "duplicated" and
+        "delayed" (each reported to the monitor as a ``FaultNotice`` and logged as an event)."""
+        if self.dropped:
+            return ("dropped",)
+        return ("duplicated",) * (self.copies > 1) + ("delayed",) * (self.delay_s > 0)
+
 
 DELIVERED = Fate()
+
+
+def request_traffic(request: Fate) -> int:
+    """Robot-to-robot messages one request of a poll puts on the bus, given its fate: each copy and
+    the one reply each delivered copy is answered with; 0 for a request dropped before sending
+    (:class:`bus.shim.LinkShim` settles a request's fate on the way out and a reply's on the way in,
+    after it was published). Every count of published robot-to-robot traffic (the engine's, the
+    monitor's step records and per-link rows, the fault layer's ``published``) follows from this."""
+    return 0 if request.dropped else 2 * request.copies
 
 
 @dataclass(frozen=True)
@@ -102,12 +120,31 @@ NO_FAULTS = FaultPlan()
 
 @dataclass
 class FaultCounter:
-    """Robot-to-robot messages ``sent`` (each logical message once), ``delivered`` to a robot (every
-    copy), ``dropped``, ``duplicated`` (extra copies) and ``delayed``; so that
-    ``sent + duplicated == delivered + dropped`` once every message has arrived."""
+    """Robot-to-robot messages ``sent`` (each message the protocol sends, once), ``delivered`` to a
+    robot (every copy), ``dropped``, ``duplicated`` (extra copies), ``delayed``, and ``published``
+    (copies put on the bus: what the monitor sees); so that ``sent + duplicated == delivered +
+    dropped`` once every message has arrived. A request dropped before sending is sent but never
+    published, a reply duplicated on arrival published once: ``published`` is the sum of
+    :func:`request_traffic` over the requests. The engine counts with this class as the robots'
+    fault layers do."""
 
     counts: Counter[str] = field(default_factory=Counter)
     reasons: Counter[str] = field(default_factory=Counter)
+
+    def count_sent(self, published: int) -> None:
+        """One message sent, put on the bus ``published`` times (0: dropped before sending)."""
+        self.counts["sent"] += 1
+        self.counts["published"] += published
+
+    def count_fate(self, fate: Fate) -> None:
+        """What ``fate`` did to one message: dropped (and why), extra copies, delayed."""
+        for what in fate.faults:
+            self.counts[what] += fate.copies - 1 if what == "duplicated" else 1
+        if fate.reason:
+            self.reasons[fate.reason] += 1
+
+    def count_delivered(self, copies: int) -> None:
+        self.counts["delivered"] += copies
 
     def table(self) -> dict[str, int]:
         return {name: self.counts[name] for name in FAULT_COUNTERS}

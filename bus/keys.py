@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import secrets
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -30,6 +31,14 @@ def new_run_id() -> int:
 
 def robot_name(robot: int) -> str:
     return f"r{robot}"
+
+
+def participants(robots: Iterable[int], centralized: bool, monitor: bool) -> set[str]:
+    """The names of a run's participants among ``robots`` (robot indices): the world, those robots,
+    the fusion centre when estimation is ``centralized``, and the monitor when one is part of the
+    run. Every role waits for the ones it talks to by this one list."""
+    names = {WORLD} | {robot_name(robot) for robot in robots}
+    return names | ({FUSION} if centralized else set()) | ({MONITOR} if monitor else set())
 
 
 def robot_index(name: str) -> int | None:

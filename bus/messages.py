@@ -13,6 +13,7 @@ from typing import Annotated, ClassVar
 
 import msgspec
 
+from ringtrack.bus.faults import POLL_MESSAGES
 from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Route, robot_name
 
 SCHEMA = 1
@@ -57,7 +58,8 @@ class Measurement(Message, tag=1, frozen=True):
 class Command(Message, tag=2, frozen=True):
     """Robot -> world: where to move this step, why it polled (a Trigger mask), and its view.
 
-    ``guaranteed_offset`` is ``gV - theta`` (radians) and ``ages`` the ages (steps) of its memory of
+    ``guaranteed_offset`` is ``gV - theta`` (radians; None while the robot knows nothing of a
+    neighbour, so its offset is no value of the ring) and ``ages`` the ages (steps) of its memory of
     its predecessor and successor, both as they were when it decided whether to poll; ``centre`` is
     the point it steers about (the known target or its estimate) with ``covariance`` when it
     estimates.
@@ -67,7 +69,7 @@ class Command(Message, tag=2, frozen=True):
     robot: int
     goal: Point
     trigger: Count
-    guaranteed_offset: Real
+    guaranteed_offset: Real | None
     ages: tuple[Count, Count]
     centre: Point
     covariance: Covariance | None = None
@@ -272,9 +274,10 @@ def endpoints(message: Message) -> tuple[str, str | None]:
 
 
 def poll_bytes(with_belief: bool) -> int:
-    """Payload bytes of one poll (2 requests + 2 replies) with typical field sizes (a step in the
-    thousands, a 32-bit nonce; floats are always 9 bytes), for counts the engine only infers."""
+    """Payload bytes of one poll that meets no fault (:data:`bus.faults.POLL_MESSAGES`: a request
+    and a reply per neighbour) with typical field sizes (a step in the thousands, a 32-bit nonce;
+    floats are always 9 bytes), for counts the engine only infers."""
     request = Request(SCHEMA, 2**31, 1000, 1, 2, 2**31)
     belief = ((0.0, 0.0), (0.0, 0.0, 0.0)) if with_belief else (None, None)
     reply = Reply(SCHEMA, 2**31, 1000, 2, 1, 2**31, (0.0, 0.0), *belief)
-    return 2 * len(encode(request)) + 2 * len(encode(reply))
+    return POLL_MESSAGES // 2 * (len(encode(request)) + len(encode(reply)))

@@ -1,5 +1,10 @@
 """Running one participant in an asyncio process: session lifecycle, signals, presence.
 
+Every role of a run (world, robot, fusion centre, monitor) lives the same life, which :func:`perform`
+runs for the :class:`Role` it is given: join the run, subscribe, announce itself alive, gather until
+everyone it needs is up, announce itself ready, run its own loop to an exit code, send its final
+statistics to the monitor, and linger until its last messages have had time to arrive.
+
 ``joined`` opens the session and always undeclares and closes it on the way out, so a process
 never hangs on exit; its :class:`Interrupts` post an :class:`Interrupt` to the participant's inbox
 on SIGINT or SIGTERM (and, with ``exit_with_parent``, when standard input reaches end of file
@@ -15,11 +20,13 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 from ringtrack.bus.config import BusConfig, open_session
-from ringtrack.bus.keys import WORLD, Keys
+from ringtrack.bus.keys import MONITOR, WORLD, Keys
+from ringtrack.bus.messages import Stats
 from ringtrack.bus.participant import Event, Interrupt, Participant, Presence
 
 
@@ -160,3 +167,69 @@ async def linger(participant: Participant, roster: Roster, names: set[str], limi
         await asyncio.wait_for(gather_until(participant, roster, lambda: not names & roster.alive), limit_s)
     except TimeoutError:
         pass
+
+
+STOPPED = 130  # the exit code of a participant stopped by a signal (or its parent's end)
+
+Main = Callable[[Participant, Roster, list[Event]], Awaitable[int]]
+
+
+def final_stats(participant: Participant, code: int) -> Stats | None:
+    """The default last word of a role: everything it sent, received and rejected."""
+    return participant.stats(final=True)
+
+
+@dataclass
+class Role:
+    """One participant's part in a run, as :func:`perform` lives it.
+
+    ``name`` joins the run listening on ``listen`` (or, for the monitor, collecting ``collect``) key
+    expressions; once every participant of ``needed`` holds its ``start_on`` token (the world waits
+    for "ready", everyone else for "alive") and after announcing itself ready (``announces_ready``),
+    it runs ``main(participant, roster, events seen meanwhile)`` to an exit code, then sends
+    ``stats(participant, code)`` to the monitor (None: nothing) and stays up while any of
+    ``linger_for(code)`` is alive (see :func:`linger`). ``on_joined`` runs once it is alive (the
+    world announces its endpoints there).
+    """
+
+    name: str
+    needed: set[str]
+    main: Main
+    listen: tuple[str, ...] = ()
+    collect: tuple[str, ...] = ()
+    start_on: Literal["alive", "ready"] = "alive"
+    announces_ready: bool = True
+    on_joined: Callable[[Participant], None] | None = None
+    stats: Callable[[Participant, int], Stats | None] = final_stats
+    linger_for: Callable[[int], set[str]] = lambda code: set()
+
+
+async def perform(role: Role, bus: BusConfig, keys: Keys, robots: int, interrupts: Interrupts) -> int:
+    """Live ``role`` in run ``keys.run`` of ``robots`` robots; returns its exit code (``STOPPED``
+    when interrupted before it started)."""
+    async with joined(bus, keys, role.name, robots, interrupts) as participant:
+        for key_expr in role.listen:
+            participant.listen(key_expr)
+        for key_expr in role.collect:
+            participant.collect(key_expr)
+        participant.watch("alive")
+        if role.start_on == "ready":
+            participant.watch("ready")
+        participant.announce("alive")
+        if role.on_joined is not None:
+            role.on_joined(participant)
+        roster = Roster()
+        tokens = roster.alive if role.start_on == "alive" else roster.ready
+        started, held = await gather_until(participant, roster, lambda: role.needed <= tokens)
+        if not started:
+            return STOPPED
+        if role.announces_ready:
+            participant.announce("ready")
+        code = await role.main(participant, roster, held)
+        stats = role.stats(participant, code)
+        if stats is not None:
+            participant.send(MONITOR, stats)
+        lingering = role.linger_for(code)
+        if lingering:
+            await linger(participant, roster, lingering)
+        return code

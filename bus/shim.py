@@ -39,10 +39,10 @@ class LinkShim:
         if not isinstance(message, (Request, Reply)):
             self.participant.send(destination, message)
             return True
-        self.counter.counts["sent"] += 1
         fate = self._fate(message) if isinstance(message, Request) else DELIVERED
+        self.counter.count_sent(0 if fate.dropped else fate.copies)
+        self._settle(message, fate)
         if fate.dropped:
-            self._record("dropped", message, fate)
             return False
         for _ in range(fate.copies):
             if fate.delay_s:
@@ -50,7 +50,6 @@ class LinkShim:
                 loop.call_later(fate.delay_s, self.participant.send, destination, message)
             else:
                 self.participant.send(destination, message)
-        self._note_extras(message, fate)
         return True
 
     def receive(self, delivery: Delivery) -> tuple[list[Delivery], bool]:
@@ -58,32 +57,25 @@ class LinkShim:
         message = delivery.message
         if not isinstance(message, (Request, Reply)) or delivery.released:
             if isinstance(message, (Request, Reply)):
-                self.counter.counts["delivered"] += 1
+                self.counter.count_delivered(1)
             return [delivery], False
         fate = self._fate(message) if isinstance(message, Reply) else DELIVERED
+        self._settle(message, fate)
         if fate.dropped:
-            self._record("dropped", message, fate)
             return [], True
-        self._note_extras(message, fate)
         copies = [Delivery(message, delivery.route, delivery.size, released=True)] * fate.copies
         if fate.delay_s:
             loop = asyncio.get_running_loop()
             for copy in copies:
                 loop.call_later(fate.delay_s, self.participant.inbox.push, copy)
             return [], False
-        self.counter.counts["delivered"] += len(copies)
+        self.counter.count_delivered(len(copies))
         return copies, False
 
-    def _note_extras(self, message: Request | Reply, fate: Fate) -> None:
-        if fate.copies > 1:
-            self._record("duplicated", message, fate)
-        if fate.delay_s:
-            self._record("delayed", message, fate)
-
-    def _record(self, what: str, message: Request | Reply, fate: Fate) -> None:
-        self.counter.counts[what] += fate.copies - 1 if what == "duplicated" else 1
-        if fate.reason:
-            self.counter.reasons[fate.reason] += 1
-        notice = FaultNotice(SCHEMA, self.participant.keys.run, message.step, message.kind, message.sender,
-                             message.receiver, what, fate.reason or "", fate.delay_s)
-        self.participant.send(MONITOR, notice)
+    def _settle(self, message: Request | Reply, fate: Fate) -> None:
+        """Count what ``fate`` does to ``message`` and report each fault to the monitor."""
+        self.counter.count_fate(fate)
+        for what in fate.faults:
+            notice = FaultNotice(SCHEMA, self.participant.keys.run, message.step, message.kind, message.sender,
+                                 message.receiver, what, fate.reason or "", fate.delay_s)
+            self.participant.send(MONITOR, notice)

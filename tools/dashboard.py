@@ -22,10 +22,11 @@ from rich.console import Console, ConsoleOptions, Group, RenderResult
 from rich.table import Table
 from rich.text import Text
 
-from ringtrack.agents.laws import Trigger
+from ringtrack.agents.laws import Trigger, uncertainty_bound
+from ringtrack.bus.faults import POLL_MESSAGES
 from ringtrack.tools.runlog import LINK_EVENTS
 from ringtrack.world.geometry import angle_of
-from ringtrack.world.metrics import convergence_error, true_offsets
+from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario
 
 HISTORY = 600  # steps of Cerr/Terr kept for the sparklines
@@ -131,20 +132,21 @@ class TeamModel:
             if self.bytes_counted:
                 status.sent[1] += record["sent_bytes"][index]
                 status.received[1] += record["received_bytes"][index]
+            offset = record["offset"][index]
             if centre is not None:
                 theta = float(angle_of(self.positions[index], centre))
                 status.angle = math.degrees(theta) % 360.0
-                status.midpoint = math.degrees(theta + record["offset"][index]) % 360.0
+                status.midpoint = math.nan if offset is None else math.degrees(theta + offset) % 360.0
             ages = record["ages"][index]
             if ages is not None:
                 status.ages = (ages[0], ages[1])
-                status.ubd = math.degrees(params.omega_max * (ages[0] + ages[1]) * params.dt / 4.0)
+                status.ubd = math.degrees(uncertainty_bound(ages[0], ages[1], params))
         for category, (messages, size) in record["traffic"].items():
             self.totals[category][0] += messages
             self.totals[category][1] += size or 0
-        self.cerr.append(float(convergence_error(true_offsets(self.positions, self.target))))
-        errors = [math.dist(centre, self.target) for centre in record["centre"] if centre is not None]
-        self.terr.append(sum(errors) / len(errors) if errors else math.nan)
+        self.cerr.append(float(true_cerr(self.positions, self.target)))
+        centres = np.array([(math.nan, math.nan) if centre is None else centre for centre in record["centre"]])
+        self.terr.append(float(target_error(centres, self.target)))
 
     def snapshot(self) -> TeamModel:
         """A copy to draw while this model goes on changing (the scenario, never changed, is shared)."""
@@ -172,8 +174,9 @@ class TeamModel:
 
     def saved(self) -> tuple[int, float]:
         """Robot-to-robot messages saved against the constant strategy (every robot polls both
-        neighbours every step: 4 messages per robot per step), and as a fraction of its total."""
-        constant = 4 * len(self.robots) * self.step
+        neighbours every step: :data:`bus.faults.POLL_MESSAGES` per robot per step), and as a
+        fraction of its total."""
+        constant = POLL_MESSAGES * len(self.robots) * self.step
         spent = self.totals["robot"][0]
         return constant - spent, (constant - spent) / constant if constant else 0.0
 

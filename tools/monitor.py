@@ -13,12 +13,13 @@ import asyncio
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
-from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic
+from ringtrack.bus.keys import MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import (
     Command,
     End,
@@ -33,7 +34,7 @@ from ringtrack.bus.messages import (
     Traffic,
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
-from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined
+from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.tools.dashboard import TeamModel
 from ringtrack.tools.runlog import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
@@ -61,18 +62,23 @@ class PendingStep:
     notices: list[FaultNotice] = field(default_factory=list)
 
     def complete(self) -> bool:
-        """Tick and every live robot's command are in, and every message its polls published: 4 per
-        poll, less a request and its answer for each poll request the fault layer dropped before
-        sending, plus both for each duplicated request."""
+        """Tick and every live robot's command are in, and every robot-to-robot message its polls
+        published: :func:`bus.faults.request_traffic` of each poll request, whose fate the fault
+        notices tell (none: delivered once)."""
         if self.tick is None or not set(self.tick.live) <= set(self.commands):
             return False
         polling = {robot for robot, command in self.commands.items() if command.trigger}
-        expected = 4 * len(polling)
+        fates: dict[tuple[int, int], Fate] = {}
         for notice in self.notices:
-            if notice.subject == "request" and notice.what == "dropped" and notice.sender in polling:
-                expected -= 2
-            elif notice.subject == "request" and notice.what == "duplicated":
-                expected += 2
+            if notice.subject == "request" and notice.sender in polling:
+                fate = fates.get((notice.sender, notice.receiver), DELIVERED)
+                if notice.what == "dropped":
+                    fate = Fate(dropped=True)
+                elif notice.what == "duplicated":
+                    fate = replace(fate, copies=2)
+                fates[notice.sender, notice.receiver] = fate
+        expected = 2 * len(polling) * request_traffic(DELIVERED)
+        expected += sum(request_traffic(fate) - request_traffic(DELIVERED) for fate in fates.values())
         return self.sent_messages.total() >= expected
 
 
@@ -179,10 +185,9 @@ class Recorder:
         self.record(record)
 
 
-def participants(scenario: Scenario) -> set[str]:
+def senders(scenario: Scenario) -> set[str]:
     """Everyone who sends in a run of ``scenario`` (the monitor only listens)."""
-    fusion = {FUSION} if scenario.estimation.mode == "centralized" else set()
-    return {WORLD} | {robot_name(i) for i in range(scenario.robots)} | fusion
+    return participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=False)
 
 
 @dataclass
@@ -234,17 +239,10 @@ async def run_monitor(
     times per second, and once more with True when the log is complete; returns the exit code and
     the report (None when stopped before the start)."""
     keys = Keys(run)
-    robots = scenario.robots
-    async with joined(bus, keys, MONITOR, robots, Interrupts(exit_with_parent)) as participant:
-        participant.collect(keys.everything)
-        participant.watch("alive")
-        participant.announce("alive")
-        roster = Roster()
-        everyone = participants(scenario)
-        started, held = await gather_until(participant, roster, lambda: everyone <= roster.alive)
-        if not started:
-            return 130, None
-        participant.announce("ready")
+    report: MonitorReport | None = None
+
+    async def main(participant: Participant, roster: Roster, held: list) -> int:
+        nonlocal report
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
             recorder = Recorder(writer, scenario, None if model is None else model.add)
@@ -263,17 +261,21 @@ async def run_monitor(
                     "late": recorder.late,
                     "rss_kib": report.rss_kib,
                     "consistent": report.consistent(),
-                    "faults": {name: report.faults[name] for name in ("sent", "delivered", "dropped", "duplicated",
-                                                                      "delayed")},
+                    "faults": {name: report.faults[name] for name in FAULT_COUNTERS},
                     "notes": dict(report.notes),
                     "rejected_by": report.rejected_by,
                 }
             )
         if model is not None:
-            model.status = report.end.reason if report.end else "stopped" if code == 130 else "world lost"
+            model.status = report.end.reason if report.end else "stopped" if code == STOPPED else "world lost"
         if refresh is not None:
             refresh(True)
-        return code, report
+        return code
+
+    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=(keys.everything,),
+                stats=lambda participant, code: None)
+    code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
+    return code, report
 
 
 async def _watch(
@@ -292,7 +294,7 @@ async def _watch(
     last_view = 0.0
     loop = asyncio.get_running_loop()
     last_event_at = loop.time()
-    senders = participants(recorder.scenario)
+    team = senders(recorder.scenario)
     while True:
         for event in events:
             if isinstance(event, Delivery):
@@ -308,14 +310,14 @@ async def _watch(
                     recorder.record({"type": "event", "event": "joined" if event.up else "left",
                                      "robot": event.name, "step": recorder.latest_tick, "wall": time.time()})
             elif isinstance(event, Interrupt) and not code:
-                code, interrupted_at = 130, loop.time()
+                code, interrupted_at = STOPPED, loop.time()
         if events:
             last_event_at = loop.time()
         recorder.flush()
         if code and (end is not None or loop.time() - interrupted_at > END_AFTER_INTERRUPT_S):
             break  # stopped: keep what the world's End says completed, if it comes in time
         if end is not None:
-            accounted = all(name in finals or roster.gone_for_good(name) for name in senders)
+            accounted = all(name in finals or roster.gone_for_good(name) for name in team)
             if (accounted and _seen_everything(participant.counter, finals)) or (
                 loop.time() - last_event_at > FINAL_STATS_GRACE_S
             ):

@@ -32,9 +32,9 @@ from typing import IO, Annotated, Any
 import msgspec
 import numpy as np
 
-from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals
+from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals, link_traffic
 from ringtrack.world.geometry import angle_of
-from ringtrack.world.metrics import convergence_error, true_offsets
+from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario, parse_scenario, resolve
 
 FORMAT = 1
@@ -146,7 +146,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                     time=row * scenario.control.dt,
                     positions=history.positions[row, trial],
                     target=history.targets[row, trial],
-                    live=list(range(robots)),
+                    live=np.flatnonzero(history.live[row, trial]).tolist(),
                     trigger=history.triggers[row, trial].tolist(),
                     offset=history.offsets[row, trial].tolist(),
                     ages=history.ages[row, trial].tolist(),
@@ -158,20 +158,8 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                 )
             )
         writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
-                      "traffic": _engine_traffic(history.triggers[:, trial] != 0), "senders": {}, "rejected": {},
+                      "traffic": [list(row) for row in link_traffic(history, trial)], "senders": {}, "rejected": {},
                       "late": 0, "faults": fault_totals(history, trial)})
-
-
-def _engine_traffic(polled: np.ndarray) -> list[list[Any]]:
-    """Robot-to-robot message counts per link implied by the polls (no bytes: nothing was sent)."""
-    robots = polled.shape[1]
-    polls = polled.sum(axis=0)
-    rows: list[list[Any]] = []
-    for robot in range(robots):
-        for neighbour in ((robot - 1) % robots, (robot + 1) % robots):
-            rows.append(["request", f"r{robot}", f"r{neighbour}", int(polls[robot]), None])
-            rows.append(["reply", f"r{neighbour}", f"r{robot}", int(polls[robot]), None])
-    return rows
 
 
 # ---------------------------------------------------------------------------- reading
@@ -361,7 +349,8 @@ def history_from_log(log: RunLog) -> History:
     positions = np.array([record["positions"] for record in log.steps], dtype=float)[:, None]
     targets = np.array([record["target"] for record in log.steps], dtype=float)[:, None]
     triggers = np.array([[value or 0 for value in record["trigger"]] for record in log.steps], dtype=np.uint8)
-    offsets = np.array([[value or 0.0 for value in record["offset"]] for record in log.steps], dtype=float)
+    offsets = np.array([[np.nan if value is None else value for value in record["offset"]] for record in log.steps])
+    live = np.array([np.isin(np.arange(scenario.robots), record["live"]) for record in log.steps])
     ages = np.array([[value or [0, 0] for value in record["ages"]] for record in log.steps], dtype=np.int32)
     missing = [np.nan, np.nan]
     estimates = np.array([[centre or missing for centre in record["centre"]] for record in log.steps])[:, None]
@@ -371,24 +360,18 @@ def history_from_log(log: RunLog) -> History:
         seeds=[log.header["seed"]],
         angles=np.unwrap(angles, axis=0),
         positions=positions,
+        live=live[:, None],
         triggers=triggers[:, None],
         offsets=offsets[:, None],
         ages=ages[:, None],
-        cerr_true=convergence_error(true_offsets(positions, targets)),
+        cerr_true=true_cerr(positions, targets),
         targets=targets,
-        terr=_mean_over_robots(np.linalg.norm(estimates - targets[..., None, :], axis=-1)),
+        terr=target_error(estimates, targets),
         estimates=estimates,
         sent=np.array([record["sent_messages"] for record in log.steps], dtype=np.int64)[:, None],
         received=np.array([record["received_messages"] for record in log.steps], dtype=np.int64)[:, None],
+        requests=None,
         faults=np.zeros((len(log.steps), 1, len(FAULT_COLUMNS)), dtype=np.int64),  # per run only: see the end record
         probes=np.zeros((len(log.steps), 1), dtype=np.int64),
     )
 
-
-def _mean_over_robots(values: np.ndarray) -> np.ndarray:
-    """Mean over the last axis of what is known (NaN: a robot sent no command that step); NaN where
-    nothing is (a realtime step no robot answered)."""
-    known = ~np.isnan(values)
-    count = known.sum(axis=-1)
-    total = np.where(known, values, 0.0).sum(axis=-1)
-    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)

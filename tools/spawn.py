@@ -20,7 +20,7 @@ from pathlib import Path
 from ringtrack.agents import engine
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
-from ringtrack.bus.keys import new_run_id
+from ringtrack.bus.keys import new_run_id, participants
 from ringtrack.tools.console import UsageError, err, out, write_json
 from ringtrack.tools.options import (
     JSON_FILE,
@@ -139,8 +139,8 @@ def spawn_team(
     common += [] if secure is None else ["--secure", str(secure.resolve())]
     started = time.perf_counter()
     interrupted = ""
-    participants = scenario.robots + 2 + (scenario.estimation.mode == "centralized")  # Zenoh sessions
-    topology = topology or ("mesh" if participants <= MESH_LIMIT else "star")
+    sessions = len(participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True))
+    topology = topology or ("mesh" if sessions <= MESH_LIMIT else "star")
     world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
     first_step = FirstStep(log_path, started)
     with Supervisor(folder) as supervisor:

@@ -4,7 +4,13 @@
   constant-strategy Cerr);
 * ``Cerr_memory(k) = sum_i |gV_i(k) - theta_i(k)|`` from each robot's memory before it polls in step
   k (the paper's self-triggered Cerr);
-* ``Ctime = min{k >= 1 : Cerr(k) < threshold}`` (1-based; 0 here when it never happens);
+* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategy and ``Cerr_true``
+  for the constant one (:func:`strategy_cerr`); a step where a live robot's offset is unknown (a
+  realtime robot that sent no command in time) has no ``Cerr_memory`` (NaN), never a zero error;
+* ``Ctime = min{k >= 1 : Cerr(k) < threshold}`` (1-based; 0 here when it never happens), the one
+  rule :func:`converged` every convergence decision uses (engine, world process, run logs);
+* ``Terr(k)`` the mean over robots of the distance from the centre each robot steered about to the
+  true target (metres), over the robots whose centre is known (:func:`target_error`);
 * ``Com-bar = sum_i com(i, Ctime) / (N Ctime)``, ``com(i, k)`` the steps ``<= k`` in which robot i polled.
 """
 
@@ -27,11 +33,48 @@ def true_offsets(positions: ArrayLike, target: ArrayLike) -> FloatArray:
     return midpoint_errors(angle_of(positions, np.asarray(target)[..., None, :]))
 
 
+def true_cerr(positions: ArrayLike, target: ArrayLike) -> FloatArray:
+    """``Cerr_true`` (degrees) of a whole ring (axis -2 of ``positions``, metres) about ``target``."""
+    return convergence_error(true_offsets(positions, target))
+
+
+def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None) -> FloatArray:
+    """``Cerr_memory`` (degrees) from the robots' ``gV - theta`` (radians, robots on the last axis,
+    NaN where unknown) over the ``live`` robots (a boolean mask; default: every robot): NaN where
+    any live robot's offset is unknown, so missing values never count as zero error."""
+    offsets = np.asarray(offsets, dtype=float)
+    if live is not None:
+        offsets = np.where(live, offsets, 0.0)  # a robot out of the ring is no part of the sum
+    return convergence_error(offsets)
+
+
+def strategy_cerr(strategy: str, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
+    """The paper's Cerr of a run (degrees): memory-based for the self-triggered strategy ("self"),
+    from the true positions for the constant one."""
+    return np.asarray(cerr_memory if strategy == "self" else cerr_true, dtype=float)
+
+
+def converged(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.bool_]:
+    """Whether a step counts as converged: its Cerr (degrees) is known and below ``threshold_deg``
+    (an unknown, NaN, Cerr compares below nothing)."""
+    return np.asarray(cerr, dtype=float) < threshold_deg
+
+
 def convergence_step(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.int64]:
-    """``Ctime`` per run from ``cerr`` of shape ``(steps, ...)``: first 1-based step with
-    ``cerr < threshold_deg``, 0 where it never drops below."""
-    below = np.asarray(cerr) < threshold_deg
+    """``Ctime`` per run from ``cerr`` of shape ``(steps, ...)``: first 1-based step that
+    :func:`converged`, 0 where none does."""
+    below = converged(cerr, threshold_deg)
     return np.where(below.any(axis=0), below.argmax(axis=0) + 1, 0)
+
+
+def target_error(centres: ArrayLike, target: ArrayLike) -> FloatArray:
+    """``Terr`` (metres): the mean over robots (axis -2 of ``centres``, NaN rows unknown) of the
+    distance from each centre to ``target``; NaN where no robot's centre is known."""
+    distances = np.linalg.norm(np.asarray(centres, dtype=float) - np.asarray(target)[..., None, :], axis=-1)
+    known = ~np.isnan(distances)
+    count = known.sum(axis=-1)
+    total = np.where(known, distances, 0.0).sum(axis=-1)
+    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
 
 
 def communications(triggers: ArrayLike, until: ArrayLike) -> NDArray[np.int64]:

@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
 from ringtrack.bus.messages import SCHEMA, Command, End
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
-from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined, linger
+from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.state import WorldState
 
@@ -58,20 +58,9 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                     exit_with_parent: bool = False) -> int:
     """Serve one run; returns the process exit code (0 done, 1 failed, 130 interrupted)."""
     keys = Keys(run)
-    async with joined(bus, keys, WORLD, scenario.robots, Interrupts(exit_with_parent)) as participant:
-        participant.listen(keys.inbox(WORLD))
-        participant.watch("alive")
-        participant.watch("ready")
-        participant.announce("alive")
-        if options.announce is not None:
-            announce_endpoints(participant.session, options.announce)
-        team = {robot_name(i) for i in range(scenario.robots)}
-        needed = team | ({MONITOR} if options.expect_monitor else set())
-        needed |= {FUSION} if scenario.estimation.mode == "centralized" else set()
-        roster = Roster()
-        started, _ = await gather_until(participant, roster, lambda: needed <= roster.ready)
-        if not started:
-            return 130
+    team = participants(range(scenario.robots), centralized=False, monitor=options.expect_monitor) - {WORLD}
+
+    async def main(participant: Participant, roster: Roster, _held: list) -> int:
         world = WorldState(scenario, seed, run, options.steps)
         began = time.perf_counter()
         step_once = _lockstep if options.clock == "lockstep" else _realtime
@@ -87,14 +76,29 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                     reason = "converged"
                     break
         except RunStopped as stop:
-            reason, code = str(stop), 130 if str(stop).startswith("interrupted") else 1
+            reason, code = str(stop), STOPPED if str(stop).startswith("interrupted") else 1
         wall = time.perf_counter() - began
         last = world.step - 1
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
         log.info("run %s after %d steps in %.2f s (%.0f steps/s)", reason, last, wall, last / wall if wall else 0.0)
-        participant.send(MONITOR, participant.stats(final=True))
-        await linger(participant, roster, team | ({MONITOR} if options.expect_monitor else set()))
         return code
+
+    def on_joined(participant: Participant) -> None:
+        if options.announce is not None:
+            announce_endpoints(participant.session, options.announce)
+
+    role = Role(
+        name=WORLD,
+        needed=participants(range(scenario.robots), scenario.estimation.mode == "centralized",
+                            options.expect_monitor) - {WORLD},
+        main=main,
+        listen=(keys.inbox(WORLD),),
+        start_on="ready",
+        announces_ready=False,
+        on_joined=on_joined,
+        linger_for=lambda code: team,
+    )
+    return await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
 
 
 def _publish(participant: Participant, world: WorldState) -> None:

@@ -10,10 +10,17 @@ import numpy as np
 
 from ringtrack.bus.messages import SCHEMA, Command, Measurement, Tick
 from ringtrack.world.geometry import FloatArray
-from ringtrack.world.metrics import convergence_error, true_offsets
+from ringtrack.world.metrics import converged, memory_cerr, strategy_cerr, true_cerr
 from ringtrack.world.ring import ring_neighbours
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
+
+
+def motion_step(scenario: Scenario, positions: FloatArray, goals: FloatArray) -> FloatArray:
+    """One step of the world's motion: every robot moves along the boundary towards its goal (both
+    metres, robots on axis -2), at most ``v_max * dt`` metres when the scenario caps the speed."""
+    max_move = None if scenario.v_max is None else scenario.v_max * scenario.control.dt
+    return scenario.region.move_along(positions, goals, max_move)
 
 
 class WorldState:
@@ -34,11 +41,9 @@ class WorldState:
         self.rejoining: set[int] = set()  # back from the next step on
         self.returned: set[int] = set()  # came back at the start of this step: everyone hears of it
         self.goals: FloatArray = self.positions.copy()
-        self.offsets: FloatArray = np.zeros(scenario.robots)  # gV - theta each robot reported, rad
+        self.offsets: FloatArray = np.full(scenario.robots, np.nan)  # gV - theta reported for this step, rad
         self.commanded: set[int] = set()
         self.step = 1
-        dt = scenario.control.dt
-        self.max_move = None if scenario.v_max is None else scenario.v_max * dt
         self.boundary_tolerance = 1e-6 * scenario.region.outer_diameter  # metres
 
     @property
@@ -104,32 +109,35 @@ class WorldState:
         return bool(self.scenario.region.on_boundary(command.goal, self.boundary_tolerance))
 
     def accept(self, command: Command) -> bool:
-        """Take a robot's goal; in lockstep only commands for the current step count."""
+        """Take a robot's goal (in realtime also one computed for an earlier step); its offset and,
+        in lockstep, its command count only for the current step."""
         if command.step > self.step:
             return False
         self.goals[command.robot] = command.goal
-        self.offsets[command.robot] = command.guaranteed_offset
         if command.step == self.step:
+            offset = command.guaranteed_offset
+            self.offsets[command.robot] = np.nan if offset is None else offset
             self.commanded.add(command.robot)
         return True
 
     def converged(self) -> bool:
-        """Whether the paper's Cerr of the current step is below the scenario's threshold: from the
-        robots' reported memory offsets (self-triggered) or the true positions (constant)."""
-        if self.scenario.control.strategy == "self":
-            cerr = convergence_error(self.offsets)
-        else:
-            cerr = convergence_error(true_offsets(self.positions, self.target))
-        return bool(cerr < np.rad2deg(self.scenario.threshold))
+        """Whether the current step counts as converged (:func:`world.metrics.converged`) by the
+        paper's Cerr: from the offsets the live robots reported for this step (self-triggered; a
+        live robot that has not reported leaves it unknown) or the true positions (constant)."""
+        live = np.isin(np.arange(self.scenario.robots), sorted(self.live))
+        cerr = strategy_cerr(self.scenario.control.strategy, memory_cerr(self.offsets, live),
+                             true_cerr(self.positions, self.target))
+        return bool(converged(cerr, np.rad2deg(self.scenario.threshold)))
 
     def advance(self) -> None:
         """Move every robot towards its latest goal along the boundary (capped by v_max), bring back
         the robots that rejoined, and start the next step."""
-        self.positions = self.scenario.region.move_along(self.positions, self.goals, self.max_move)
+        self.positions = motion_step(self.scenario, self.positions, self.goals)
         for robot in sorted(self.rejoining):
             self._place(robot)
         self.returned, self.rejoining = self.rejoining & self.live, set()
         self.commanded.clear()
+        self.offsets[:] = np.nan
         self.step += 1
         self.target = self.path[min(self.step, len(self.path)) - 1]
         self.ranges = self.sensor.measure(self.positions, self.target)
