@@ -11,8 +11,11 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.agents.laws import Trigger
+from ringtrack.tools.cli import build_parser
+from ringtrack.tools.options import flag, scenario_from_arguments
 from ringtrack.world.metrics import communications, convergence_step, mean_communication_rate
 from ringtrack.world.scenario import (
+    OverrideError,
     Scenario,
     ScenarioError,
     apply_overrides,
@@ -357,9 +360,15 @@ def test_override_errors():
     with pytest.raises(ScenarioError) as raised:
         load_scenario("paper-stationary", speed=3)
     assert str(raised.value).startswith("unknown override 'speed'; use one of strategy, law, dt,")
-    with pytest.raises(ScenarioError) as raised:
+    with pytest.raises(OverrideError) as raised:
         load_scenario("paper-stationary", dt=-1.0)
-    assert str(raised.value) == "--dt -1.0 (control.dt): expected a finite number > 0; fix the value"
+    assert str(raised.value) == "control.dt: expected a finite number > 0; fix the value"
+    assert (raised.value.name, raised.value.value, raised.value.path) == ("dt", -1.0, "control.dt")
+
+
+def test_override_errors_on_the_command_line_name_the_flag():
+    args = build_parser().parse_args(["simulate", "--robots", "2"])
     with pytest.raises(ScenarioError) as raised:
-        load_scenario("paper-stationary", robots=2)
+        scenario_from_arguments(args)
     assert str(raised.value) == "--robots 2 (team.robots): expected `int` >= 3; fix the value"
+    assert (flag("max_steps"), flag("sigma_deg"), flag("drop")) == ("--steps", "--sigma-deg", "--drop")
