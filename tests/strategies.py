@@ -1,7 +1,7 @@
 """Shared hypothesis strategies and independent helpers for the ringtrack test suite.
 
-Everything here is written from ALGORITHMS.md, not from the code under test, so that the tests can
-catch the code disagreeing with the spec:
+Everything here is written from docs/algorithms.md, not from the code under test, so that the tests can
+catch the code disagreeing with it:
 
 * ``convex_vertices``: random strictly convex polygons (CCW vertex arrays), either points on a rotated
   ellipse at sorted random angles or the convex hull of random points, with near-degenerate ones
@@ -25,7 +25,7 @@ from ringtrack.world.scenario import Scenario, parse_scenario, resolve
 
 TWO_PI = 2.0 * math.pi
 
-# Authors' polygon and target (ALGORITHMS.md sections 10, 11, 13).
+# Authors' polygon and target (docs/algorithms.md sections 10, 11, 13).
 AUTHORS_VERTICES = [[3.0, 7.0], [8.0, 17.0], [5.0, 26.0], [1.0, 22.0]]
 AUTHORS_TARGET = (4.0, 20.0)
 PAPER_ANGLES_DEG = [69.8979, 75.0730, 83.1024, 108.1016, 170.1016, 303.8982]
@@ -120,7 +120,8 @@ def ring_angles(draw: st.DrawFn, min_robots: int = 3, max_robots: int = 30, min_
 
 
 def lyapunov(angles: np.ndarray) -> np.ndarray:
-    """H = (1/12) sum_i (d_i^+)^3 over the last axis (spec section 6), gaps computed here independently."""
+    """H = (1/12) sum_i (d_i^+)^3 over the last axis (docs/algorithms.md section 6), gaps computed here
+    independently."""
     angles = np.asarray(angles, dtype=float)
     gaps = np.mod(np.roll(angles, -1, axis=-1) - angles, TWO_PI)
     return np.sum(gaps**3, axis=-1) / 12.0
@@ -132,7 +133,7 @@ def ccw_gaps(angles: np.ndarray) -> np.ndarray:
 
 
 def midpoint_offsets(angles: np.ndarray) -> np.ndarray:
-    """e_i = V_i - theta_i = (d_i^+ - d_i^-)/4 (spec section 2), computed independently."""
+    """e_i = V_i - theta_i = (d_i^+ - d_i^-)/4 (docs/algorithms.md section 2), computed independently."""
     gaps = ccw_gaps(angles)
     return (gaps - np.roll(gaps, 1, axis=-1)) / 4.0
 
@@ -151,7 +152,7 @@ def boundary_at(vertices: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def sweep_omega(vertices: np.ndarray, centre: np.ndarray, d_max: float, dt: float, samples: int = 200_000) -> float:
-    """(1/dt) min_s wrap(theta(s + d_max) - theta(s)), spec section 10, on a fine grid plus the
+    """(1/dt) min_s wrap(theta(s + d_max) - theta(s)), docs/algorithms.md section 10, on a fine grid plus the
     vertex-aligned windows."""
     vertices = np.asarray(vertices, dtype=float)
     lengths = np.hypot(*(np.roll(vertices, -1, axis=0) - vertices).T)

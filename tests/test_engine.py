@@ -1,4 +1,4 @@
-"""world/engine.py, world/metrics.py and world/scenario.py against ALGORITHMS.md sections 4, 5, 14
+"""agents/engine.py, world/metrics.py and world/scenario.py against docs/algorithms.md sections 4, 5, 14
 and oracles 9, 10, 11, 12; scenario validation messages."""
 
 from __future__ import annotations

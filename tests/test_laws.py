@@ -1,5 +1,5 @@
-"""agents/ring.py, agents/laws.py, agents/controller.py (and whole rings through world/engine.py)
-against ALGORITHMS.md sections 2-6, 12 and oracles 3, 4, 5, 6, 7, 8, 12, 13."""
+"""world/ring.py, agents/laws.py, agents/controller.py (and whole rings through agents/engine.py)
+against docs/algorithms.md sections 2-6, 12 and oracles 3, 4, 5, 6, 7, 8, 12, 13."""
 
 from __future__ import annotations
 
@@ -131,7 +131,7 @@ def test_oracle4_uniform_ring_stays_put_through_the_controller(case, robots, rot
 
 # ---------------------------------------------------------------------------- oracles 5 and 6 (whole rings)
 def spec_fresh_step(angles: np.ndarray, dt: float, omega_deg: float, law: str) -> np.ndarray:
-    """ALGORITHMS.md section 3, written out independently of agents.laws: e_i = (d_i^+ - d_i^-) / 4,
+    """docs/algorithms.md section 3, written out independently of agents.laws: e_i = (d_i^+ - d_i^-) / 4,
     prop: dt * sat_omega(e); deadbeat: sign(e) min(omega dt, |e|)."""
     omega = math.radians(omega_deg)
     gaps = ccw_gaps(angles)

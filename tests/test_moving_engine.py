@@ -1,4 +1,4 @@
-"""world/engine.py with a moving target (ALGORITHMS.md sections 5, 7, 8, 9 and the moving-target
+"""agents/engine.py with a moving target (docs/algorithms.md sections 5, 7, 8, 9 and the moving-target
 sanity values of section 14) on scenarios/authors-moving.toml."""
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def poll_rate(history: engine.History) -> np.ndarray:
     return (history.triggers != 0).mean(axis=(0, 2))
 
 
-# ---------------------------------------------------------------------------- (d) Terr is what the spec defines
+# ---------------------------------------------------------------------------- (d) Terr is what section 5 defines
 @pytest.mark.parametrize("mode", ["centralized", "decentralized"])
 def test_terr_is_the_mean_distance_of_the_estimates(mode, centralized_self, decentralized_self):
     """Section 5: Terr = ||o_hat - o|| (centralized), (1/N) sum_i ||o_hat_i - o|| (decentralized)."""
@@ -161,7 +161,7 @@ def test_section14_centralized_terr_reference():
 
 
 def test_decentralized_tracking_against_centralized():
-    """The spec's section 14 decentralized reference (0.437 m) is not reproduced (see README: the
+    """The decentralized reference of docs/algorithms.md section 14 (0.437 m) is not reproduced (see README: the
     self-triggered robots poll 3-7 % of steps and single-range beliefs drift between polls). What is
     asserted is what the README reports: decentralized filters fused every step (constant strategy)
     track as well as 0.3 m, and self-triggered decentralized tracking is worse than centralized, as

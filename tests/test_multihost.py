@@ -34,7 +34,7 @@ pytestmark = [
 ]
 
 PORT = 7447
-CONVERGED_AT = 712  # paper-stationary's worked example (spec oracle 11)
+CONVERGED_AT = 712  # paper-stationary's worked example (docs/algorithms.md oracle 11)
 
 
 def sh(*command: str) -> None:

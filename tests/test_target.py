@@ -1,6 +1,6 @@
 """world/target.py (target motion, the [target] section), world/sensing.py (RangeSensor) and the
-scenario rules of [target], [sensing], [estimation] (world/scenario.py), against ALGORITHMS.md
-sections 7 and 9 and the authors' moving-target setting (KF.m)."""
+scenario rules of [target], [sensing], [estimation] (world/scenario.py), against docs/algorithms.md
+sections 7 and 9 and the authors' moving-target setting."""
 
 from __future__ import annotations
 
