@@ -26,7 +26,7 @@ from ringtrack.world.geometry import ConvexRegion
 from ringtrack.world.params import EstimationParams
 from ringtrack.world.ranges import uniform_ring
 from ringtrack.world.scenario import load_scenario
-from tests.strategies import (
+from tests.helpers import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
     region_with_points,

@@ -290,6 +290,7 @@ def test_two_way_closed_form_is_the_optimum(criterion, xa, xb, a, b):
     assert size == pytest.approx(achieved, rel=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("criterion", CRITERIA)
 @given(estimates=st.lists(st.tuples(means(), spd(max_log_condition=4.0)), min_size=3, max_size=3))
 def test_three_way_closed_form_is_the_optimum(criterion, estimates):
@@ -316,6 +317,7 @@ def comparable_triples(draw: st.DrawFn) -> list[np.ndarray]:
     return triple
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("criterion", CRITERIA)
 @given(covariances=comparable_triples())
 def test_three_way_closed_form_is_the_optimum_for_comparable_estimates(criterion, covariances):

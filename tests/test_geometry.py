@@ -10,7 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from ringtrack.world.geometry import ConvexRegion, RegionError, angle_of
-from tests.strategies import (
+from tests.helpers import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
     TWO_PI,
@@ -298,6 +298,7 @@ def test_oracle17_authors_polygon_bounds():
     assert lower <= AUTHORS.omega_max(1.0, 0.1, o) <= upper
 
 
+@pytest.mark.slow
 @settings(max_examples=30)
 @given(region_with_points(1), st.floats(0.1, 5.0), st.floats(0.01, 1.0), st.floats(1e-3, 0.5))
 def test_oracle17_omega_max_within_bounds_and_matches_sweep(case, v_max, dt, fraction):

@@ -25,9 +25,11 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.runlog import read_log
-from tests.emulation import assert_equals_engine
+from tests.helpers import assert_equals_engine
 
 pytestmark = [
+    pytest.mark.processes,
+    pytest.mark.root,
     pytest.mark.timeout(300),
     pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root"),
     pytest.mark.skipif(shutil.which("ip") is None, reason="iproute2 ('ip') is not installed"),

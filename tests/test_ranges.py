@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from ringtrack.world.geometry import ConvexRegion, angle_of
 from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
-from tests.strategies import AUTHORS_TARGET, AUTHORS_VERTICES, TWO_PI, circular_distance, region_with_points, regions
+from tests.helpers import AUTHORS_TARGET, AUTHORS_VERTICES, TWO_PI, circular_distance, region_with_points, regions
 
 UNIT_SQUARE = ConvexRegion.from_vertices([[0, 0], [1, 0], [1, 1], [0, 1]])
 
