@@ -11,7 +11,7 @@ for a batch of trials in the engine. Both call the same methods in the same orde
     goal = controller.goal()                                    # boundary point to move to
 
 Neighbours are remembered by *position* (metres) and their angles are recomputed from the current
-centre every step (ALGORITHMS.md section 2), so the same code serves a known stationary target and a
+centre every step (docs/algorithms.md section 2), so the same code serves a known stationary target and a
 moving estimate. Ages are integer step counts.
 """
 

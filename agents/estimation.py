@@ -1,10 +1,10 @@
-"""Range-only estimation of the target position (ALGORITHMS.md section 7).
+"""Range-only estimation of the target position (docs/algorithms.md section 7).
 
 State ``x = o`` (metres, 2-D), random-walk model ``x(k) = x(k-1) + w``, ``w ~ N(0, q I)`` per step,
 and ranges ``z_j = ||o - p_j|| + v_j``, ``v_j ~ N(0, sigma_z^2)`` from robots at ``p_j``. Naming
 follows filterpy (and not the paper, which swaps them): ``Q`` is the process noise, ``R`` the
 measurement noise. The filter is filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`, with
-the shape care the spec lists: ``z`` as a column, ``h(x)`` as a column, an explicit ``(m, m)`` R for
+the shape care filterpy needs: ``z`` as a column, ``h(x)`` as a column, an explicit ``(m, m)`` R for
 ``m`` ranges, and ``predict()`` then ``update()``.
 """
 

@@ -1,4 +1,4 @@
-"""Covariance intersection of 2-D Gaussian estimates (ALGORITHMS.md section 8).
+"""Covariance intersection of 2-D Gaussian estimates (docs/algorithms.md section 8).
 
 Covariance intersection (CI; Julier & Uhlmann 1997) fuses estimates ``(x_k, P_k)`` whose cross
 correlations are unknown:
@@ -24,7 +24,7 @@ treat two). With information matrices ``I_k = P_k^{-1}`` and ``M(w) = sum_k w_k 
 Every face of the simplex (each non-empty subset of the estimates) is solved this way, infeasible
 candidates (a negative weight) are dropped, and the best remaining candidate wins (the mean of the
 best ones when several tie, which keeps CI symmetric in its inputs); the vertices are the single
-estimates. With two estimates this is exactly the candidate set of section 8.
+estimates. With two estimates this is the two-estimate closed form of that paper.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The constant and the self-triggered midpoint laws (ALGORITHMS.md sections 3 and 4).
+"""The constant and the self-triggered midpoint laws (docs/algorithms.md sections 3 and 4).
 
 Pure functions of numpy arrays that broadcast over robots and trials: the in-process engine calls
 them for a whole team at once, a robot process for itself. Angles are radians (robot ``i``'s local

@@ -1,11 +1,11 @@
-"""The modified strategy for a limited communication range ``r_c`` (ALGORITHMS.md section 11).
+"""The modified strategy for a limited communication range ``r_c`` (docs/algorithms.md section 11).
 
 A ring neighbour is reachable when it is within ``r_c`` metres at the start of the step. Then:
 
 * neither neighbour reachable: the robot stays;
 * exactly one reachable: it moves at ``omega_max`` towards the unreachable neighbour's side (away
   from the reachable one);
-* both reachable: the midpoint law of section 4 (or 3) as usual;
+* both reachable: the self-triggered (or constant) midpoint law as usual;
 
 and in the last two cases the step is shortened (bisection on its angle) so that every reachable
 link stays within ``r_c``: the distance to the neighbour's remembered position must stay within
@@ -38,7 +38,8 @@ def range_limited_step(step: ArrayLike, reach_minus: ArrayLike, reach_plus: Arra
 
 def boundary_stretch(region: ConvexRegion, centre: ArrayLike) -> FloatArray:
     """The most boundary distance (metres) per radian seen from ``centre``: on edge k,
-    ``|dp/dtheta| = r^2 / h_k <= R_k^2 / h_k`` with ``R_k`` the farther end of the edge (section 1)."""
+    ``|dp/dtheta| = r^2 / h_k <= R_k^2 / h_k`` with ``R_k`` the farther end of the edge
+    (docs/algorithms.md section 1)."""
     centre = np.asarray(centre, dtype=float)
     heights = region.heights(centre)
     reach = np.linalg.norm(region.vertices - centre[..., None, :], axis=-1)

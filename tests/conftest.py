@@ -1,10 +1,21 @@
-"""Test configuration: hypothesis defaults shared by every test file (helpers live in strategies.py).
+"""Test configuration: hypothesis defaults shared by every test file, and the ``processes`` marker
+kept honest (shared helpers live in helpers.py).
 
 ``HYPOTHESIS_PROFILE=thorough`` runs ten times more examples in the tests that use the default count.
+
+Markers (registered in pyproject.toml): ``processes`` (the test starts OS processes), ``realtime``
+(it runs the realtime clock) and ``root`` (it needs root). A test without ``processes`` that starts
+a process fails at once, naming the marker, so ``pytest -m "not processes"`` is the pure suite.
 """
 
-import os
+from __future__ import annotations
 
+import multiprocessing.util
+import os
+import platform
+import subprocess
+
+import pytest
 from hypothesis import HealthCheck, settings
 
 _COMMON = dict(
@@ -15,3 +26,21 @@ _COMMON = dict(
 settings.register_profile("ringtrack", max_examples=50, **_COMMON)
 settings.register_profile("thorough", max_examples=500, **_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ringtrack"))
+
+# platform.platform() runs `uname -p` once and caches it; run it here, so that a benchmark describing
+# the machine does not count as starting a process.
+platform.platform()
+
+
+@pytest.fixture(autouse=True)
+def _processes_need_the_marker(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Refuse every way of starting a process (subprocess and asyncio children, fork, multiprocessing)
+    in a test not marked ``processes``."""
+    if request.node.get_closest_marker("processes") is None:
+        def refuse(*args: object, **kwargs: object) -> None:
+            raise AssertionError(f"{request.node.nodeid} starts an OS process: mark it @pytest.mark.processes")
+
+        monkeypatch.setattr(subprocess.Popen, "_execute_child", refuse)
+        monkeypatch.setattr(os, "fork", refuse)
+        monkeypatch.setattr(os, "posix_spawn", refuse)
+        monkeypatch.setattr(multiprocessing.util, "spawnv_passfds", refuse)

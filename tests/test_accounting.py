@@ -17,7 +17,7 @@ import pytest
 from ringtrack.bus.counting import per_link, robot_link_totals, totals_by_category
 from ringtrack.bus.faults import FAULT_COUNTERS
 from ringtrack.tools.runlog import RunLog, read_log
-from tests.emulation import RINGTRACK
+from tests.helpers import RINGTRACK
 
 pytestmark = pytest.mark.timeout(300)
 

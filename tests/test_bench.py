@@ -13,6 +13,7 @@ from ringtrack.tools.cli import main
 pytestmark = pytest.mark.timeout(240)
 
 
+@pytest.mark.processes
 def test_latency_bench_times_real_round_trips(tmp_path: Path) -> None:
     path = tmp_path / "latency.json"
     assert main(["bench", "latency", "--rounds", "300", "--warmup", "30", "--json", str(path)]) == 0
@@ -24,6 +25,7 @@ def test_latency_bench_times_real_round_trips(tmp_path: Path) -> None:
     assert "eclipse-zenoh" in result["machine"]["versions"]
 
 
+@pytest.mark.processes
 def test_emulator_bench_reports_speed_start_up_bytes_and_memory(tmp_path: Path) -> None:
     path = tmp_path / "emulator.json"
     arguments = ["bench", "emulator", "--robots", "3", "--steps", "40", "--robots-per-process", "3",

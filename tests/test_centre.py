@@ -21,8 +21,7 @@ from ringtrack.bus.messages import SCHEMA, Command, Estimate, RangeReport, Reply
 from ringtrack.tools.runlog import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.state import WorldState
-from tests.emulation import processes_mentioning, start_spawn, stop_all, wait_for_steps
-from tests.test_moving_engine import short_sighted
+from tests.helpers import processes_mentioning, short_sighted, start_spawn, stop_all, wait_for_steps
 
 RUN = 0x5EED
 SCENARIO = load_scenario("authors-moving", estimation="centralized")
@@ -196,8 +195,9 @@ def _longest_hold(centres: np.ndarray) -> tuple[int, int, int]:
 STEPS = {"lockstep": 600, "realtime": 700}
 
 
+@pytest.mark.processes
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+@pytest.mark.parametrize("clock", ["lockstep", pytest.param("realtime", marks=pytest.mark.realtime)])
 def test_a_killed_robot_does_not_stall_a_centralized_team(tmp_path: Path, clock: str) -> None:
     steps = STEPS[clock]
     pacing = ["--rate", "10"] if clock == "realtime" else []
@@ -233,6 +233,8 @@ def test_a_killed_robot_does_not_stall_a_centralized_team(tmp_path: Path, clock:
         assert all(log.steps[index]["trigger"][robot] is not None for index in after for robot in others)
 
 
+@pytest.mark.processes
+@pytest.mark.realtime
 @pytest.mark.timeout(240)
 def test_realtime_robots_do_not_wait_for_a_stalled_centre(tmp_path: Path) -> None:
     """The fusion centre freezes (SIGSTOP) for a second: the robots go on about their last estimate

@@ -66,6 +66,7 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path) -> None:
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [
@@ -115,6 +116,7 @@ def test_moving_experiment_json_and_figures(tmp_path: Path) -> None:
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.processes
 def test_moving_experiment_needs_a_circling_target() -> None:
     completed = subprocess.run([sys.executable, "-m", "ringtrack.tools.cli", "experiment", "moving", "paper-stationary"],
                                capture_output=True, text=True, timeout=60)

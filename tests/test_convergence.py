@@ -17,7 +17,7 @@ from ringtrack.tools.runlog import history_from_log, read_log, write_engine_log
 from ringtrack.tools.spawn import spawn_team
 from ringtrack.world.metrics import converged, convergence_step, memory_cerr, true_cerr
 from ringtrack.world.state import WorldState
-from tests.emulation import scenario
+from tests.helpers import scenario
 
 THRESHOLD_DEG = 0.6  # paper-stationary: 0.1 deg per robot, six robots
 

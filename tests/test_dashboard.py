@@ -20,7 +20,7 @@ from ringtrack.tools.runlog import LogWriter, RunLog, read_log
 from ringtrack.tools.spawn import spawn_team
 from ringtrack.tools.views import LiveView
 from ringtrack.world.scenario import load_scenario
-from tests.emulation import lockstep_run
+from tests.helpers import lockstep_run
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -114,6 +114,7 @@ def final_frame(text: str, header: str) -> str:
     return plain[plain.rindex(header):]
 
 
+@pytest.mark.processes
 def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("COLUMNS", "120")  # the monitor's forced terminal: wide enough for every column
     monkeypatch.setenv("LINES", "60")
@@ -153,6 +154,7 @@ def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch:
     assert model.totals["world"] == [world["messages"], world["bytes"]]
 
 
+@pytest.mark.processes
 def test_summary_lines_when_the_monitor_has_no_terminal(tmp_path: Path) -> None:
     result = spawn_team(load_scenario("paper-stationary", max_steps=40), runs=tmp_path, quiet=True)
     lines = (Path(result["folder"]) / "monitor.stdout").read_text().splitlines()
@@ -287,6 +289,7 @@ def check_figure(log: RunLog) -> None:
         assert [bar.get_height() for bar in bars["bytes"]] == [expected[name][1] for name in names]
 
 
+@pytest.mark.processes
 def test_plot_of_a_lockstep_run_and_of_an_engine_log(tmp_path: Path) -> None:
     _, log = lockstep_run(load_scenario("paper-stationary", max_steps=60), tmp_path / "team")
     assert len(log.steps) == 60 and sum(robot_links(log)[name][1] for name in robot_links(log)) > 0

@@ -14,19 +14,20 @@ from ringtrack.agents.engine import History, robot_to_robot_sent
 from ringtrack.bus.counting import totals_by_category
 from ringtrack.tools.runlog import RunLog, history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
-from tests.emulation import (
+from tests.helpers import (
+    SENSING_RANGE,
     assert_equals_engine,
     engine_twin,
     lockstep_run,
     processes_mentioning,
     scenario,
+    short_sighted,
     start_spawn,
     stop_all,
     wait_for_steps,
 )
-from tests.test_moving_engine import SENSING_RANGE, short_sighted
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.processes, pytest.mark.timeout(240)]
 
 STEPS = 300
 
@@ -140,6 +141,7 @@ def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
         assert result[key] == twin[key], key
 
 
+@pytest.mark.realtime
 def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
     from ringtrack.tools.spawn import spawn_team
 
@@ -169,7 +171,7 @@ def test_a_team_assembled_by_hand_from_the_role_commands(tmp_path: Path) -> None
     import json
     import subprocess
 
-    from tests.emulation import RINGTRACK
+    from tests.helpers import RINGTRACK
 
     announce, log_path = tmp_path / "world.json", tmp_path / "log.jsonl"
     common = ["paper-stationary", "--robots", "4", "--seed", "7", "--steps", "120", "--run", "00c0ffee", "--monitor"]

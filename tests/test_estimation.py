@@ -1,6 +1,6 @@
-"""agents/estimation.py against ALGORITHMS.md section 7 and oracles 14, 15.
+"""agents/estimation.py against docs/algorithms.md section 7 and oracles 14, 15.
 
-The reference EKF below is written from the spec (random-walk predict, stacked range update,
+The reference EKF below is written from docs/algorithms.md (random-walk predict, stacked range update,
 Joseph-form covariance), independently of filterpy, so the tests catch shape or convention slips
 (R/Q swapped, broadcasting, sequential instead of stacked updates) as well as numeric ones.
 """
@@ -27,7 +27,7 @@ from ringtrack.world.geometry import ConvexRegion
 from ringtrack.world.params import EstimationParams
 from ringtrack.world.ranges import uniform_ring
 from ringtrack.world.scenario import ScenarioError, load_scenario, resolve
-from tests.strategies import (
+from tests.helpers import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
     region_with_points,
@@ -44,8 +44,8 @@ def exact_ranges(positions: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def reference_step(x, P, q, sigma, positions, ranges):
-    """One spec EKF round: x- = x, P- = P + q I; then, with the usable ranges (finite, robot farther
-    than 1e-9 from x-), the stacked update K = P H^T (H P H^T + sigma^2 I)^-1 and the Joseph form."""
+    """One EKF round as in docs/algorithms.md section 7: x- = x, P- = P + q I; then, with the usable
+    ranges (finite, robot farther than 1e-9 from x-), the stacked update K = P H^T (H P H^T + sigma^2 I)^-1 and the Joseph form."""
     x = np.array(x, dtype=float)
     P = np.array(P, dtype=float) + q * np.eye(2)
     positions = np.asarray(positions, dtype=float).reshape(-1, 2)
@@ -69,7 +69,7 @@ def offset(length: float, angle: float) -> np.ndarray:
     return length * np.array([math.cos(angle), math.sin(angle)])
 
 
-# ---------------------------------------------------------------------------- the filter is the spec's EKF
+# ---------------------------------------------------------------------------- the filter is the EKF of section 7
 @given(
     case=region_with_points(2),
     robots=st.integers(1, 8),

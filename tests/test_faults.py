@@ -20,7 +20,7 @@ from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import ring_order_kept
 from ringtrack.world.ranges import link_lengths
 from ringtrack.world.scenario import load_scenario
-from tests.emulation import (
+from tests.helpers import (
     RINGTRACK,
     assert_equals_engine,
     engine_twin,
@@ -49,6 +49,7 @@ def test_fates_are_reproducible_and_match_their_rates() -> None:
     assert [outage.fate("reply", 3, 2, step).reason for step in (9, 10, 20, 21)] == [None, "outage", "outage", None]
 
 
+@pytest.mark.processes
 def test_twenty_percent_drop_converges_keeps_order_and_accounts_for_every_message(tmp_path: Path) -> None:
     team = scenario(drop=0.2, max_steps=900)
     result, log = lockstep_run(team, tmp_path)
@@ -69,6 +70,7 @@ def test_twenty_percent_drop_converges_keeps_order_and_accounts_for_every_messag
     assert result["messages"]["robot"] == faults["sent"] - requests_dropped_early
 
 
+@pytest.mark.processes
 def test_fault_flags_give_simulate_and_spawn_the_same_counted_faults(tmp_path: Path) -> None:
     flags = ["--drop", "0.3", "--duplicate", "0.2", "--steps", "200"]
     simulated, spawned = tmp_path / "simulate.json", tmp_path / "spawn.json"
@@ -86,6 +88,7 @@ def test_fault_flags_give_simulate_and_spawn_the_same_counted_faults(tmp_path: P
         assert sum(1 for event in log.events if event["event"] == what) == wire_faults[what]
 
 
+@pytest.mark.processes
 def test_a_link_override_and_an_outage_in_seconds_leave_memory_stale_and_ageing(tmp_path: Path) -> None:
     faults = """
 [[faults.links]]
@@ -118,6 +121,7 @@ to_s = 15.0
     assert result["faults"]["dropped"] == len(dropped)
 
 
+@pytest.mark.processes
 def test_partition_for_200_steps_keeps_order_and_converges_after_it_heals(tmp_path: Path) -> None:
     partition = """
 [[faults.outages]]
@@ -183,8 +187,11 @@ max_steps = 100000
 """
 
 
-@pytest.mark.parametrize("clock", [["--clock", "realtime", "--rate", "5"], ["--clock", "lockstep"]],
-                         ids=["realtime", "lockstep"])
+@pytest.mark.processes
+@pytest.mark.parametrize("clock", [
+    pytest.param(["--clock", "realtime", "--rate", "5"], id="realtime", marks=pytest.mark.realtime),
+    pytest.param(["--clock", "lockstep"], id="lockstep"),
+])
 def test_killed_robot_is_detected_the_ring_reforms_and_a_restart_rejoins(tmp_path: Path, clock: list[str]) -> None:
     (tmp_path / "fast.toml").write_text(FAST_RING)
     runs = tmp_path / "runs"
@@ -222,6 +229,7 @@ def test_killed_robot_is_detected_the_ring_reforms_and_a_restart_rejoins(tmp_pat
     assert processes_mentioning(str(folder)) == []
 
 
+@pytest.mark.processes
 def test_a_dead_world_stops_the_team_with_a_clear_message(tmp_path: Path) -> None:
     process = start_spawn(tmp_path, "--steps", "100000")
     try:
@@ -240,6 +248,7 @@ def test_a_dead_world_stops_the_team_with_a_clear_message(tmp_path: Path) -> Non
 
 
 # ---------------------------------------------------------------------------- limited ranges
+@pytest.mark.slow
 def test_the_papers_range_bound_is_not_enough_and_a_safe_one_is() -> None:
     counterexample = load_scenario("counterexample-square")  # r_c = 0.7 > L/N = 0.667, < 0.828 needed
     for r_c, converges in ((0.7, False), (counterexample.region.outer_diameter, True)):
@@ -254,6 +263,7 @@ def test_the_papers_range_bound_is_not_enough_and_a_safe_one_is() -> None:
     assert engine.fault_totals(failing)["probes"] > 0  # robots probe the neighbour they cannot reach
 
 
+@pytest.mark.processes
 def test_limited_range_lockstep_equals_the_engine(tmp_path: Path) -> None:
     _, log = lockstep_run(load_scenario("counterexample-square", max_steps=200), tmp_path)
     assert_equals_engine(log)
@@ -264,6 +274,7 @@ def test_limited_range_lockstep_equals_the_engine(tmp_path: Path) -> None:
     assert {event["reason"] for event in log.events if event["event"] == "dropped"} == {"range"}
 
 
+@pytest.mark.processes
 def test_check_reports_bounds_and_flags_violations() -> None:
     def check(*arguments: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run([*RINGTRACK, "check", *arguments], capture_output=True, text=True, timeout=60)
@@ -281,61 +292,8 @@ def test_check_reports_bounds_and_flags_violations() -> None:
     assert broken.stderr.startswith("error: limits.communication_range 0.4 m is below the necessary 0.5000 m")
 
 
-# ---------------------------------------------------------------------------- bad and hostile input
-BAD_SCENARIOS = {
-    "wrong type": ('[team]\nrobots = "six"\n', "team.robots: expected `int`, got `str`; fix the value"),
-    "unknown key": ("[control]\nspeed = 3\n", "unknown key 'speed' in [control]; allowed keys: strategy, law, dt,"),
-    "non-convex": (None, "region is not convex at vertex 2 [1.0, 1.0]; give a convex polygon"),
-    "target outside": ("position = [9.0, 9.0]", "target.position [9.0, 9.0] is not inside the region; move it inside the polygon"),
-    "fewer than 3 robots": ("[team]\nrobots = 2\n", "team.robots: expected `int` >= 3; fix the value"),
-    "co-located starts": ("[team]\nangles_deg = [10.0, 10.0, 200.0]\nrobots = 3\n",
-                          "team.angles_deg has co-located robots; give distinct angles"),
-    "NaN": ("[control]\ndt = nan\n", "control.dt: expected a finite number > 0; fix the value"),
-    "negative": ("[control]\nsigma_deg = -1.0\n", "control.sigma_deg: expected a finite number >= 0; fix the value"),
-    "drop above 1": ("[faults]\ndrop = 1.5\n", "faults.drop: expected a probability in [0, 1]; fix the value"),
-    "negative drop": ("[faults]\ndrop = -0.1\n", "faults.drop: expected a probability in [0, 1]; fix the value"),
-    "too many robots": ("[team]\nrobots = 10000000000000\n", "team.robots: expected `int` <= 100000; fix the value"),
-    "huge coordinate": ('[sensing]\nrange = 1.0\n[estimation]\nmode = "centralized"\nprior = [1e300, 0.0]\n',
-                        "estimation.prior[0]: expected a coordinate in metres within +-1,000,000; fix the value"),
-    "outage robot": ("[[faults.outages]]\nlinks = [[0, 7]]\nfrom_step = 1\nto_step = 5\n",
-                     "faults.outages[0].links [0, 7] must name two different robots 0..5"),
-    "outage self-link": ("[[faults.outages]]\nlinks = [[2, 2]]\nfrom_step = 1\nto_step = 5\n",
-                         "faults.outages[0].links [2, 2] must name two different robots 0..5"),
-    "outage backwards": ("[[faults.outages]]\nlinks = [[0, 1]]\nfrom_step = 9\nto_step = 5\n",
-                         "faults.outages[0] ends before it starts; give from <= to"),
-    "outage without links": ("[[faults.outages]]\nlinks = []\nfrom_step = 1\nto_step = 5\n",
-                             "faults.outages[0].links is empty; name the links that go down, e.g. [[0, 1]]"),
-    "outage in steps and seconds": ("[[faults.outages]]\nlinks = [[0, 1]]\nfrom_step = 1\nto_step = 5\nfrom_s = 1.0\n"
-                                    "to_s = 2.0\n", "faults.outages[0] needs from_step and to_step, or from_s and to_s"),
-    "link override to itself": ("[[faults.links]]\nbetween = [3, 3]\ndrop = 0.5\n",
-                                "faults.links[0].between [3, 3] must name two different robots 0..5"),
-}
-GOOD = """name = "bad"
-[region]
-vertices = [[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]
-[target]
-position = [1.0, 1.0]
-"""
-
-
-@pytest.mark.parametrize("case", list(BAD_SCENARIOS))
-def test_bad_scenarios_get_one_line_and_exit_code_2(tmp_path: Path, case: str) -> None:
-    addition, message = BAD_SCENARIOS[case]
-    if case == "non-convex":
-        text = GOOD.replace("[[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]", "[[0, 0], [4, 0], [1, 1], [0, 4]]")
-    elif case == "target outside":
-        text = GOOD.replace("position = [1.0, 1.0]", addition)
-    else:
-        text = GOOD + addition
-    path = tmp_path / "bad.toml"
-    path.write_text(text)
-    for command in ("simulate", "spawn", "check"):
-        completed = subprocess.run([*RINGTRACK, command, str(path)], capture_output=True, text=True, timeout=60)
-        assert completed.returncode == 2
-        lines = completed.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith(f"ringtrack: error: {path}: {message}"), completed.stderr
-
-
+# ---------------------------------------------------------------------------- hostile input
+@pytest.mark.processes
 def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: Path) -> None:
     process = start_spawn(tmp_path, "--steps", "5000")  # outlasts the intruder: every message it sends is heard
     try:
@@ -373,6 +331,7 @@ def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: 
     assert log.end["consistent"] is False
 
 
+@pytest.mark.processes
 def test_duplicates_and_delays_leave_a_lockstep_run_unchanged_and_are_logged(tmp_path: Path) -> None:
     noisy = tmp_path / "noisy.toml"
     base = (Path(__file__).parents[1] / "scenarios" / "paper-stationary.toml").read_text()
@@ -391,6 +350,8 @@ def test_duplicates_and_delays_leave_a_lockstep_run_unchanged_and_are_logged(tmp
     assert log.end["notes"]["ignored_replies"] > 0
 
 
+@pytest.mark.processes
+@pytest.mark.realtime
 def test_realtime_polls_settle_by_timeout_when_replies_are_late(tmp_path: Path) -> None:
     late = tmp_path / "late.toml"
     late.write_text(FAST_RING.replace("max_steps = 100000", "max_steps = 150") + "\n[faults]\ndelay_ms = 60.0\n")

@@ -1,6 +1,6 @@
-"""agents/fusion.py against ALGORITHMS.md section 8 and oracle 16 (covariance intersection).
+"""agents/fusion.py against docs/algorithms.md section 8 and oracle 16 (covariance intersection).
 
-Every reference quantity here is computed independently from the spec's formulas
+Every reference quantity here is computed independently from the formulas of docs/algorithms.md
 ``P_c = (sum_k w_k P_k^{-1})^{-1}``, ``x_c = P_c sum_k w_k P_k^{-1} x_k``, with plain matrix inverses
 and a numeric search over the weights (scipy), not from the closed form under test.
 """
@@ -216,7 +216,7 @@ def test_consistent_for_any_cross_covariance(criterion, xa, xb, a, b, k):
        lam=st.one_of(st.sampled_from([0.0, 1.0]), st.floats(0.0, 1.0)))
 def test_consistent_for_any_cross_covariance_and_any_weight(xa, xb, a, b, k, lam):
     """Oracle 16 holds for every lambda in [0, 1], not only the optimal one; the CI at a given lambda
-    is the spec's formula."""
+    is the formula of docs/algorithms.md section 8."""
     fused = intersect_at([xa, xb], [a, b], [lam, 1.0 - lam])
     np.testing.assert_array_equal(fused.weights, [lam, 1.0 - lam])
     expected = fused_covariance(fused.weights, [a, b])
@@ -290,6 +290,7 @@ def test_two_way_closed_form_is_the_optimum(criterion, xa, xb, a, b):
     assert size == pytest.approx(achieved, rel=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("criterion", CRITERIA)
 @given(estimates=st.lists(st.tuples(means(), spd(max_log_condition=4.0)), min_size=3, max_size=3))
 def test_three_way_closed_form_is_the_optimum(criterion, estimates):
@@ -316,6 +317,7 @@ def comparable_triples(draw: st.DrawFn) -> list[np.ndarray]:
     return triple
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("criterion", CRITERIA)
 @given(covariances=comparable_triples())
 def test_three_way_closed_form_is_the_optimum_for_comparable_estimates(criterion, covariances):

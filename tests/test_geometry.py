@@ -1,4 +1,4 @@
-"""world/geometry.py against ALGORITHMS.md sections 1, 10, 11 and oracles 1, 2, 17, 18."""
+"""world/geometry.py against docs/algorithms.md sections 1, 10, 11 and oracles 1, 2, 17, 18."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from ringtrack.world.geometry import ConvexRegion, RegionError, angle_of
-from tests.strategies import (
+from tests.helpers import (
     AUTHORS_TARGET,
     AUTHORS_VERTICES,
     TWO_PI,
@@ -67,7 +67,7 @@ def test_oracle1_inverse_map_on_unit_square_by_hand():
 
 @given(region_with_points(1, pull_max=0.8), st.floats(-math.pi, math.pi))
 def test_section1_boundary_speed_is_r_squared_over_h(case, theta):
-    """|dp/dtheta| = r^2 / h_k on edge k (spec section 1), by central differences."""
+    """|dp/dtheta| = r^2 / h_k on edge k (docs/algorithms.md section 1), by central differences."""
     region, (centre,) = case
     point = region.boundary_point(theta, centre)
     assume(np.linalg.norm(region.vertices - point, axis=-1).min() > 1e-3 * region.outer_diameter)
@@ -298,6 +298,7 @@ def test_oracle17_authors_polygon_bounds():
     assert lower <= AUTHORS.omega_max(1.0, 0.1, o) <= upper
 
 
+@pytest.mark.slow
 @settings(max_examples=30)
 @given(region_with_points(1), st.floats(0.1, 5.0), st.floats(0.01, 1.0), st.floats(1e-3, 0.5))
 def test_oracle17_omega_max_within_bounds_and_matches_sweep(case, v_max, dt, fraction):

@@ -1,5 +1,5 @@
-"""agents/ring.py, agents/laws.py, agents/controller.py (and whole rings through world/engine.py)
-against ALGORITHMS.md sections 2-6, 12 and oracles 3, 4, 5, 6, 7, 8, 12, 13."""
+"""world/ring.py, agents/laws.py, agents/controller.py (and whole rings through agents/engine.py)
+against docs/algorithms.md sections 2-6, 12 and oracles 3, 4, 5, 6, 7, 8, 12, 13."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from ringtrack.world.metrics import convergence_error, range_information, true_o
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ranges import uniform_ring
 from ringtrack.world.ring import local_frame, midpoint, midpoint_errors, ring_gaps, wrap
-from tests.strategies import (
+from tests.helpers import (
     TWO_PI,
     ccw_gaps,
     lyapunov,
@@ -131,7 +131,7 @@ def test_oracle4_uniform_ring_stays_put_through_the_controller(case, robots, rot
 
 # ---------------------------------------------------------------------------- oracles 5 and 6 (whole rings)
 def spec_fresh_step(angles: np.ndarray, dt: float, omega_deg: float, law: str) -> np.ndarray:
-    """ALGORITHMS.md section 3, written out independently of agents.laws: e_i = (d_i^+ - d_i^-) / 4,
+    """docs/algorithms.md section 3, written out independently of agents.laws: e_i = (d_i^+ - d_i^-) / 4,
     prop: dt * sat_omega(e); deadbeat: sign(e) min(omega dt, |e|)."""
     omega = math.radians(omega_deg)
     gaps = ccw_gaps(angles)
@@ -179,6 +179,7 @@ def test_oracle5_constant_law_is_monotone(case, angles, dt, omega, law):
                                    spec_fresh_step(history.angles[k, 0], dt, omega, law), rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow
 @settings(max_examples=50)
 @given(region_with_points(1, pull_max=0.9), ring_angles(3, 30, min_weight=1e-4), dts, omegas_deg, laws, sigmas_deg)
 def test_oracle6_self_triggered_law_is_monotone_and_keeps_order(case, angles, dt, omega, law, sigma):

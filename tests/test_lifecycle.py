@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.runlog import read_log
-from tests.emulation import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
+from tests.helpers import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.processes, pytest.mark.timeout(120)]
 
 
 def _pid_of(folder: Path, role: str) -> int:

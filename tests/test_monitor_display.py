@@ -21,7 +21,7 @@ from ringtrack.tools.dashboard import TeamModel
 from ringtrack.tools.runlog import read_log
 from ringtrack.tools.views import LiveView
 from ringtrack.world.scenario import load_scenario
-from tests.emulation import RINGTRACK, stop_all
+from tests.helpers import RINGTRACK, stop_all
 from tests.test_dashboard import prepared_records
 
 pytestmark = pytest.mark.timeout(120)
@@ -86,6 +86,7 @@ def test_refresh_never_waits_for_a_blocked_stream(dashboard: bool) -> None:
         assert lines[0].startswith("step 1/3000") and lines[1].startswith("step 40/3000")
 
 
+@pytest.mark.processes
 def test_a_team_whose_dashboard_nobody_reads_still_completes(tmp_path: Path) -> None:
     """``ringtrack spawn --dashboard | (sleep 45; cat)``: the run completes, exit 0, complete log."""
     steps = 300

@@ -1,9 +1,8 @@
-"""world/engine.py with a moving target (ALGORITHMS.md sections 5, 7, 8, 9 and the moving-target
+"""agents/engine.py with a moving target (docs/algorithms.md sections 5, 7, 8, 9 and the moving-target
 sanity values of section 14) on scenarios/authors-moving.toml."""
 
 from __future__ import annotations
 
-import msgspec
 import numpy as np
 import pytest
 
@@ -11,23 +10,13 @@ from ringtrack.agents import engine
 from ringtrack.agents.centre import FusionCentre
 from ringtrack.agents.estimation import Estimator
 from ringtrack.bus.messages import SCHEMA, RangeReport
-from ringtrack.world.scenario import Scenario, load_scenario, resolve
+from ringtrack.world.scenario import load_scenario
 from ringtrack.world.sensing import RangeSensor
+from tests.helpers import SENSING_RANGE, short_sighted
 
 SEEDS = [0, 1, 2]
 STEPS = 400
 SETTLED = 100  # steps 1..100 are the transient; statistics over steps 101..STEPS
-
-
-SENSING_RANGE = 3.0  # m: the authors' robots start 2.3 to 6.5 m from the target
-
-
-def short_sighted(estimation: str, prior: str, **overrides: object) -> Scenario:
-    """authors-moving with a sensing range of ``SENSING_RANGE`` and the given estimation and prior."""
-    spec = load_scenario("authors-moving", estimation=estimation, **overrides).spec
-    spec = msgspec.structs.replace(spec, sensing=msgspec.structs.replace(spec.sensing, range=SENSING_RANGE),
-                                   estimation=msgspec.structs.replace(spec.estimation, prior=prior))
-    return resolve(spec, "short-sighted")
 
 
 def run(estimation: str, strategy: str, steps: int = STEPS) -> engine.History:
@@ -64,7 +53,7 @@ def poll_rate(history: engine.History) -> np.ndarray:
     return (history.triggers != 0).mean(axis=(0, 2))
 
 
-# ---------------------------------------------------------------------------- (d) Terr is what the spec defines
+# ---------------------------------------------------------------------------- (d) Terr is what section 5 defines
 @pytest.mark.parametrize("mode", ["centralized", "decentralized"])
 def test_terr_is_the_mean_distance_of_the_estimates(mode, centralized_self, decentralized_self):
     """Section 5: Terr = ||o_hat - o|| (centralized), (1/N) sum_i ||o_hat_i - o|| (decentralized)."""
@@ -152,6 +141,7 @@ def test_self_triggered_tracks_as_well_as_constant_with_fewer_polls(centralized_
 
 
 # ---------------------------------------------------------------------------- section 14 reference values (1300 rounds)
+@pytest.mark.slow
 def test_section14_centralized_terr_reference():
     """Section 14: centralized Terr 0.137 m as the mean over rounds 300..1300 (constant and self alike)."""
     for strategy in ("self", "constant"):
@@ -160,8 +150,9 @@ def test_section14_centralized_terr_reference():
         assert history.terr[299:].mean() == pytest.approx(0.137, rel=0.2)
 
 
+@pytest.mark.slow
 def test_decentralized_tracking_against_centralized():
-    """The spec's section 14 decentralized reference (0.437 m) is not reproduced (see README: the
+    """The decentralized reference of docs/algorithms.md section 14 (0.437 m) is not reproduced (see README: the
     self-triggered robots poll 3-7 % of steps and single-range beliefs drift between polls). What is
     asserted is what the README reports: decentralized filters fused every step (constant strategy)
     track as well as 0.3 m, and self-triggered decentralized tracking is worse than centralized, as

@@ -28,9 +28,11 @@ import pytest
 
 from ringtrack.bus.security import create_team
 from ringtrack.tools.runlog import read_log
-from tests.emulation import assert_equals_engine
+from tests.helpers import assert_equals_engine
 
 pytestmark = [
+    pytest.mark.processes,
+    pytest.mark.root,
     pytest.mark.timeout(300),
     pytest.mark.processes,
     pytest.mark.root,
@@ -39,7 +41,7 @@ pytestmark = [
 ]
 
 PORT = 7447
-CONVERGED_AT = 712  # paper-stationary's worked example (spec oracle 11)
+CONVERGED_AT = 712  # paper-stationary's worked example (docs/algorithms.md oracle 11)
 
 
 def sh(*command: str) -> None:

@@ -1,4 +1,4 @@
-"""world/ranges.py against ALGORITHMS.md section 11 and oracles 19, 20."""
+"""world/ranges.py against docs/algorithms.md section 11 and oracles 19, 20."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from ringtrack.world.geometry import ConvexRegion, angle_of
 from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
-from tests.strategies import AUTHORS_TARGET, AUTHORS_VERTICES, TWO_PI, circular_distance, region_with_points, regions
+from tests.helpers import AUTHORS_TARGET, AUTHORS_VERTICES, TWO_PI, circular_distance, region_with_points, regions
 
 UNIT_SQUARE = ConvexRegion.from_vertices([[0, 0], [1, 0], [1, 1], [0, 1]])
 
@@ -95,7 +95,7 @@ def test_uniform_link_requirement_matches_brute_force(case, robots):
     assert required <= region.outer_diameter * (1 + 1e-12)
 
 
-# ---------------------------------------------------------------------------- range_bounds (spec 10/11 numbers)
+# ---------------------------------------------------------------------------- range_bounds (sections 10 and 11)
 def test_range_bounds_authors_polygon():
     region = ConvexRegion.from_vertices(AUTHORS_VERTICES)
     bounds = range_bounds(region, AUTHORS_TARGET, 6)

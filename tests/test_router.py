@@ -10,9 +10,9 @@ import pytest
 
 from ringtrack.tools.runlog import read_log
 from ringtrack.tools.supervisor import Supervisor
-from tests.emulation import assert_equals_engine, processes_mentioning
+from tests.helpers import assert_equals_engine, processes_mentioning
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.processes, pytest.mark.timeout(180)]
 
 ROLES = [sys.executable, "-m", "ringtrack.tools.roles"]
 

@@ -12,7 +12,7 @@ import pytest
 
 from ringtrack.tools.cli import main
 from ringtrack.tools.runlog import read_log
-from tests.emulation import RINGTRACK
+from tests.helpers import RINGTRACK
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -58,6 +58,7 @@ CASES = {
 }
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize("case", CASES)
 def test_a_damaged_record_is_one_line_and_exit_2(case: str, engine_log: list[str], tmp_path: Path) -> None:
     edit, problem = CASES[case]

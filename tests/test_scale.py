@@ -8,13 +8,14 @@ import pytest
 
 from ringtrack.tools.runlog import read_log
 from ringtrack.tools.spawn import spawn_team
-from tests.emulation import assert_equals_engine, processes_mentioning, scenario
+from tests.helpers import assert_equals_engine, processes_mentioning, scenario
 
 pytestmark = pytest.mark.timeout(300)
 
 HANG_BOUND_S = 120.0  # only catches a hang; the speed itself is measured by `ringtrack bench emulator`
 
 
+@pytest.mark.processes
 def test_sixty_four_robot_processes_start_and_converge_in_lockstep(tmp_path: Path) -> None:
     team = scenario(robots=64, seed=3)
     result = spawn_team(team, clock="lockstep", runs=tmp_path, dashboard=False, until_converged=True, quiet=True)
@@ -30,6 +31,7 @@ def test_sixty_four_robot_processes_start_and_converge_in_lockstep(tmp_path: Pat
     assert not processes_mentioning(result["run"])
 
 
+@pytest.mark.processes
 def test_robots_packed_per_process_keep_their_own_identity_and_counts(tmp_path: Path) -> None:
     team = scenario(robots=10, seed=5, max_steps=200)
     result = spawn_team(team, clock="lockstep", runs=tmp_path, dashboard=False, quiet=True, robots_per_process=4)

@@ -36,7 +36,7 @@ from ringtrack.bus.security import (
     team_names,
 )
 from ringtrack.tools.runlog import read_log
-from tests.emulation import RINGTRACK, assert_equals_engine, scenario, start_spawn, stop_all, wait_for_steps
+from tests.helpers import RINGTRACK, assert_equals_engine, scenario, start_spawn, stop_all, wait_for_steps
 
 CONVERGED_AT = 712  # paper-stationary's worked example
 

@@ -1,11 +1,10 @@
 """world/target.py (target motion, the [target] section), world/sensing.py (RangeSensor) and the
-scenario rules of [target], [sensing], [estimation] (world/scenario.py), against ALGORITHMS.md
-sections 7 and 9 and the authors' moving-target setting (KF.m)."""
+scenario rules of [target], [sensing], [estimation] (world/scenario.py), against docs/algorithms.md
+sections 7 and 9 and the authors' moving-target setting."""
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,16 +12,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from ringtrack.world.geometry import ConvexRegion, RegionError
-from ringtrack.world.scenario import TARGET_MARGIN, ScenarioError, load_scenario, parse_scenario, resolve
+from ringtrack.world.scenario import TARGET_MARGIN, load_scenario, parse_scenario, resolve
 from ringtrack.world.sensing import RangeSensor
 from ringtrack.world.target import Circle, RandomWalk, Stationary, Waypoints
-from tests.strategies import AUTHORS_VERTICES, region_with_points
+from tests.helpers import AUTHORS_VERTICES, CIRCLE_LINES, MOVING, region_with_points
 
 AUTHORS = ConvexRegion.from_vertices(AUTHORS_VERTICES)
 MARGIN = TARGET_MARGIN * AUTHORS.outer_diameter
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
-MOVING = (SCENARIOS / "authors-moving.toml").read_text()
-CIRCLE_LINES = 'motion = "circle"\ncentre = [3.0, 20.0]\nspeed = 0.1            # m/s\nangular_speed = 0.1    # rad/s: 0.01 rad per step\n'
 
 
 def polar_angle(points: np.ndarray, centre) -> np.ndarray:
@@ -204,128 +200,6 @@ def test_random_walk_scenario_path_is_per_seed():
 def test_stationary_path():
     path = Stationary(position=(4.0, 20.0)).path(10, 0.1, AUTHORS, 0, MARGIN)
     np.testing.assert_array_equal(path, np.tile([4.0, 20.0], (10, 1)))
-
-
-# ---------------------------------------------------------------------------- scenario refusals
-def scenario_error(text: str) -> str:
-    with pytest.raises(ScenarioError) as raised:
-        resolve(parse_scenario(text, "x.toml"), "x.toml")
-    message = str(raised.value)
-    assert "\n" not in message
-    return message
-
-
-def with_target(lines: str) -> str:
-    assert CIRCLE_LINES in MOVING
-    return MOVING.replace(CIRCLE_LINES, lines)
-
-
-def with_estimation(key: str, value: str) -> str:
-    head, estimation = MOVING.split("[estimation]\n")
-    line = next(line for line in estimation.splitlines() if line.startswith(f"{key} = "))
-    return head + "[estimation]\n" + estimation.replace(line, f"{key} = {value}")
-
-
-@pytest.mark.parametrize(
-    ("text", "message"),
-    [
-        pytest.param(
-            with_target('motion = "circle"\ncentre = [3.0, 20.0]\nspeed = 0.2\nangular_speed = 0.1\n'),
-            "x.toml: target circle of radius 2 m (speed / angular_speed) about [3.0, 20.0] leaves the region "
-            "(1.718 m of room); lower target.speed or raise the size of target.angular_speed",
-            id="circle-leaves-region",
-        ),
-        pytest.param(
-            with_target('motion = "circle"\ncentre = [30.0, 20.0]\nspeed = 0.1\nangular_speed = 0.1\n'),
-            "x.toml: target.centre [30.0, 20.0] is not inside the region; move it inside the polygon",
-            id="circle-centre-outside",
-        ),
-        pytest.param(
-            with_target('motion = "circle"\ncentre = [3.0, 20.0]\nspeed = 0.1\nangular_speed = 0.0\n'),
-            "x.toml: target.angular_speed is 0 (an infinite circle); give a nonzero rad/s",
-            id="circle-zero-angular-speed",
-        ),
-        pytest.param(
-            with_target('motion = "circle"\ncentre = [3.0, 20.0]\nspeed = -0.1\nangular_speed = 0.1\n'),
-            "x.toml: target.speed: expected a finite number > 0; fix the value",
-            id="circle-negative-speed",
-        ),
-        pytest.param(
-            with_target('motion = "circle"\ncentre = [3.0, 20.0]\nangular_speed = 0.1\n'),
-            "x.toml: target.speed is missing; add it",
-            id="circle-missing-speed",
-        ),
-        pytest.param(
-            with_target('motion = "waypoints"\nwaypoints = [[4.0, 20.0], [40.0, 20.0]]\nspeed = 1.0\n'),
-            "x.toml: target.waypoints[1] [40.0, 20.0] is not inside the region; move it inside the polygon",
-            id="waypoint-outside",
-        ),
-        pytest.param(
-            with_target('motion = "random_walk"\nposition = [0.0, 0.0]\nspeed_std = 1.0\n'),
-            "x.toml: target.position [0.0, 0.0] is not inside the region; move it inside the polygon",
-            id="random-walk-start-outside",
-        ),
-        pytest.param(
-            with_target('motion = "spiral"\ncentre = [3.0, 20.0]\n'),
-            "x.toml: target.motion: invalid value 'spiral'; use one of 'stationary', 'circle', 'random_walk', 'waypoints'",
-            id="unknown-motion",
-        ),
-        pytest.param(
-            with_target('motion = "circle"\ncentre = [3.0, 20.0]\nspeed = 0.1\nangular_speed = 0.1\nradius = 1.0\n'),
-            "x.toml: unknown key 'radius' in [target]; allowed keys: motion, centre, speed, angular_speed, phase_deg",
-            id="unknown-circle-key",
-        ),
-        pytest.param(
-            with_target('motion = "waypoints"\nwaypoints = [[4.0, 20.0], [4.0, 21.0]]\nspeed = 1.0\ncentre = [1.0, 1.0]\n'),
-            "x.toml: unknown key 'centre' in [target]; allowed keys: motion, waypoints, speed, loop",
-            id="unknown-waypoints-key",
-        ),
-        pytest.param(
-            with_estimation("mode", '"known"'),
-            "x.toml: estimation.mode = 'known' needs a stationary target; use 'centralized' or 'decentralized'",
-            id="known-with-moving-target",
-        ),
-        pytest.param(
-            with_estimation("prior", '"trilateration"'),
-            "x.toml: estimation.prior = 'trilateration' needs the centralized mode (one robot has one range);"
-            " use 'truth' or [x, y]",
-            id="trilateration-decentralized",
-        ),
-        pytest.param(
-            with_estimation("prior", "[40.0, 20.0]"),
-            "x.toml: estimation.prior [40.0, 20.0] is not inside the region; move it inside the polygon",
-            id="prior-outside",
-        ),
-        pytest.param(
-            with_estimation("mode", '"psychic"'),
-            "x.toml: estimation.mode: invalid enum value 'psychic'; use one of 'known', 'centralized', 'decentralized'",
-            id="unknown-mode",
-        ),
-        pytest.param(
-            MOVING.replace("range_sigma = 0.2\n\n[estimation]", "range_sigma = -0.2\n\n[estimation]"),
-            "x.toml: sensing.range_sigma: expected a finite number >= 0; fix the value",
-            id="negative-sensing-sigma",
-        ),
-    ],
-)
-def test_scenario_refusals(text, message):
-    assert scenario_error(text) == message
-
-
-def test_scenario_accepts_the_shipped_moving_scenarios_and_variants():
-    for name in ("authors-moving", "gazebo-moving"):
-        scenario = load_scenario(name)
-        assert scenario.moving
-        assert scenario.estimation.mode == "decentralized"
-        assert scenario.estimation.range_sigma == 0.2 and scenario.estimation.process_noise == 0.2
-        assert scenario.spec.sensing.range_sigma == 0.2
-    # a prior point inside, trilateration with the centralized mode, a circle with just enough room
-    inside = resolve(parse_scenario(with_estimation("prior", "[4.5, 19.0]"), "x.toml"), "x.toml")
-    assert inside.estimation.prior == (4.5, 19.0)
-    text = with_estimation("prior", '"trilateration"').replace('mode = "decentralized"', 'mode = "centralized"')
-    assert resolve(parse_scenario(text, "x.toml"), "x.toml").estimation.prior == "trilateration"
-    tight = with_target('motion = "circle"\ncentre = [3.0, 20.0]\nspeed = 0.17\nangular_speed = 0.1\n')  # r 1.7 < 1.718
-    assert resolve(parse_scenario(tight, "x.toml"), "x.toml").moving
 
 
 # ---------------------------------------------------------------------------- RangeSensor

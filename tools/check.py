@@ -1,7 +1,7 @@
 """``ringtrack check SCENARIO``: the sizes of the region and the range bounds for the scenario's team.
 
 Prints the perimeter L, D_in, D_out, the necessary bounds (Thm 1: r_c >= D_in sin(pi / N),
-r_s >= D_in / 2), the paper's r_c >= L / N (not sufficient: ALGORITHMS.md section 11), and safe
+r_s >= D_in / 2), the paper's r_c >= L / N (not sufficient: docs/algorithms.md section 11), and safe
 sufficient bounds for this team and target (r_c: the longest link of the best angle-uniform
 configuration, over the target's path; r_s >= D_out). Exit code 1 when the scenario's ranges break
 a necessary bound, 0 otherwise (warnings go to standard error).

@@ -19,7 +19,7 @@ COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment
 # One-line errors of bad input: (module, class). A class whose module was never imported cannot
 # have been raised, so none is imported just to be caught.
 USER_ERRORS = (
-    ("ringtrack.world.scenario", "ScenarioError"),
+    ("ringtrack.world.scenario_errors", "ScenarioError"),
     ("ringtrack.world.geometry", "RegionError"),
     ("ringtrack.tools.console", "UsageError"),
     ("ringtrack.bus.config", "BusError"),

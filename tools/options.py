@@ -8,10 +8,11 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from ringtrack.world.scenario import Scenario, load_scenario
+from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
 
 DEFAULT_SCENARIO = "paper-stationary"
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")  # what matplotlib writes here
+FLAGS = {"max_steps": "--steps"}  # command-line flags of scenario overrides not spelled like their name
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> None:
@@ -40,20 +41,30 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
 
 
 def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
-    """Load ``args.scenario`` with the flags applied (``--steps`` sets ``max_steps``)."""
-    return load_scenario(
-        args.scenario,
-        strategy=args.strategy,
-        law=args.law,
-        robots=args.robots,
-        seed=args.seed,
-        max_steps=args.steps,
-        sigma_deg=args.sigma_deg,
-        estimation=args.estimation,
-        drop=args.drop,
-        duplicate=args.duplicate,
-        communication_range=args.communication_range,
-    )
+    """Load ``args.scenario`` with the flags applied (``--steps`` sets ``max_steps``); a bad flag
+    value is reported by its flag, e.g. ``--drop 1.5 (faults.drop): expected a probability ...``."""
+    try:
+        return load_scenario(
+            args.scenario,
+            strategy=args.strategy,
+            law=args.law,
+            robots=args.robots,
+            seed=args.seed,
+            max_steps=args.steps,
+            sigma_deg=args.sigma_deg,
+            estimation=args.estimation,
+            drop=args.drop,
+            duplicate=args.duplicate,
+            communication_range=args.communication_range,
+        )
+    except OverrideError as error:
+        raise ScenarioError(f"{flag(error.name)} {error.value} ({error.path}){error.problem}") from None
+
+
+def flag(override: str) -> str:
+    """The command-line flag of a scenario override (``max_steps`` -> ``--steps``, ``sigma_deg`` ->
+    ``--sigma-deg``)."""
+    return FLAGS.get(override, "--" + override.replace("_", "-"))
 
 
 def positive(text: str) -> float:

@@ -1,4 +1,4 @@
-"""Geometry of a convex polygonal region Q and its boundary (ALGORITHMS.md sections 1, 10, 11).
+"""Geometry of a convex polygonal region Q and its boundary (docs/algorithms.md sections 1, 10, 11).
 
 Conventions used throughout:
 
@@ -150,7 +150,7 @@ class ConvexRegion:
     def clamp_interior(self, point: ArrayLike, margin: float) -> FloatArray:
         """Pull ``point`` towards the Chebyshev centre until it is ``margin`` metres inside every edge.
 
-        Used for an estimate that left Q, where ``phi`` stops being a bijection (spec section 1).
+        Used for an estimate that left Q, where ``phi`` stops being a bijection (docs/algorithms.md section 1).
         Points already that deep inside are returned unchanged.
         """
         point = np.asarray(point, dtype=float)
@@ -212,7 +212,7 @@ class ConvexRegion:
         capped = self.point_at(s_start + np.clip(shift, -max_distance, max_distance))
         return np.where(reachable[..., None], goal, capped)
 
-    # ------------------------------------------------------------------ sizes (spec section 11)
+    # ------------------------------------------------------------------ sizes (section 11)
     @cached_property
     def chebyshev_centre(self) -> tuple[FloatArray, float]:
         """Centre (metres) and radius of the largest inscribed disc: ``max r s.t. n_k.c + r <= c_k``."""
@@ -241,7 +241,7 @@ class ConvexRegion:
         gaps = self.vertices[:, None, :] - self.vertices[None, :, :]
         return float(np.sqrt(np.max(np.sum(gaps**2, axis=-1))))
 
-    # ------------------------------------------------------------------ speed (spec section 10)
+    # ------------------------------------------------------------------ speed (section 10)
     def omega_max(self, v_max: float, dt: float, centre: ArrayLike, samples: int = 20_000) -> float:
         """Largest angular speed (rad/s) about ``centre`` that no boundary move of at most
         ``d_max = v_max * dt`` metres can exceed in one step of ``dt`` seconds:

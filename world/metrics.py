@@ -1,4 +1,4 @@
-"""Metrics of a run (ALGORITHMS.md section 5). Cerr and thresholds are in degrees.
+"""Metrics of a run (docs/algorithms.md section 5). Cerr and thresholds are in degrees.
 
 * ``Cerr_true(k) = sum_i |V_i(k) - theta_i(k)|`` from true positions about the true target (the paper's
   constant-strategy Cerr);

@@ -1,4 +1,4 @@
-"""Communication and sensing ranges (ALGORITHMS.md section 11). Distances in metres.
+"""Communication and sensing ranges (docs/algorithms.md section 11). Distances in metres.
 
 * Necessary (paper Thm 1): ``r_c >= D_in sin(pi / N)`` and ``r_s >= D_in / 2``.
 * Sufficient for sensing: ``r_s >= D_out``.
@@ -61,7 +61,7 @@ class RangeBounds:
 
 
 def range_bounds(region: ConvexRegion, centre: ArrayLike, robots: int) -> RangeBounds:
-    """All bounds of section 11 for ``robots`` robots around ``centre``."""
+    """All bounds of docs/algorithms.md section 11 for ``robots`` robots around ``centre``."""
     d_in = region.inner_diameter
     return RangeBounds(
         perimeter=region.perimeter,

@@ -1,4 +1,4 @@
-"""Circle arithmetic of a robot ring (ALGORITHMS.md section 2).
+"""Circle arithmetic of a robot ring (docs/algorithms.md section 2).
 
 Robots ``0..N-1`` sit in counter-clockwise (CCW) order; robot ``i+1`` is the CCW successor of ``i``.
 Angles are radians. A robot reads its neighbours' angles in its own *local frame*: the successor's

@@ -1,55 +1,17 @@
-"""Scenarios: TOML files validated by msgspec (unknown keys rejected), resolved into run parameters.
+"""Scenarios resolved into run parameters: :class:`Scenario` (SI units), :func:`resolve` (cross-field
+rules, the fault plan), :func:`apply_overrides` and :func:`load_scenario`, the entry point.
 
-A scenario file looks like::
-
-    name = "paper-stationary"
-    seed = 0
-    [region]
-    vertices = [[3, 7], [8, 17], [5, 26], [1, 22]]   # metres, either orientation
-    [target]
-    position = [4, 20]          # metres, inside the region; or motion = "circle" | "random_walk" | "waypoints"
-    [team]
-    robots = 6
-    angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
-    [control]
-    strategy = "self"          # "self" | "constant"
-    law = "prop"               # fresh-information law: "prop" | "deadbeat"
-    dt = 0.1                   # s
-    omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
-    sigma_deg = 0.06           # trigger tolerance, deg
-    threshold_deg = 0.6        # convergence threshold on Cerr, deg (default 0.1 N)
-    max_steps = 3000
-    [sensing]
-    range_sigma = 0.2          # m, noise of the measured ranges
-    range = 30.0               # m, sensing range r_s (default: unlimited)
-    [estimation]
-    mode = "known"             # "known" (robots know the stationary target) | "centralized" | "decentralized"
-    range_sigma = 0.2          # m, the filters' model of the range noise
-    process_noise = 0.2        # m^2 per step, Q = q I
-    prior = "truth"            # "truth" | "trilateration" (centralized) | [x, y]
-    prior_variance = 1.0       # m^2, P0 = p I
-    fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
-    criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
-    [limits]
-    communication_range = 5.0  # m, r_c: links longer than this are down (default: unlimited)
-    [faults]                   # robot-to-robot links; seeded by seed (default: the scenario's)
-    drop = 0.2                 # probability a message is lost
-    duplicate = 0.0            # probability a message arrives twice
-    delay_ms = 0.0             # wall delay, with +- jitter_ms
-    [[faults.links]]           # per-link override: between = [0, 1], drop = 0.5, ...
-    [[faults.outages]]         # links down: links = [[2, 3], [5, 0]], from_step = 100, to_step = 300
-
-Every problem is reported as one :class:`ScenarioError` line naming the key and the fix.
+The file format is :mod:`ringtrack.world.scenario_schema`, reading files and shipped names
+:mod:`ringtrack.world.scenario_files`, the wording of invalid values
+:mod:`ringtrack.world.scenario_errors`; their public names are importable from here too. Every
+problem is reported as one :class:`ScenarioError` line naming the key and the fix.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
-from typing import Annotated, Any, Literal, get_args, get_origin, get_type_hints
+from typing import Any
 
 import msgspec
 import numpy as np
@@ -58,101 +20,28 @@ from ringtrack.bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
 from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
 from ringtrack.world.params import ControlParams, EstimationParams
 from ringtrack.world.ring import ring_gaps
-from ringtrack.world.schema import COORDINATE_LIMIT, Coordinate, Finite, NonNegative, Point, Positive, Probability, Spec
-from ringtrack.world.target import Stationary, TargetSpec
+from ringtrack.world.scenario_errors import ScenarioError, explain_validation
+from ringtrack.world.scenario_files import parse_scenario, read_scenario_text, shipped_scenarios
+from ringtrack.world.scenario_schema import LinkFaultSpec, ScenarioSpec
+from ringtrack.world.target import Stationary
+
+__all__ = [
+    "OverrideError",
+    "Scenario",
+    "ScenarioError",
+    "ScenarioSpec",
+    "apply_overrides",
+    "load_scenario",
+    "parse_scenario",
+    "read_scenario_text",
+    "resolve",
+    "shipped_scenarios",
+]
 
 MIN_START_GAP = 1e-6  # rad; closer starts count as co-located
 START_DRAWS = 100  # random starts drawn before spreading one out (large teams)
 TARGET_MARGIN = 1e-6  # fraction of D_out a target path must stay inside the region
-
-
-class ScenarioError(ValueError):
-    """A scenario cannot be used; the message is one line naming the key and the fix."""
-
-
-class RegionSpec(Spec):
-    vertices: list[Point]
-
-
-MAX_ROBOTS = 100_000
-
-
-class TeamSpec(Spec):
-    robots: Annotated[int, msgspec.Meta(ge=3, le=MAX_ROBOTS)] = 6
-    angles_deg: list[Finite] | None = None
-
-
-class ControlSpec(Spec):
-    strategy: Literal["self", "constant"] = "self"
-    law: Literal["prop", "deadbeat"] = "prop"
-    dt: Positive = 0.1
-    omega_max_deg: Positive | None = None
-    v_max: Positive | None = None
-    sigma_deg: NonNegative = 0.0
-    threshold_deg: Positive | None = None
-    max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
-
-
-class SensingSpec(Spec):
-    range_sigma: NonNegative = 0.0
-    range: Positive | None = None
-
-
-class EstimationSpec(Spec):
-    mode: Literal["known", "centralized", "decentralized"] = "known"
-    range_sigma: Positive = 0.2
-    process_noise: NonNegative = 0.2
-    prior: Literal["truth", "trilateration"] | Point = "truth"
-    prior_variance: Positive = 1.0
-    fusion: Literal["ci", "sequential"] = "ci"
-    criterion: Literal["trace", "det"] = "trace"
-    margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
-
-
-class LimitsSpec(Spec):
-    communication_range: Positive | None = None
-
-
-class LinkFaultSpec(Spec):
-    between: tuple[int, int]
-    drop: Probability | None = None
-    duplicate: Probability | None = None
-    delay_ms: NonNegative | None = None
-    jitter_ms: NonNegative | None = None
-
-
-class OutageSpec(Spec):
-    links: list[tuple[int, int]]
-    from_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
-    to_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
-    from_s: NonNegative | None = None
-    to_s: NonNegative | None = None
-
-
-class FaultsSpec(Spec):
-    seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
-    drop: Probability = 0.0
-    duplicate: Probability = 0.0
-    delay_ms: NonNegative = 0.0
-    jitter_ms: NonNegative = 0.0
-    links: list[LinkFaultSpec] = []
-    outages: list[OutageSpec] = []
-
-
-class ScenarioSpec(Spec, kw_only=True):
-    region: RegionSpec
-    target: TargetSpec
-    name: str = "scenario"
-    seed: Annotated[int, msgspec.Meta(ge=0)] = 0
-    team: TeamSpec = TeamSpec()
-    control: ControlSpec = ControlSpec()
-    sensing: SensingSpec = SensingSpec()
-    estimation: EstimationSpec = EstimationSpec()
-    limits: LimitsSpec = LimitsSpec()
-    faults: FaultsSpec = FaultsSpec()
-
-
-DEFAULT_OMEGA_MAX_DEG = 1.0
+DEFAULT_OMEGA_MAX_DEG = 1.0  # deg/s, when a scenario gives neither omega_max_deg nor v_max
 
 
 @dataclass(frozen=True)
@@ -222,30 +111,6 @@ class Scenario:
         return msgspec.toml.encode(self.spec)
 
 
-# ---------------------------------------------------------------------------- loading
-SCENARIO_PACKAGE = "ringtrack.scenarios"
-
-
-def shipped_scenarios() -> list[str]:
-    """Names of the scenarios shipped in ``scenarios/``."""
-    folder = resources.files(SCENARIO_PACKAGE)
-    return sorted(entry.name[:-5] for entry in folder.iterdir() if entry.name.endswith(".toml"))
-
-
-def read_scenario_text(name_or_path: str) -> tuple[bytes, str]:
-    """Bytes and a display name of a scenario given as a file path or a shipped scenario name."""
-    path = Path(name_or_path)
-    if path.is_file():
-        return path.read_bytes(), str(path)
-    shipped = resources.files(SCENARIO_PACKAGE) / f"{name_or_path.removesuffix('.toml')}.toml"
-    if shipped.is_file():
-        return shipped.read_bytes(), f"{shipped.name}"
-    raise ScenarioError(
-        f"scenario {name_or_path!r} is neither a file nor a shipped scenario; use a path or one of: "
-        + ", ".join(shipped_scenarios())
-    )
-
-
 def load_scenario(name_or_path: str, **overrides: Any) -> Scenario:
     """Read, validate and resolve a scenario; ``overrides`` are ``section.key``-free keyword pairs
     such as ``strategy="constant"``, ``robots=8``, ``seed=3``, ``max_steps=500`` (see
@@ -253,21 +118,6 @@ def load_scenario(name_or_path: str, **overrides: Any) -> Scenario:
     text, label = read_scenario_text(name_or_path)
     spec = parse_scenario(text, label)
     return resolve(apply_overrides(spec, **overrides), label)
-
-
-def parse_scenario(text: bytes | str, label: str = "scenario") -> ScenarioSpec:
-    """Decode and type-check TOML into a :class:`ScenarioSpec`."""
-    try:
-        raw = msgspec.toml.decode(text)
-    except msgspec.DecodeError as error:
-        raise ScenarioError(f"{label}: not valid TOML ({error}); fix the syntax") from None
-    target = raw.get("target")
-    if isinstance(target, dict):
-        target.setdefault("motion", "stationary")
-    try:
-        return msgspec.convert(raw, ScenarioSpec)
-    except msgspec.ValidationError as error:
-        raise ScenarioError(f"{label}: {_explain_validation(str(error), raw)}") from None
 
 
 # Override name -> (section or None for the top level, key).
@@ -290,12 +140,22 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
 }
 
 
-FLAGS = {"max_steps": "--steps"}  # command-line flags of overrides not spelled like their name
+
+
+class OverrideError(ScenarioError):
+    """An override's value is invalid. The message is ``section.key: problem; fix``; ``name`` (the
+    override), ``value``, ``path`` (``section.key``) and ``problem`` (the rest) let a command line
+    word it by its own flag."""
+
+    def __init__(self, name: str, value: Any, path: str, problem: str) -> None:
+        super().__init__(f"{path}{problem}")
+        self.name, self.value, self.path, self.problem = name, value, path, problem
 
 
 def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
-    """Replace keys of a spec (command-line flags); ``None`` values are ignored. The result is
-    validated like a file, so a bad flag value gets the same one-line error as a bad key.
+    """Replace keys of a spec (``OVERRIDABLE`` names, e.g. command-line flags); ``None`` values are
+    ignored. The result is validated like a file, so a bad value gets the same one-line error as a
+    bad key, raised as :class:`OverrideError` naming the override.
 
     A ``robots`` override that no longer matches explicit ``team.angles_deg`` replaces them by a
     seeded random start (``start_angles``).
@@ -321,12 +181,12 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     try:
         return msgspec.convert(raw, ScenarioSpec)
     except msgspec.ValidationError as error:
-        text = _explain_validation(str(error), raw)
-        for name, value in overrides.items():  # a bad flag value is named by its flag
+        text = explain_validation(str(error), raw)
+        for name, value in overrides.items():
             section, key = OVERRIDABLE[name]
             path = f"{section}.{key}" if section else key
             if value is not None and text.startswith(f"{path}:"):
-                text = f"{FLAGS.get(name, '--' + name.replace('_', '-'))} {value} ({path}){text[len(path):]}"
+                raise OverrideError(name, value, path, text[len(path):]) from None
         raise ScenarioError(text) from None
 
 
@@ -450,90 +310,3 @@ def _fault_plan(spec: ScenarioSpec, label: str) -> FaultPlan:
                  for index, entry in enumerate(faults.links)}
     seed = spec.seed if faults.seed is None else faults.seed
     return FaultPlan(seed=seed, default=rates(), links=overrides, outages=tuple(outages))
-
-
-# ---------------------------------------------------------------------------- error text
-def _explain_validation(message: str, raw: Any) -> str:
-    """Turn msgspec's message into ``section.key: problem; fix`` (``raw`` is the decoded TOML, which
-    says which variant of a tagged section such as ``[target]`` was meant)."""
-    where = re.search(r" - at `\$\.?(.*)`$", message)
-    path = where.group(1) if where else ""
-    body = message[: where.start()] if where else message
-    unknown = re.match(r"Object contains unknown field `(.+)`", body)
-    if unknown:
-        allowed = ", ".join(_fields_at(path, raw))
-        place = f"[{path}]" if path else "top level"
-        return f"unknown key {unknown.group(1)!r} in {place}; allowed keys: {allowed}"
-    missing = re.match(r"Object missing required field `(.+)`", body)
-    if missing:
-        key = f"{path}.{missing.group(1)}" if path else missing.group(1)
-        return f"{key} is missing; add it"
-    key = path or "scenario"
-    kinds = _number_kinds(_type_at(path, raw)[0]) if body.startswith("Expected `float`") else []
-    if Probability in kinds:
-        return f"{key}: expected a probability in [0, 1]; fix the value"
-    if Coordinate in kinds:
-        return f"{key}: expected a coordinate in metres within +-{COORDINATE_LIMIT:,.0f}; fix the value"
-    if body.startswith("Expected `float`") and ("e+300" in body or body.endswith("0.0")):
-        sign = " > 0" if "> 0.0" in body else " >= 0" if ">= 0.0" in body else ""
-        return f"{key}: expected a finite number{sign}; fix the value"
-    if body.startswith(("Invalid enum value", "Invalid value")):
-        choices = ", ".join(repr(choice) for choice in _choices_at(path, raw))
-        return f"{key}: {body[0].lower()}{body[1:]}; use one of {choices}"
-    return f"{key}: {body[0].lower()}{body[1:]}; fix the value"
-
-
-def _number_kinds(annotation: Any) -> list[Any]:
-    """The checked number types (``Probability``, ``Coordinate``, ...) an annotation holds, looking
-    into unions, lists and tuples (a path's list indices are not resolved)."""
-    if get_origin(annotation) is Annotated:
-        return [annotation]
-    return [kind for argument in get_args(annotation) for kind in _number_kinds(argument)]
-
-
-def _structs(annotation: Any) -> list[type[Spec]]:
-    return [c for c in (annotation, *get_args(annotation)) if isinstance(c, type) and issubclass(c, Spec)]
-
-
-def _struct_for(annotation: Any, section: Any) -> type[Spec] | None:
-    """The struct an annotation names; for a tagged union, the member the raw ``section`` is tagged as."""
-    members = _structs(annotation)
-    for member in members:
-        config = member.__struct_config__
-        if config.tag_field and isinstance(section, dict) and section.get(config.tag_field) == config.tag:
-            return member
-    return members[0] if members else None
-
-
-def _type_at(path: str, raw: Any) -> tuple[Any, Any]:
-    """The annotation at a dotted path of the spec and the raw value there."""
-    found: Any = ScenarioSpec
-    section = raw
-    for part in filter(None, re.sub(r"\[\d+\]", "", path).split(".")):
-        owner = _struct_for(found, section)
-        if owner is None:
-            return None, None
-        found = get_type_hints(owner, include_extras=True).get(part)
-        section = section.get(part) if isinstance(section, dict) else None
-    return found, section
-
-
-def _fields_at(path: str, raw: Any) -> list[str]:
-    """Keys allowed in the section at a dotted path (with its tag key, for a tagged section)."""
-    owner = _struct_for(*_type_at(path, raw))
-    if owner is None:
-        return []
-    tag_field = owner.__struct_config__.tag_field
-    return ([tag_field] if tag_field else []) + list(owner.__struct_fields__)
-
-
-def _choices_at(path: str, raw: Any) -> list[Any]:
-    """Allowed values at a dotted path: the strings of a ``Literal`` (also inside a union) or, for
-    a tag key, the variants' tags."""
-    parent, _, key = path.rpartition(".")
-    owner_annotation, section = _type_at(parent, raw)
-    tagged = [member.__struct_config__ for member in _structs(owner_annotation)]
-    if any(config.tag_field == key for config in tagged):
-        return [config.tag for config in tagged]
-    found, _ = _type_at(path, raw)
-    return [value for option in (found, *get_args(found)) if get_origin(option) is Literal for value in get_args(option)]

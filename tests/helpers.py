@@ -1,7 +1,8 @@
-"""Shared hypothesis strategies and independent helpers for the ringtrack test suite.
+"""Shared helpers of the test suite, in one module: independent formulas and hypothesis strategies,
+scenarios written as a user would, and the helpers of tests that run teams of real processes.
 
-Everything here is written from ALGORITHMS.md, not from the code under test, so that the tests can
-catch the code disagreeing with the spec:
+The formulas and strategies are written from docs/algorithms.md, not from the code under test, so
+that the tests can catch the code disagreeing with it:
 
 * ``convex_vertices``: random strictly convex polygons (CCW vertex arrays), either points on a rotated
   ellipse at sorted random angles or the convex hull of random points, with near-degenerate ones
@@ -9,26 +10,49 @@ catch the code disagreeing with the spec:
 * ``regions`` / ``region_with_points``: a validated :class:`ConvexRegion` plus interior points (a random
   convex combination of the vertices, pulled towards the vertex centroid);
 * ``ring_angles``: N angles (radians) in strict CCW cyclic order;
-* ``scenario_from``: a :class:`world.scenario.Scenario` built from TOML text, as a user would write it.
+* ``lyapunov``, ``ccw_gaps``, ``midpoint_offsets``, ``sweep_omega``, ...: formulas written out anew;
+* ``scenario_toml`` / ``scenario_from``: a scenario built from TOML text; ``short_sighted``:
+  authors-moving with a limited sensing range.
+
+Process helpers (tests marked ``processes``): ``lockstep_run`` and ``assert_equals_engine`` (a
+lockstep team equals the in-process engine), ``start_spawn`` / ``wait_for_steps`` / ``stop_all``
+(``ringtrack spawn`` as a child), ``processes_mentioning`` (what is left running). The hostile
+participant is a program of its own, ``python -m tests.hostile``.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
+import msgspec
 import numpy as np
 from hypothesis import assume
 from hypothesis import strategies as st
 
+from ringtrack.agents import engine
+from ringtrack.agents.engine import History
+from ringtrack.tools.runlog import RunLog, history_from_log, read_log
+from ringtrack.tools.spawn import spawn_team
 from ringtrack.world.geometry import ConvexRegion
-from ringtrack.world.scenario import Scenario, parse_scenario, resolve
+from ringtrack.world.scenario import Scenario, load_scenario, parse_scenario, resolve
 
 TWO_PI = 2.0 * math.pi
 
-# Authors' polygon and target (ALGORITHMS.md sections 10, 11, 13).
+# Authors' polygon and target (docs/algorithms.md sections 10, 11, 13).
 AUTHORS_VERTICES = [[3.0, 7.0], [8.0, 17.0], [5.0, 26.0], [1.0, 22.0]]
 AUTHORS_TARGET = (4.0, 20.0)
 PAPER_ANGLES_DEG = [69.8979, 75.0730, 83.1024, 108.1016, 170.1016, 303.8982]
+# The shipped authors-moving scenario as text, and its [target] lines (to swap for another motion).
+SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+MOVING = (SCENARIOS / "authors-moving.toml").read_text()
+CIRCLE_LINES = ('motion = "circle"\ncentre = [3.0, 20.0]\nspeed = 0.1            # m/s\n'
+                'angular_speed = 0.1    # rad/s: 0.01 rad per step\n')
 
 
 # ---------------------------------------------------------------------------- polygons
@@ -102,7 +126,9 @@ def interior_point(draw: st.DrawFn, vertices: np.ndarray, pull_max: float = 0.95
 
 
 @st.composite
-def region_with_points(draw: st.DrawFn, count: int = 1, pull_max: float = 0.95) -> tuple[ConvexRegion, list[np.ndarray]]:
+def region_with_points(
+    draw: st.DrawFn, count: int = 1, pull_max: float = 0.95
+) -> tuple[ConvexRegion, list[np.ndarray]]:
     region = draw(regions())
     return region, [interior_point(draw, region.vertices, pull_max) for _ in range(count)]
 
@@ -120,7 +146,8 @@ def ring_angles(draw: st.DrawFn, min_robots: int = 3, max_robots: int = 30, min_
 
 
 def lyapunov(angles: np.ndarray) -> np.ndarray:
-    """H = (1/12) sum_i (d_i^+)^3 over the last axis (spec section 6), gaps computed here independently."""
+    """H = (1/12) sum_i (d_i^+)^3 over the last axis (docs/algorithms.md section 6), gaps computed here
+    independently."""
     angles = np.asarray(angles, dtype=float)
     gaps = np.mod(np.roll(angles, -1, axis=-1) - angles, TWO_PI)
     return np.sum(gaps**3, axis=-1) / 12.0
@@ -132,7 +159,7 @@ def ccw_gaps(angles: np.ndarray) -> np.ndarray:
 
 
 def midpoint_offsets(angles: np.ndarray) -> np.ndarray:
-    """e_i = V_i - theta_i = (d_i^+ - d_i^-)/4 (spec section 2), computed independently."""
+    """e_i = V_i - theta_i = (d_i^+ - d_i^-)/4 (docs/algorithms.md section 2), computed independently."""
     gaps = ccw_gaps(angles)
     return (gaps - np.roll(gaps, 1, axis=-1)) / 4.0
 
@@ -151,7 +178,7 @@ def boundary_at(vertices: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def sweep_omega(vertices: np.ndarray, centre: np.ndarray, d_max: float, dt: float, samples: int = 200_000) -> float:
-    """(1/dt) min_s wrap(theta(s + d_max) - theta(s)), spec section 10, on a fine grid plus the
+    """(1/dt) min_s wrap(theta(s + d_max) - theta(s)), docs/algorithms.md section 10, on a fine grid plus the
     vertex-aligned windows."""
     vertices = np.asarray(vertices, dtype=float)
     lengths = np.hypot(*(np.roll(vertices, -1, axis=0) - vertices).T)
@@ -202,4 +229,90 @@ def scenario_toml(vertices, target, robots: int, angles_deg=None, **control: obj
 
 
 def scenario_from(vertices, target, robots: int, angles_deg=None, **control: object) -> Scenario:
-    return resolve(parse_scenario(scenario_toml(vertices, target, robots, angles_deg, **control), "test.toml"), "test.toml")
+    text = scenario_toml(vertices, target, robots, angles_deg, **control)
+    return resolve(parse_scenario(text, "test.toml"), "test.toml")
+
+
+SENSING_RANGE = 3.0  # m: the authors' robots start 2.3 to 6.5 m from the target
+
+
+def short_sighted(estimation: str, prior: str, **overrides: object) -> Scenario:
+    """authors-moving with a sensing range of ``SENSING_RANGE`` and the given estimation and prior."""
+    spec = load_scenario("authors-moving", estimation=estimation, **overrides).spec
+    spec = msgspec.structs.replace(spec, sensing=msgspec.structs.replace(spec.sensing, range=SENSING_RANGE),
+                                   estimation=msgspec.structs.replace(spec.estimation, prior=prior))
+    return resolve(spec, "short-sighted")
+
+
+# ---------------------------------------------------------------------------- teams of processes
+RINGTRACK = [sys.executable, "-m", "ringtrack.tools.cli"]
+
+
+def lockstep_run(scenario: Scenario, runs: Path) -> tuple[dict, RunLog]:
+    """Spawn a lockstep team and return its summary and run log."""
+    result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=False)
+    assert result["exit_code"] == 0, result
+    return result, read_log(Path(result["log"]))
+
+
+def engine_twin(log: RunLog) -> History:
+    """The in-process engine run of the same scenario, seed and step count as a logged run."""
+    return engine.run(log.scenario, seeds=log.header["seed"], steps=len(log.steps))
+
+
+def assert_equals_engine(log: RunLog) -> History:
+    """Angles to 1e-9 and every trigger mask of every robot and step equal to the engine's."""
+    logged = history_from_log(log)
+    twin = engine_twin(log)
+    assert logged.steps == twin.steps
+    assert np.max(np.abs(logged.angles - twin.angles)) < 1e-9
+    assert np.array_equal(logged.triggers, twin.triggers)
+    return logged
+
+
+def scenario(**overrides: object) -> Scenario:
+    return load_scenario("paper-stationary", **overrides)
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """Pids of live processes whose command line contains ``text`` (Linux /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = (entry / "stat").read_text().split()[2]
+        except OSError:
+            continue
+        if text in command and state != "Z":
+            found.append(int(entry.name))
+    return found
+
+
+def start_spawn(runs: Path, *arguments: str) -> subprocess.Popen[bytes]:
+    """``ringtrack spawn`` as a child in its own process group (so a test can signal it like a shell)."""
+    return subprocess.Popen(
+        [*RINGTRACK, "spawn", "--runs", str(runs), "--no-dashboard", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
+
+
+def wait_for_steps(runs: Path, steps: int, timeout_s: float = 60.0) -> Path:
+    """Wait until the single run folder under ``runs`` has a log with at least ``steps`` step records."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        logs = list(runs.glob("*/log.jsonl"))
+        if logs and logs[0].read_bytes().count(b'"type":"step"') >= steps:
+            return logs[0].parent
+        time.sleep(0.05)
+    raise AssertionError(f"no log with {steps} steps under {runs} within {timeout_s} s")
+
+
+def stop_all(process: subprocess.Popen[bytes]) -> None:
+    """Last-resort cleanup for a test that failed half-way: kill the spawn and its run's processes."""
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()

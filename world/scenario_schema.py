@@ -1,0 +1,136 @@
+"""The scenario file's TOML schema: one msgspec struct per section, unknown keys refused.
+
+A scenario file looks like::
+
+    name = "paper-stationary"
+    seed = 0
+    [region]
+    vertices = [[3, 7], [8, 17], [5, 26], [1, 22]]   # metres, either orientation
+    [target]
+    position = [4, 20]          # metres, inside the region; or motion = "circle" | "random_walk" | "waypoints"
+    [team]
+    robots = 6
+    angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
+    [control]
+    strategy = "self"          # "self" | "constant"
+    law = "prop"               # fresh-information law: "prop" | "deadbeat"
+    dt = 0.1                   # s
+    omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
+    sigma_deg = 0.06           # trigger tolerance, deg
+    threshold_deg = 0.6        # convergence threshold on Cerr, deg (default 0.1 N)
+    max_steps = 3000
+    [sensing]
+    range_sigma = 0.2          # m, noise of the measured ranges
+    range = 30.0               # m, sensing range r_s (default: unlimited)
+    [estimation]
+    mode = "known"             # "known" (robots know the stationary target) | "centralized" | "decentralized"
+    range_sigma = 0.2          # m, the filters' model of the range noise
+    process_noise = 0.2        # m^2 per step, Q = q I
+    prior = "truth"            # "truth" | "trilateration" (centralized) | [x, y]
+    prior_variance = 1.0       # m^2, P0 = p I
+    fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
+    criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
+    [limits]
+    communication_range = 5.0  # m, r_c: links longer than this are down (default: unlimited)
+    [faults]                   # robot-to-robot links; seeded by seed (default: the scenario's)
+    drop = 0.2                 # probability a message is lost
+    duplicate = 0.0            # probability a message arrives twice
+    delay_ms = 0.0             # wall delay, with +- jitter_ms
+    [[faults.links]]           # per-link override: between = [0, 1], drop = 0.5, ...
+    [[faults.outages]]         # links down: links = [[2, 3], [5, 0]], from_step = 100, to_step = 300
+
+A new section is a ``Spec`` struct here plus a field of :class:`ScenarioSpec`; what it means for a run
+is resolved in :func:`ringtrack.world.scenario.resolve`, and an invalid value is worded by
+:mod:`ringtrack.world.scenario_errors` from the struct's annotations (nothing to add there).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import msgspec
+
+from ringtrack.world.schema import Finite, NonNegative, Point, Positive, Probability, Spec
+from ringtrack.world.target import TargetSpec
+
+
+class RegionSpec(Spec):
+    vertices: list[Point]
+
+
+MAX_ROBOTS = 100_000
+
+
+class TeamSpec(Spec):
+    robots: Annotated[int, msgspec.Meta(ge=3, le=MAX_ROBOTS)] = 6
+    angles_deg: list[Finite] | None = None
+
+
+class ControlSpec(Spec):
+    strategy: Literal["self", "constant"] = "self"
+    law: Literal["prop", "deadbeat"] = "prop"
+    dt: Positive = 0.1
+    omega_max_deg: Positive | None = None
+    v_max: Positive | None = None
+    sigma_deg: NonNegative = 0.0
+    threshold_deg: Positive | None = None
+    max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
+
+
+class SensingSpec(Spec):
+    range_sigma: NonNegative = 0.0
+    range: Positive | None = None
+
+
+class EstimationSpec(Spec):
+    mode: Literal["known", "centralized", "decentralized"] = "known"
+    range_sigma: Positive = 0.2
+    process_noise: NonNegative = 0.2
+    prior: Literal["truth", "trilateration"] | Point = "truth"
+    prior_variance: Positive = 1.0
+    fusion: Literal["ci", "sequential"] = "ci"
+    criterion: Literal["trace", "det"] = "trace"
+    margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
+
+
+class LimitsSpec(Spec):
+    communication_range: Positive | None = None
+
+
+class LinkFaultSpec(Spec):
+    between: tuple[int, int]
+    drop: Probability | None = None
+    duplicate: Probability | None = None
+    delay_ms: NonNegative | None = None
+    jitter_ms: NonNegative | None = None
+
+
+class OutageSpec(Spec):
+    links: list[tuple[int, int]]
+    from_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
+    to_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
+    from_s: NonNegative | None = None
+    to_s: NonNegative | None = None
+
+
+class FaultsSpec(Spec):
+    seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    drop: Probability = 0.0
+    duplicate: Probability = 0.0
+    delay_ms: NonNegative = 0.0
+    jitter_ms: NonNegative = 0.0
+    links: list[LinkFaultSpec] = []
+    outages: list[OutageSpec] = []
+
+
+class ScenarioSpec(Spec, kw_only=True):
+    region: RegionSpec
+    target: TargetSpec
+    name: str = "scenario"
+    seed: Annotated[int, msgspec.Meta(ge=0)] = 0
+    team: TeamSpec = TeamSpec()
+    control: ControlSpec = ControlSpec()
+    sensing: SensingSpec = SensingSpec()
+    estimation: EstimationSpec = EstimationSpec()
+    limits: LimitsSpec = LimitsSpec()
+    faults: FaultsSpec = FaultsSpec()
