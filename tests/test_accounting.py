@@ -19,7 +19,7 @@ from ringtrack.bus.faults import FAULT_COUNTERS
 from ringtrack.tools.runlog import RunLog, read_log
 from tests.helpers import RINGTRACK
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.processes, pytest.mark.timeout(300)]
 
 STEPS = "300"
 

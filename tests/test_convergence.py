@@ -95,6 +95,8 @@ def assert_claims_only_known_convergence(result: dict, steps: list[dict]) -> lis
     return claimed
 
 
+@pytest.mark.processes
+@pytest.mark.realtime
 @pytest.mark.timeout(240)
 def test_a_racy_realtime_self_triggered_run_never_claims_a_false_convergence(tmp_path: Path) -> None:
     result, steps = racy_realtime_run(tmp_path, "self")
@@ -114,6 +116,8 @@ def test_a_racy_realtime_self_triggered_run_never_claims_a_false_convergence(tmp
         assert float(memory_cerr(first["offset"])) == pytest.approx(truth, abs=1e-6)
 
 
+@pytest.mark.processes
+@pytest.mark.realtime
 @pytest.mark.timeout(240)
 def test_a_racy_realtime_constant_run_converges_only_where_the_true_cerr_does(tmp_path: Path) -> None:
     result, steps = racy_realtime_run(tmp_path, "constant")
