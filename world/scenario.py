@@ -259,7 +259,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             mode=estimation.mode,
             range_sigma=estimation.range_sigma,
             process_noise=estimation.process_noise,
-            prior=estimation.prior if isinstance(estimation.prior, str) else tuple(estimation.prior),
+            prior=estimation.prior if isinstance(estimation.prior, str) else (estimation.prior[0], estimation.prior[1]),
             prior_variance=estimation.prior_variance,
             fusion=estimation.fusion,
             criterion=estimation.criterion,
@@ -292,12 +292,12 @@ def _fault_plan(spec: ScenarioSpec, label: str) -> FaultPlan:
     outages = []
     for index, outage in enumerate(faults.outages):
         key = f"faults.outages[{index}]"
-        by_steps = (outage.from_step, outage.to_step)
-        by_seconds = (outage.from_s, outage.to_s)
-        if None not in by_steps and by_seconds == (None, None):
-            first, last = by_steps
-        elif None not in by_seconds and by_steps == (None, None):
-            first, last = (int(math.floor(seconds / dt)) + 1 for seconds in by_seconds)
+        no_steps = outage.from_step is None and outage.to_step is None
+        no_seconds = outage.from_s is None and outage.to_s is None
+        if outage.from_step is not None and outage.to_step is not None and no_seconds:
+            first, last = outage.from_step, outage.to_step
+        elif outage.from_s is not None and outage.to_s is not None and no_steps:
+            first, last = (int(math.floor(seconds / dt)) + 1 for seconds in (outage.from_s, outage.to_s))
         else:
             raise ScenarioError(f"{label}: {key} needs from_step and to_step, or from_s and to_s (simulated seconds)")
         if first > last:

@@ -54,19 +54,19 @@ from ringtrack.world.schema import Finite, NonNegative, Point, Positive, Probabi
 from ringtrack.world.target import TargetSpec
 
 
-class RegionSpec(Spec):
+class RegionSpec(Spec, frozen=True):
     vertices: list[Point]
 
 
 MAX_ROBOTS = 100_000
 
 
-class TeamSpec(Spec):
+class TeamSpec(Spec, frozen=True):
     robots: Annotated[int, msgspec.Meta(ge=3, le=MAX_ROBOTS)] = 6
     angles_deg: list[Finite] | None = None
 
 
-class ControlSpec(Spec):
+class ControlSpec(Spec, frozen=True):
     strategy: Literal["self", "constant"] = "self"
     law: Literal["prop", "deadbeat"] = "prop"
     dt: Positive = 0.1
@@ -77,12 +77,12 @@ class ControlSpec(Spec):
     max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
 
 
-class SensingSpec(Spec):
+class SensingSpec(Spec, frozen=True):
     range_sigma: NonNegative = 0.0
     range: Positive | None = None
 
 
-class EstimationSpec(Spec):
+class EstimationSpec(Spec, frozen=True):
     mode: Literal["known", "centralized", "decentralized"] = "known"
     range_sigma: Positive = 0.2
     process_noise: NonNegative = 0.2
@@ -93,11 +93,11 @@ class EstimationSpec(Spec):
     margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
 
 
-class LimitsSpec(Spec):
+class LimitsSpec(Spec, frozen=True):
     communication_range: Positive | None = None
 
 
-class LinkFaultSpec(Spec):
+class LinkFaultSpec(Spec, frozen=True):
     between: tuple[int, int]
     drop: Probability | None = None
     duplicate: Probability | None = None
@@ -105,7 +105,7 @@ class LinkFaultSpec(Spec):
     jitter_ms: NonNegative | None = None
 
 
-class OutageSpec(Spec):
+class OutageSpec(Spec, frozen=True):
     links: list[tuple[int, int]]
     from_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
     to_step: Annotated[int, msgspec.Meta(ge=1)] | None = None
@@ -113,7 +113,7 @@ class OutageSpec(Spec):
     to_s: NonNegative | None = None
 
 
-class FaultsSpec(Spec):
+class FaultsSpec(Spec, frozen=True):
     seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
     drop: Probability = 0.0
     duplicate: Probability = 0.0
@@ -123,7 +123,7 @@ class FaultsSpec(Spec):
     outages: list[OutageSpec] = []
 
 
-class ScenarioSpec(Spec, kw_only=True):
+class ScenarioSpec(Spec, kw_only=True, frozen=True):
     region: RegionSpec
     target: TargetSpec
     name: str = "scenario"
