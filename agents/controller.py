@@ -34,9 +34,9 @@ class MidpointController:
     neighbour positions, ``predecessor_age``/``successor_age`` (shape ``S``, int) their ages in steps,
     and ``guaranteed_offset`` the last observed ``gV - theta`` (radians) from memory as it was before
     polling, the quantity of the paper's self-triggered Cerr, with ``offset_known`` whether that
-    memory held something of both neighbours (else the offset is no value of the ring). A new controller knows nothing: its
-    memory holds its own position until the exchange of step 1, after which ``guaranteed_offset``
-    is the exact step-1 offset.
+    memory held something of both neighbours (else the offset is no value of the ring). A new
+    controller knows nothing: its memory holds its own position until the exchange of step 1, after
+    which ``guaranteed_offset`` is the exact step-1 offset.
 
     The current view (``theta``, ``m_minus``, ``m_plus`` in radians, robot-local frame, seen from
     ``centre``) is set by :meth:`observe` and kept up to date by :meth:`receive` and :meth:`recentre`.

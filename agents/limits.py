@@ -66,7 +66,8 @@ def clip_to_range(
         return [np.linalg.norm(point - np.asarray(anchor), axis=-1) for anchor, _, _ in anchors]
 
     start = distances(np.zeros_like(step))
-    bounds = [np.maximum(communication_range - np.asarray(slack), now) for now, (_, _, slack) in zip(start, anchors, strict=True)]
+    bounds = [np.maximum(communication_range - np.asarray(slack), now)
+              for now, (_, _, slack) in zip(start, anchors, strict=True)]
 
     def admissible(fraction: FloatArray) -> FloatArray:
         ok = np.ones(np.broadcast(theta, step).shape, dtype=bool)

@@ -78,8 +78,8 @@ class ConvexRegion:
 
         Refuses fewer than three vertices, non-finite values, repeated vertices, crossing edges
         (self-intersecting lists), zero area, collinear consecutive vertices and reflex (non-convex)
-        corners, each with a :class:`RegionError` naming the offending vertex or edges. A clockwise list is reordered to CCW while
-        keeping vertex 0 first.
+        corners, each with a :class:`RegionError` naming the offending vertex or edges. A clockwise
+        list is reordered to CCW while keeping vertex 0 first.
         """
         try:
             points = np.asarray(vertices, dtype=float)

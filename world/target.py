@@ -60,7 +60,8 @@ class Circle(Spec, tag_field="motion", tag="circle", frozen=True):
         if room - self.radius <= margin:
             raise RegionError(
                 f"target circle of radius {self.radius:.4g} m (speed / angular_speed) about {list(self.centre)} "
-                f"leaves the region ({room:.4g} m of room); lower target.speed or raise the size of target.angular_speed"
+                f"leaves the region ({room:.4g} m of room); lower target.speed or raise the size of "
+                "target.angular_speed"
             )
 
 
