@@ -15,7 +15,9 @@ from ringtrack.tools.options import LOG_FILE, add_scenario_arguments, positive, 
 def register(commands: argparse._SubParsersAction) -> None:
     world = commands.add_parser("world", help="run the world process of a team")
     _common(world)
-    world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
+                       help="lockstep: wait for every robot each step; realtime: a step every dt / rate wall "
+                       "seconds (default lockstep)")
     world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
@@ -55,7 +57,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     monitor = commands.add_parser("monitor", help="tally a team's messages live and write its run log")
     _common(monitor)
     monitor.add_argument("--log", type=LOG_FILE, required=True, metavar="PATH", help="run log to write (JSON lines)")
-    monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
+                         help="the world's clock, shown on the dashboard and written to the log (default lockstep)")
     display = monitor.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the live dashboard even without a terminal")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")

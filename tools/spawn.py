@@ -51,7 +51,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     add_scenario_arguments(parser, steps_help="run exactly this many steps (default: until converged, at "
                            "most control.max_steps)")
-    parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
+                        help="lockstep: each step waits for every robot (deterministic, equals the engine); "
+                        "realtime: a step every dt / rate wall seconds (default lockstep)")
     parser.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the summary JSON here")
