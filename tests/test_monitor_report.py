@@ -63,13 +63,13 @@ def printed(monitor_report: MonitorReport) -> str:
 def test_report_lists_estimation_traffic_and_every_robot_link() -> None:
     text = printed(report(seen_rows()))
     assert re.search(r"│\s+estimation │\s+10 │\s+300 │\s+10 │\s+300 │\s+30\.0 │", text), text
-    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+) │\s+(\d+) │\s+(\d+) │\s+(\d+) │", text)
+    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+)/(\d+) │\s+(\d+)/(\d+) │", text)
     assert links == [("r0 > r1", "5", "150", "5", "150"), ("r1 > r0", "5", "175", "5", "175"),
                      ("r1 > r2", "1", "20", "1", "20"), ("r2 > r1", "1", "45", "1", "45")]
     assert "monitor vs senders: equal on every link" in text
 
     text = printed(report(seen_rows({("request", "r0", "r1"): (2, 40), ("request", "r0", "r2"): (1, 20)})))
-    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+) │\s+(\d+) │\s+(\d+) │\s+(\d+) │", text)
+    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+)/(\d+) │\s+(\d+)/(\d+) │", text)
     assert links[:2] == [("r0 > r1", "4", "130", "5", "150"), ("r0 > r2", "1", "20", "0", "0")]
     assert "monitor vs senders: DIFFERENT" in text
 

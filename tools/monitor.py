@@ -34,7 +34,7 @@ from ringtrack.bus.messages import (
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined
-from ringtrack.tools.dashboard import TeamModel
+from ringtrack.tools.dashboard import TeamModel, ending_text
 from ringtrack.tools.runlog import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
@@ -241,7 +241,18 @@ async def run_monitor(
         participant.announce("alive")
         roster = Roster()
         everyone = participants(scenario)
-        started, held = await gather_until(participant, roster, lambda: everyone <= roster.alive)
+        if model is not None:
+            order = {WORLD: -3, FUSION: -2, MONITOR: -1}
+            model.expected = sorted(everyone | {MONITOR}, key=lambda name: order.get(name, robot_index(name) or 0))
+
+        def all_up() -> bool:
+            """Whether everyone is up; shows who is, meanwhile (the dashboard's start-up frame)."""
+            if model is not None and refresh is not None:
+                model.up = roster.alive | {MONITOR}
+                refresh(False)
+            return everyone <= roster.alive
+
+        started, held = await gather_until(participant, roster, all_up)
         if not started:
             return 130, None
         participant.announce("ready")
@@ -270,7 +281,7 @@ async def run_monitor(
                 }
             )
         if model is not None:
-            model.status = report.end.reason if report.end else "stopped" if code == 130 else "world lost"
+            model.status = ending_text(report.end.reason) if report.end else "stopped" if code == 130 else "world lost"
         if refresh is not None:
             refresh(True)
         return code, report

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib import colormaps
-from matplotlib.figure import Figure
 
 from ringtrack.bus.counting import robot_link_totals
 from ringtrack.tools.console import UsageError, out
 from ringtrack.tools.options import FIGURE_SUFFIXES, output_path
 from ringtrack.tools.runlog import RunLog, history_from_log, read_log
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -40,6 +42,9 @@ def plot_run(log: RunLog) -> Figure:
     """Four panels titled ``PANELS``: (a) trajectories on the region (a line labelled ``r<i>`` per
     robot), (b) Cerr and Terr over time (one point per step), (c) polls per robot over time, (d)
     robot-to-robot messages (and bytes, when counted) per link, as the end record counts them."""
+    from matplotlib import colormaps  # imported here: every ringtrack command builds this parser
+    from matplotlib.figure import Figure
+
     history = history_from_log(log)
     scenario = history.scenario
     assert history.positions is not None

@@ -62,6 +62,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     display = monitor.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the live dashboard even without a terminal")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
+    monitor.add_argument("--all-robots", action="store_true",
+                         help="list every robot and link in the end-of-run report (default: above 20, "
+                         "min/median/max and the 5 busiest)")
     monitor.set_defaults(handler=run_monitor_role)
 
 
@@ -215,11 +218,20 @@ def run_monitor_role(args: argparse.Namespace) -> int:
                         args.clock, model, view.refresh, args.exit_with_parent)
         )
     if report is not None:
-        print_report(out, report)
+        print_report(out, report, run_outcome(args.log), args.all_robots)
         if not report.consistent():
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)
     return finished("monitor", code)
+
+
+def run_outcome(log_path: Path) -> dict | None:
+    """The summary (Ctime, Com-bar, ...) of the run a log holds, None when it has no step."""
+    from ringtrack.agents.engine import summary
+    from ringtrack.tools.runlog import history_from_log, read_log
+
+    log = read_log(log_path)
+    return summary(history_from_log(log)) if log.steps else None
 
 
 def finished(role: str, code: int) -> int:

@@ -13,6 +13,7 @@ import argparse
 import contextlib
 import datetime
 import math
+import signal
 import sys
 import time
 from pathlib import Path
@@ -67,6 +68,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     display.add_argument("--dashboard", action="store_true",
                          help="draw the live dashboard even without a terminal (the default on a terminal)")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
+    parser.add_argument("--all-robots", action="store_true",
+                        help="list every robot and link in the end-of-run report (default: above 20, "
+                        "min/median/max and the 5 busiest)")
     parser.set_defaults(handler=run_spawn)
 
 
@@ -82,6 +86,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         until_converged=args.steps is None,
         topology=args.topology,
         robots_per_process=args.robots_per_process,
+        all_robots=args.all_robots,
     )
     if args.json:
         write_json(args.json, result)
@@ -107,6 +112,7 @@ def spawn_team(
     quiet: bool = False,
     topology: str | None = None,
     robots_per_process: int = 1,
+    all_robots: bool = False,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -115,7 +121,7 @@ def spawn_team(
     "mesh" links every pair of processes directly (Zenoh peers), "star" makes the world a Zenoh
     router that every other process reaches as a client; None picks mesh up to
     ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
-    still its own Zenoh participant."""
+    still its own Zenoh participant; ``all_robots`` lists every robot in the monitor's report."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -134,10 +140,15 @@ def spawn_team(
     common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
     started = time.perf_counter()
     interrupted = ""
+    stop_signal = signal.SIGTERM
     participants = scenario.robots + 2 + (scenario.estimation.mode == "centralized")  # Zenoh sessions
     topology = topology or ("mesh" if participants <= MESH_LIMIT else "star")
     world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
     first_step = FirstStep(log_path, started)
+    if not quiet:
+        fusion = ", the fusion centre" if scenario.estimation.mode == "centralized" else ""
+        err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
+                  f"robots in {processes} processes", highlight=False)
     with Supervisor(folder) as supervisor:
         try:
             with terminate_as_exception():
@@ -152,6 +163,7 @@ def spawn_team(
                                                  "reply_timeout": None if clock == "lockstep" else
                                                  scenario.control.dt / rate})
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
+                monitor_flags += ["--all-robots"] if all_robots else []
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
                                                  "--clock", clock, *monitor_flags], stdout=display)
@@ -165,16 +177,16 @@ def spawn_team(
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step)
         except KeyboardInterrupt:
-            interrupted = "interrupted (Ctrl-C)"
+            interrupted, stop_signal = "interrupted by the user (Ctrl-C)", signal.SIGINT  # the children say so too
         except Terminated:
             interrupted = "terminated (SIGTERM)"
         except TimeoutError as error:
             interrupted = f"stalled: {error}"
         finally:
-            supervisor.stop()
+            supervisor.stop(stop_signal=stop_signal)
     failures = {child.name: child.process.returncode for child in supervisor.children if child.process.returncode}
     for child in supervisor.children:
-        if child.process.returncode not in (0, None, -15, 130) and not interrupted:
+        if child.process.returncode not in (0, None, -15, -2, 130) and not interrupted:
             detail = child.stderr_tail()
             err.print(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""),
                       highlight=False)
@@ -242,10 +254,8 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
 
 
 def _summary_line(result: dict) -> str:
+    """Speed and run folder (the monitor's report above it gives Ctime, Com-bar and the traffic)."""
     if "ctime" not in result:
-        return f"run folder: {result['folder']}"
-    converged = f"converged at step {result['ctime']}" if result.get("converged") else "did not converge"
-    robot = result.get("messages", {}).get("robot", 0)
-    speed = f", {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
-    return (f"{result['robots']} robots, {result['strategy']} strategy: {converged} in {result['steps']} steps"
-            f"{speed}; robot-to-robot messages {robot}; run folder {result['folder']}")
+        return f"spawn: run folder {result['folder']}"
+    speed = f" at {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
+    return f"spawn: {result['steps']} steps{speed}\nrun folder: {result['folder']}"

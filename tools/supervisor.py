@@ -98,17 +98,18 @@ class Supervisor:
             time.sleep(0.02)
         raise TimeoutError(f"the {name} process did not announce its endpoints within {timeout_s:.0f} s")
 
-    def stop(self, grace_s: float = STOP_GRACE_S) -> None:
-        """End every child within ``grace_s`` (+ reaping): SIGTERM the first child started (the
-        leader, whose End makes the others finish on their own), then SIGTERM whoever is still running
-        halfway through the grace, then SIGKILL what is left."""
+    def stop(self, grace_s: float = STOP_GRACE_S, stop_signal: signal.Signals = signal.SIGTERM) -> None:
+        """End every child within ``grace_s`` (+ reaping): ``stop_signal`` to the first child started
+        (the leader, whose End makes the others finish on their own), then to whoever is still running
+        halfway through the grace, then SIGKILL what is left. The signal tells the children why:
+        SIGINT for the user's Ctrl-C (their own sessions keep the terminal's from them), else SIGTERM."""
         started = time.monotonic()
         deadline = started + grace_s
         for phase_end, group in ((started + grace_s / 2, self.children[:1]), (deadline, self.children)):
             for child in group:
                 if child.process.poll() is None:
                     with contextlib.suppress(ProcessLookupError):
-                        child.process.send_signal(signal.SIGTERM)
+                        child.process.send_signal(stop_signal)
             while self.running() and time.monotonic() < phase_end:
                 time.sleep(0.01)
         for child in self.children:
