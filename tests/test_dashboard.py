@@ -271,12 +271,23 @@ def check_figure(log: RunLog) -> None:
         assert np.array_equal(paths[f"r{robot}"].get_xydata(), positions[:, robot])
 
     series = {line.get_label(): line for axes in figure.axes for line in axes.get_lines()}
+    targets = np.array([record["target"] for record in log.steps])
+    assert np.array_equal(series["true target"].get_xydata(), targets)  # on top of every path
+    assert series["true target"].get_zorder() > max(line.get_zorder() for name, line in series.items()
+                                                    if name != "true target" and not name.startswith("true target"))
+    assert all(axes.get_xlabel() for axes in figure.axes if axes.get_title())  # every panel's axes say what
+    assert titled[PANELS[0]].get_xlabel() == "x (m)" and titled[PANELS[0]].get_ylabel() == "y (m)"
+    moving = log.scenario.moving
+    assert any(name.startswith("Ctime threshold") for name in series) != moving  # none for a moving target
+    legend_texts = [text.get_text() for axes in figure.axes if axes.get_legend()
+                    for text in axes.get_legend().get_texts()]
+    assert ("Terr (right axis)" in legend_texts) == (log.scenario.estimation.mode != "known")
     assert len(series["Cerr, true positions"].get_ydata()) == len(log.steps)
     assert len(series["Cerr, robots' memory"].get_ydata()) == len(log.steps)
     if log.scenario.estimation.mode == "known":
-        assert "Terr" not in series
+        assert not any(label.startswith("Terr") for label in series)
     else:
-        assert len(series["Terr"].get_ydata()) == len(log.steps)
+        assert len(series["Terr (right axis)"].get_ydata()) == len(log.steps)
 
     expected = robot_links(log)
     bars = {container.get_label(): container for axes in figure.axes for container in axes.containers}
@@ -342,7 +353,8 @@ def test_every_size_shows_one_line_per_robot_a_legend_and_an_unwrapped_header(wi
     assert "authors-moving" in lines[0] and "step 40/40" in lines[0] and "running" in lines[0]  # one header line
     assert "step 40/40" not in "\n".join(lines[1:])
     for robot in range(6):  # every robot's row, whole
-        assert re.search(rf"\br{robot} {robot}  +ok\|ok +\d+\.\d° .*(T\d|start)[+\w]* @\d+ *$", text, re.MULTILINE), text
+        row = rf"\br{robot} {robot}  +ok\|ok +\d+\.\d° .*(T\d|start)[+\w]* @\d+ *$"
+        assert re.search(row, text, re.MULTILINE), text
     assert "Com-bar " in text and "so far (constant 1)" in text and "Cerr " in text and "Terr " in text
     legend = lines[-1]
     assert "T1 ubd" in legend and "T2" in legend and "T3" in legend and "ubd" in legend

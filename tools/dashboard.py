@@ -454,12 +454,29 @@ class Dashboard:
             yield legend_line({"map"}, width)
             return
         rows = [robot_cells(model, index) for index in range(len(model.robots))]
-        columns, table_width = self.columns(rows, width)
+        vertices = model.scenario.region.vertices
+        side_height = len(console.render_lines(Group(*self.side(width // 2)), options.update(width=width // 2,
+                                                                                            height=None), pad=False))
+        # Side by side: the map left of the figures and of the robot list ...
+        columns, table_width = self.columns(rows, width - MIN_MAP - 2)
         map_limit = max(MIN_MAP, min(width // 2, width - 2 - max(table_width, SIDE_WIDTH)))
-        map_columns, map_rows = map_size(model.scenario.region.vertices, map_limit, body)
+        map_columns, map_rows = map_size(vertices, map_limit, body)
+        # ... or stacked, when the whole list fits below a larger map: the list then takes the full width.
+        below = len(rows) + 2
+        stacked_columns, _ = self.columns(rows, width)
+        if stacked_columns and body - below >= side_height:
+            stacked = map_size(vertices, min(width // 2, width - 2 - SIDE_WIDTH), body - below)
+            if stacked[0] * stacked[1] > map_columns * map_rows:
+                right = width - stacked[0] - 2
+                top = Table.grid(padding=(0, 2))
+                top.add_column(no_wrap=True, width=stacked[0])
+                top.add_column(width=right)
+                top.add_row(region_map(model, *stacked), Group(*self.side(right)))
+                yield top
+                yield robots_table(rows, stacked_columns)
+                yield legend_line({"map", *stacked_columns}, width)
+                return
         right = width - map_columns - 2
-        side = self.side(right)
-        side_height = len(console.render_lines(Group(*side), options.update(width=right, height=None), pad=False))
         room = body - side_height - (2 if columns else 0)  # the table's head and rule
         shown = rows if len(rows) <= room else rows[: max(0, room - 1)]
         robots: list[RenderableType] = [compact_line(cells, right) for cells in shown] if not columns else \
@@ -470,16 +487,16 @@ class Dashboard:
         layout = Table.grid(padding=(0, 2))
         layout.add_column(no_wrap=True, width=map_columns)
         layout.add_column(width=right)
-        layout.add_row(region_map(model, map_columns, map_rows), Group(*side, *robots))
+        layout.add_row(region_map(model, map_columns, map_rows), Group(*self.side(right), *robots))
         yield layout
         yield legend_line({"map", *(columns or ("links", "last trigger"))}, width)
 
     def columns(self, rows: list[dict[str, str | Text]], width: int) -> tuple[tuple[str, ...], int]:
-        """The widest :data:`ROBOT_COLUMNS` set whose table leaves ``MIN_MAP`` columns for the map, and
-        its width; ``((), 0)`` when none does (the compact list)."""
+        """The widest :data:`ROBOT_COLUMNS` set whose table fits ``width`` columns, and its width;
+        ``((), 0)`` when none does (the compact list)."""
         for columns in ROBOT_COLUMNS:
             table_width = MEASURING.measure(robots_table(rows, columns)).maximum
-            if table_width <= width - MIN_MAP - 2:
+            if table_width <= width:
                 return columns, table_width
         return (), 0
 

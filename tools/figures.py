@@ -56,7 +56,8 @@ def stationary_comparison(result: dict, path: Path) -> None:
 
 
 RUN_STYLES = {
-    ("constant", "centralized"): {"color": "tab:blue", "linestyle": "--", "zorder": 3, "label": "constant, centralized EKF"},
+    ("constant", "centralized"): {"color": "tab:blue", "linestyle": "--", "zorder": 3,  # on top: often equal
+                                  "label": "constant, centralized EKF"},
     ("self", "centralized"): {"color": "tab:orange", "label": "self-triggered, centralized EKF"},
     ("self", "decentralized"): {"color": "tab:green", "label": "self-triggered, decentralized EKF + CI"},
 }
