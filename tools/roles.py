@@ -202,11 +202,13 @@ def run_fusion_role(args: argparse.Namespace) -> int:
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
+    import signal
+
     from rich.console import Console
 
     from ringtrack.tools.dashboard import TeamModel
     from ringtrack.tools.monitor import run_monitor
-    from ringtrack.tools.views import LiveView, print_report
+    from ringtrack.tools.views import LiveView, print_outcome, print_report
 
     scenario = scenario_from_arguments(args)
     model = TeamModel(scenario, args.clock)
@@ -218,7 +220,14 @@ def run_monitor_role(args: argparse.Namespace) -> int:
                         args.clock, model, view.refresh, args.exit_with_parent)
         )
     if report is not None:
-        print_report(out, report, run_outcome(args.log), args.all_robots)
+        # The log is complete: a second signal (the supervisor's, halfway through its grace) must not
+        # cut the report short.
+        for number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(number, signal.SIG_IGN)
+        print_report(out, report, all_robots=args.all_robots)
+        outcome = run_outcome(args.log)
+        if outcome is not None:
+            print_outcome(out, outcome, report)
         if not report.consistent():
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)

@@ -231,5 +231,10 @@ def print_report(console: Console, report: MonitorReport, outcome: dict | None =
     console.print(f"run: {ending}; rejected: {rejected}; late: {report.late}", highlight=False)
     console.print(f"monitor vs senders: {verdict}", highlight=False)
     if outcome is not None:
-        for line in outcome_lines(outcome, mine.get("robot", {"messages": 0})["messages"]):
-            console.print(line, highlight=False)
+        print_outcome(console, outcome, report)
+
+
+def print_outcome(console: Console, outcome: dict, report: MonitorReport) -> None:
+    """The lines of :func:`outcome_lines` for a run summary and the robot-to-robot messages seen."""
+    for line in outcome_lines(outcome, report.monitor_totals().get("robot", {"messages": 0})["messages"]):
+        console.print(line, highlight=False)
