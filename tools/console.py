@@ -15,6 +15,10 @@ out = Console()
 err = Console(stderr=True, soft_wrap=True)
 
 
+SUMMARISED_ABOVE = 20  # robots (or links) from which a table shows min/median/max and the busiest only
+BUSIEST = 5  # rows of the busiest robots (or links) such a summary keeps
+
+
 class UsageError(ValueError):
     """A command-line value is unusable; the message is one line naming the flag and the fix."""
 

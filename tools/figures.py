@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -55,7 +56,7 @@ def stationary_comparison(result: dict, path: Path) -> None:
     plt.close(figure)
 
 
-RUN_STYLES = {
+RUN_STYLES: dict[tuple[str, str], dict[str, Any]] = {
     ("constant", "centralized"): {"color": "tab:blue", "linestyle": "--", "zorder": 3,  # on top: often equal
                                   "label": "constant, centralized EKF"},
     ("self", "centralized"): {"color": "tab:orange", "label": "self-triggered, centralized EKF"},

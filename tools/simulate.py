@@ -8,11 +8,10 @@ import statistics
 from rich.table import Table
 
 from ringtrack.agents import engine
-from ringtrack.tools.console import out, write_json
+from ringtrack.tools.console import BUSIEST, SUMMARISED_ABOVE, out, write_json
 from ringtrack.tools.dashboard import messages_saved
 from ringtrack.tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, scenario_from_arguments
 from ringtrack.tools.runlog import write_engine_log
-from ringtrack.tools.views import BUSIEST, SUMMARISED_ABOVE
 
 
 def register(commands: argparse._SubParsersAction) -> None:

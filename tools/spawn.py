@@ -18,7 +18,6 @@ import sys
 import time
 from pathlib import Path
 
-from ringtrack.agents import engine
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id
@@ -157,6 +156,9 @@ def spawn_team(
                                            "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
                                            "--announce", str(announce), *stop_rule])
                 endpoints = supervisor.endpoints(announce, "world")
+                if not quiet:
+                    err.print(f"spawn: the world listens on {', '.join(endpoints)} after "
+                              f"{time.perf_counter() - started:.1f} s; starting the others", highlight=False)
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
@@ -235,6 +237,8 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
                     "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
     if not log_path.exists():
         return result
+    from ringtrack.agents import engine  # here: spawn's first line comes before this import
+
     log = read_log(log_path)
     if log.steps:
         result.update(engine.summary(history_from_log(log)))

@@ -21,6 +21,7 @@ from rich.table import Table
 
 from ringtrack.bus.counting import category_of, robot_link_totals
 from ringtrack.bus.keys import robot_index
+from ringtrack.tools.console import BUSIEST, SUMMARISED_ABOVE
 from ringtrack.tools.dashboard import Dashboard, TeamModel, ending_text, messages_saved
 from ringtrack.tools.monitor import COMPARED, MonitorReport
 
@@ -115,8 +116,6 @@ class LiveView:
             live.stop()  # draws the last snapshot once more, in full
 
 
-SUMMARISED_ABOVE = 20  # robots (or links) from which a table shows min/median/max and the busiest only
-BUSIEST = 5
 CATEGORY_NAMES = {"robot": "robot-to-robot", "world": "world", "estimation": "estimation", "monitoring": "monitoring"}
 CATEGORY_HELP = ("robot-to-robot: the polls' requests and replies; world: measurements, commands, ticks and the "
                  "end; estimation: ranges to and estimates from the fusion centre; monitoring: statistics and "
