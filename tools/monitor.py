@@ -185,6 +185,13 @@ def participants(scenario: Scenario) -> set[str]:
     return {WORLD} | {robot_name(i) for i in range(scenario.robots)} | fusion
 
 
+def startup_names(scenario: Scenario) -> list[str]:
+    """Everyone a run of ``scenario`` starts with, the monitor included, in the order the dashboard's
+    start-up frame lists them: world, fusion centre, monitor, robots."""
+    order = {WORLD: -3, FUSION: -2, MONITOR: -1}
+    return sorted(participants(scenario) | {MONITOR}, key=lambda name: order.get(name, robot_index(name) or 0))
+
+
 @dataclass
 class MonitorReport:
     """What the monitor saw, and whether it matches what the senders counted."""
@@ -242,8 +249,7 @@ async def run_monitor(
         roster = Roster()
         everyone = participants(scenario)
         if model is not None:
-            order = {WORLD: -3, FUSION: -2, MONITOR: -1}
-            model.expected = sorted(everyone | {MONITOR}, key=lambda name: order.get(name, robot_index(name) or 0))
+            model.expected = startup_names(scenario)
 
         def all_up() -> bool:
             """Whether everyone is up; shows who is, meanwhile (the dashboard's start-up frame)."""

@@ -62,6 +62,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     display = monitor.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the live dashboard even without a terminal")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
+    monitor.add_argument("--connect-from", type=Path, metavar="PATH",
+                         help="wait for PATH (written by world --announce) and connect to the endpoints it lists; "
+                         "the dashboard shows the start-up meanwhile")
     monitor.add_argument("--all-robots", action="store_true",
                          help="list every robot and link in the end-of-run report (default: above 20, "
                          "min/median/max and the 5 busiest)")
@@ -206,15 +209,19 @@ def run_monitor_role(args: argparse.Namespace) -> int:
 
     from rich.console import Console
 
+    from ringtrack.bus.keys import MONITOR
     from ringtrack.tools.dashboard import TeamModel
-    from ringtrack.tools.monitor import run_monitor
+    from ringtrack.tools.monitor import run_monitor, startup_names
     from ringtrack.tools.views import LiveView, print_outcome, print_report
 
     scenario = scenario_from_arguments(args)
     model = TeamModel(scenario, args.clock)
+    model.expected, model.up = startup_names(scenario), {MONITOR}
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     with LiveView(console, model, dashboard) as view:
+        if args.connect_from is not None:
+            args.connect = [*(args.connect or []), *wait_for_endpoints(args.connect_from)]
         code, report = asyncio.run(
             run_monitor(scenario, scenario.seed, args.run, bus_config(args), args.log, scenario.max_steps,
                         args.clock, model, view.refresh, args.exit_with_parent)
@@ -232,6 +239,24 @@ def run_monitor_role(args: argparse.Namespace) -> int:
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)
     return finished("monitor", code)
+
+
+ENDPOINTS_TIMEOUT_S = 20.0
+
+
+def wait_for_endpoints(path: Path, timeout_s: float = ENDPOINTS_TIMEOUT_S) -> list[str]:
+    """The endpoints announced in ``path`` (``world --announce``), waiting at most ``timeout_s``."""
+    import time
+
+    from ringtrack.bus.config import announced_endpoints
+
+    deadline = time.monotonic() + timeout_s
+    while (endpoints := announced_endpoints(path)) is None:
+        if time.monotonic() > deadline:
+            raise UsageError(f"--connect-from {path}: no endpoints announced within {timeout_s:.0f} s; start the "
+                             "world with --announce PATH")
+        time.sleep(0.02)
+    return endpoints
 
 
 def run_outcome(log_path: Path) -> dict | None:

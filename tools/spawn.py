@@ -155,6 +155,13 @@ def spawn_team(
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
                                            "--announce", str(announce), *stop_rule])
+                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
+                monitor_flags += ["--all-robots"] if all_robots else []
+                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
+                    # Started at once: it draws the start-up frame while the world comes up.
+                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
+                                                 str(announce), "--log", str(log_path), "--clock", clock,
+                                                 *monitor_flags], stdout=display)
                 endpoints = supervisor.endpoints(announce, "world")
                 if not quiet:
                     err.print(f"spawn: the world listens on {', '.join(endpoints)} after "
@@ -164,11 +171,6 @@ def spawn_team(
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "reply_timeout": None if clock == "lockstep" else
                                                  scenario.control.dt / rate})
-                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
-                monitor_flags += ["--all-robots"] if all_robots else []
-                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
-                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
-                                                 "--clock", clock, *monitor_flags], stdout=display)
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 for first in range(0, scenario.robots, robots_per_process):

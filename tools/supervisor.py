@@ -9,7 +9,6 @@ supervisor dies, even by SIGKILL, the pipe closes and the child stops itself (``
 from __future__ import annotations
 
 import contextlib
-import json
 import signal
 import subprocess
 import threading
@@ -20,6 +19,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+from ringtrack.bus.config import announced_endpoints
 from ringtrack.tools.console import UsageError
 
 ANNOUNCE_TIMEOUT_S = 20.0
@@ -91,8 +91,8 @@ class Supervisor:
         :func:`bus.config.announce_endpoints`) and return them."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if path.exists():
-                return list(json.loads(path.read_text())["endpoints"])
+            if (endpoints := announced_endpoints(path)) is not None:
+                return endpoints
             if self.failed():
                 raise UsageError(f"the {name} process failed to start: {self.failed()[0].stderr_tail()}")
             time.sleep(0.02)
