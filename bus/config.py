@@ -120,3 +120,11 @@ def announce_endpoints(session: zenoh.Session, path: Path) -> None:
     temporary = path.with_suffix(".tmp")
     temporary.write_text(json.dumps({"endpoints": listening_locators(session)}))
     temporary.replace(path)
+
+
+def announced_endpoints(path: Path) -> list[str] | None:
+    """The endpoints :func:`announce_endpoints` wrote to ``path``, or None while it has not."""
+    try:
+        return list(json.loads(path.read_text())["endpoints"])
+    except FileNotFoundError:
+        return None

@@ -88,6 +88,18 @@ class Keys:
         return _parse(self.prefix, key)
 
 
+def parse_any(key: str) -> tuple[int, Route] | None:
+    """``(run id, route)`` of a data key of any run, or ``None`` for a key of another shape."""
+    parts = key.split("/")
+    if len(parts) != 5 or parts[0] != ROOT:
+        return None
+    try:
+        run = int(parts[1], 16)
+    except ValueError:
+        return None
+    return run, Route(destination=parts[2], source=parts[3], kind=parts[4])
+
+
 @lru_cache(maxsize=4096)
 def _parse(prefix: str, key: str) -> Route | None:
     """Routes repeat for the whole run (a few keys per participant): parse each key once."""

@@ -239,6 +239,15 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
     return message
 
 
+def peek(payload: bytes) -> AnyMessage:
+    """Decode ``payload`` without checking it against a run or a team (for an observer that knows
+    neither); raises :class:`Rejected` ("malformed") for bytes that are not a message."""
+    try:
+        return _decoder.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError) as error:
+        raise Rejected("malformed", str(error)) from None
+
+
 def robot_ids(message: Message) -> list[int]:
     """Every robot index a message names (all must belong to the team)."""
     if isinstance(message, (Request, Reply, FaultNotice)):

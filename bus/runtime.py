@@ -189,7 +189,8 @@ class Role:
     it runs ``main(participant, roster, events seen meanwhile)`` to an exit code, then sends
     ``stats(participant, code)`` to the monitor (None: nothing) and stays up while any of
     ``linger_for(code)`` is alive (see :func:`linger`). ``on_joined`` runs once it is alive (the
-    world announces its endpoints there).
+    world announces its endpoints there), ``on_gathering(roster)`` at every presence change while it
+    waits for the others (the monitor's start-up frame shows who is up).
     """
 
     name: str
@@ -200,6 +201,7 @@ class Role:
     start_on: Literal["alive", "ready"] = "alive"
     announces_ready: bool = True
     on_joined: Callable[[Participant], None] | None = None
+    on_gathering: Callable[[Roster], None] | None = None
     stats: Callable[[Participant, int], Stats | None] = final_stats
     linger_for: Callable[[int], set[str]] = lambda code: set()
 
@@ -220,7 +222,12 @@ async def perform(role: Role, bus: BusConfig, keys: Keys, robots: int, interrupt
             role.on_joined(participant)
         roster = Roster()
         tokens = roster.alive if role.start_on == "alive" else roster.ready
-        started, held = await gather_until(participant, roster, lambda: role.needed <= tokens)
+        def everyone_there() -> bool:
+            if role.on_gathering is not None:
+                role.on_gathering(roster)
+            return role.needed <= tokens
+
+        started, held = await gather_until(participant, roster, everyone_there)
         if not started:
             return STOPPED
         if role.announces_ready:

@@ -56,13 +56,13 @@ def test_dashboard_shows_robots_traffic_and_saved_messages() -> None:
     text = render(model)
     assert "step 3/3000" in text and "4 robots" in text and "lockstep" in text
     for robot in range(4):
-        assert re.search(rf"^\s*r{robot} {robot}\s+ok\|ok\s", text, re.MULTILINE), text
-    row = re.search(r"^\s*r1 1\s+ok\|ok.*$", text, re.MULTILINE).group(0)
+        assert re.search(rf"(?:^|\s)r{robot} {robot}\s+ok\|ok\s", text, re.MULTILINE), text
+    row = re.search(r"(?:^|\s)r1 1\s+ok\|ok.*$", text, re.MULTILINE).group(0)
     assert " 3 " in row and "6/108" in row and "6/240" in row and "T1 @3" in row  # polls, sent, recv, reason
     assert re.search(r"robot-to-robot\s+12\s+348\s", text)
     assert re.search(r"world\s+27\s+1500\s", text)
     # the constant strategy would have sent 4 robots x 4 messages x 3 steps = 48: 36 saved (75 %)
-    assert "saved vs constant: 36 robot-to-robot messages (75%), polls 3" in text
+    assert "Com-bar 0.250 so far (constant 1) · saved 36 msgs (75%) vs constant · polls 3" in text
     assert "Cerr " in text and "Terr" not in text  # a known target has no estimation error
 
 
@@ -129,7 +129,7 @@ def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch:
     seen = totals_by_category(rows)
 
     # The live dashboard's own last frame shows the monitor's totals of the end record ...
-    frame = final_frame((folder / "monitor.stdout").read_text(), "ringtrack paper-stationary · 6 robots")
+    frame = final_frame((folder / "monitor.stdout").read_text(), "paper-stationary · 6 robots")
     heading = frame[:frame.index("traffic")]  # the header line, wrapped perhaps
     assert "step 80/80" in heading and "done" in heading
     robot = seen["robot"]
@@ -138,12 +138,12 @@ def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch:
     world = totals_by_category([row for row in rows if row[0] != "end"])["world"]
     assert re.search(rf"world\s+{world['messages']}\s+{world['bytes']}\s", frame), frame
     saved = 4 * 6 * 80 - robot["messages"]
-    assert f"saved vs constant: {saved} robot-to-robot messages" in frame
+    assert f"saved {saved} msgs" in frame
     for index in range(6):
         name = f"r{index}"
         sent = [sum(row[k] for row in rows if row[0] in ("request", "reply") and row[1] == name) for k in (3, 4)]
         received = [sum(row[k] for row in rows if row[0] in ("request", "reply") and row[2] == name) for k in (3, 4)]
-        assert re.search(rf"^\s*{name} {index}\s+ok\|ok\s.*\s{sent[0]}/{sent[1]}\s+{received[0]}/{received[1]}\s",
+        assert re.search(rf"(?:^|\s){name} {index}\s+ok\|ok\s.*\s{sent[0]}/{sent[1]}\s+{received[0]}/{received[1]}\s",
                          frame, re.MULTILINE), frame
 
     # and a model rebuilt from the log shows the same.
@@ -172,15 +172,15 @@ def test_replay_and_plot_of_an_engine_log(tmp_path: Path, capsys: pytest.Capture
     assert re.match(r"step 60/60: robot-to-robot \d+ msgs - B ", lines[-1])  # the engine counts no bytes
     assert main(["replay", str(log), "--final"]) == 0
     final = capsys.readouterr().out
-    assert "step 60/60" in final and "centralized target" in final and "Terr" in final and "replay" not in final
+    assert "step 60/60" in final and "Terr" in final and "replay" not in final
     assert re.search(r"robot-to-robot\s+\d+\s+-\s", final) and re.search(r"world\s+\d+\s+-\s", final)
-    assert re.search(r"^\s*r0 0\s.*\s\d+/-\s", final, re.MULTILINE) and "/0 " not in final and " 0 B" not in final
+    assert re.search(r"(?:^|\s)r0 0\s.*\s\d+/-\s", final, re.MULTILINE) and "/0 " not in final and " 0 B" not in final
     assert main(["plot", str(log), "-o", str(figure)]) == 0
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_a_long_trigger_reason_leaves_the_other_columns_whole() -> None:
-    """Cells as wide as a long run of 64 robots makes them fit from 100 console columns on."""
+    """Cells as wide as a long run of 64 robots makes them: whole columns, as many rows as fit."""
     robots = 64
     scenario = load_scenario("paper-stationary", robots=robots)
     model = TeamModel(scenario, "lockstep")
@@ -195,13 +195,15 @@ def test_a_long_trigger_reason_leaves_the_other_columns_whole() -> None:
                    "traffic": {"robot": [4, 116], "world": [2 * robots + 1, 500], "estimation": [0, 0]}})
     for robot in range(robots):
         model.add(fault(12345, "dropped", robot, (robot + 1) % robots, "outage"))
-    for width, columns in ((100, 8), (120, 10), (160, 10)):
-        text = render(model, width, 60)
-        rows = re.findall(r"^\s*r\d+ \w\s.*$", text, re.MULTILINE)
-        assert len(rows) == 24 and not any("…" in row for row in rows), text
-        assert all(len(row.split()) == columns + 2 for row in rows), rows  # "r0 0", "T1+... @12345": two words
-        assert all(re.search(r" outage\|outage .* 99999/9999999 +99999/9999999 +T1\+T2\+T3\+unk @12345 *$", row)
-                   for row in rows), rows
+    for width, height, columns in ((80, 24, 6), (100, 30, 6), (160, 60, 10)):
+        text = render(model, width, height)
+        rows = re.findall(r"\br\d+ \w  +outage\|outage .*$", text, re.MULTILINE)
+        assert len(rows) == height - 2 - 6 - 2 - 1, text  # header, legend; traffic and figures; table head; "more"
+        assert f"… and {robots - len(rows)} more robots (r{len(rows)}-r63)" in text
+        assert not any("…" in row for row in rows), text
+        cells = [row.split() for row in rows]
+        assert all(len(row) == columns + 2 for row in cells), rows  # "r0 0", "T1+... @12345": two words
+        assert all(re.search(r" outage\|outage .*T1\+T2\+T3\+unk @12345 *$", row) for row in rows), rows
 
 
 def fault(step: int, what: str, sender: int, receiver: int, reason: str | None = None) -> dict:
@@ -212,7 +214,7 @@ def fault(step: int, what: str, sender: int, receiver: int, reason: str | None =
 
 def link_cells(text: str) -> dict[int, str]:
     """Robot index -> its links cell in a rendered dashboard."""
-    return {int(index): cell for index, cell in re.findall(r"^\s*r(\d) \d\s+(\S+)\s", text, re.MULTILINE)}
+    return {int(index): cell for index, cell in re.findall(r"(?:^|\s)r(\d) \d\s+(\S+)\s", text, re.MULTILINE)}
 
 
 def test_link_state_shows_recent_faults_on_both_ends_and_gone_neighbours() -> None:
@@ -243,7 +245,7 @@ def test_replay_shows_the_link_faults_of_the_log(tmp_path: Path, capsys: pytest.
     final = capsys.readouterr().out
     assert link_cells(final) == {0: "ok|ok", 1: "ok|ok", 2: "ok|range", 3: "range|ok"}
     assert main(["replay", str(path), "--speed", "1e9", "--dashboard"]) == 0
-    assert link_cells(final_frame(capsys.readouterr().out, "ringtrack paper-stationary")) == link_cells(final)
+    assert link_cells(final_frame(capsys.readouterr().out, "paper-stationary · 4 robots")) == link_cells(final)
 
 
 def robot_links(log: RunLog) -> dict[str, tuple[int, int]]:
@@ -271,12 +273,23 @@ def check_figure(log: RunLog) -> None:
         assert np.array_equal(paths[f"r{robot}"].get_xydata(), positions[:, robot])
 
     series = {line.get_label(): line for axes in figure.axes for line in axes.get_lines()}
+    targets = np.array([record["target"] for record in log.steps])
+    assert np.array_equal(series["true target"].get_xydata(), targets)  # on top of every path
+    assert series["true target"].get_zorder() > max(line.get_zorder() for name, line in series.items()
+                                                    if name != "true target" and not name.startswith("true target"))
+    assert all(axes.get_xlabel() for axes in figure.axes if axes.get_title())  # every panel's axes say what
+    assert titled[PANELS[0]].get_xlabel() == "x (m)" and titled[PANELS[0]].get_ylabel() == "y (m)"
+    moving = log.scenario.moving
+    assert any(name.startswith("Ctime threshold") for name in series) != moving  # none for a moving target
+    legend_texts = [text.get_text() for axes in figure.axes if axes.get_legend()
+                    for text in axes.get_legend().get_texts()]
+    assert ("Terr (right axis)" in legend_texts) == (log.scenario.estimation.mode != "known")
     assert len(series["Cerr, true positions"].get_ydata()) == len(log.steps)
     assert len(series["Cerr, robots' memory"].get_ydata()) == len(log.steps)
     if log.scenario.estimation.mode == "known":
-        assert "Terr" not in series
+        assert not any(label.startswith("Terr") for label in series)
     else:
-        assert len(series["Terr"].get_ydata()) == len(log.steps)
+        assert len(series["Terr (right axis)"].get_ydata()) == len(log.steps)
 
     expected = robot_links(log)
     bars = {container.get_label(): container for axes in figure.axes for container in axes.containers}
@@ -313,3 +326,80 @@ def test_replay_of_a_killed_run_and_bad_logs(tmp_path: Path, capsys: pytest.Capt
     (tmp_path / "not-a-log.jsonl").write_text('{"type": "step"}\n')
     assert main(["plot", str(tmp_path / "not-a-log.jsonl"), "-o", str(tmp_path / "x.png")]) == 2
     assert "no header record; this is not a ringtrack run log" in capsys.readouterr().err
+
+
+def engine_model(scenario_name: str, robots: int, steps: int, **overrides: object) -> TeamModel:
+    """A dashboard model fed with an engine run's step records."""
+    from ringtrack.agents import engine
+    from ringtrack.tools.runlog import history_from_log, write_engine_log
+
+    scenario = load_scenario(scenario_name, robots=robots, max_steps=steps, **overrides)
+    path = Path(f"/tmp/ringtrack-dashboard-{scenario_name}-{robots}-{steps}-{id(scenario)}.jsonl")
+    try:
+        write_engine_log(path, engine.run(scenario, record_positions=True))
+        log = read_log(path)
+    finally:
+        path.unlink(missing_ok=True)
+    assert history_from_log(log).steps == steps
+    model = TeamModel(log.scenario, "lockstep")
+    for record in log.records:
+        model.add(record)
+    return model
+
+
+@pytest.mark.parametrize("width,height", [(80, 24), (100, 30), (160, 50)])
+def test_every_size_shows_one_line_per_robot_a_legend_and_an_unwrapped_header(width: int, height: int) -> None:
+    model = engine_model("authors-moving", 6, 40, estimation="decentralized")
+    text = render(model, width, height)
+    lines = text.splitlines()
+    assert len(lines) <= height and all(len(line) <= width for line in lines), (width, height)
+    assert "authors-moving" in lines[0] and "step 40/40" in lines[0] and "running" in lines[0]  # one header line
+    assert "step 40/40" not in "\n".join(lines[1:])
+    for robot in range(6):  # every robot's row, whole
+        row = rf"\br{robot} {robot}  +ok\|ok +\d+\.\d° .*(T\d|start)[+\w]* @\d+ *$"
+        assert re.search(row, text, re.MULTILINE), text
+    assert "Com-bar " in text and "so far (constant 1)" in text and "Cerr " in text and "Terr " in text
+    legend = lines[-1]
+    assert "T1 ubd" in legend and "T2" in legend and "T3" in legend and "ubd" in legend
+    if width >= 100:
+        assert "gV guaranteed midpoint" in legend and "ages" in legend
+
+
+def map_extent(text: str) -> tuple[int, int]:
+    """(columns, rows) the map's boundary dots span in a rendered dashboard (the block left of the
+    traffic table)."""
+    lines = text.splitlines()[1:-1]
+    left = lines[0].index("traffic")
+    dots = [(row, column) for row, line in enumerate(lines) for column, character in enumerate(line[:left])
+            if character == "·"]
+    rows, columns = {row for row, _ in dots}, {column for _, column in dots}
+    return max(columns) - min(columns) + 1, max(rows) - min(rows) + 1
+
+
+@pytest.mark.parametrize("width,height", [(80, 24), (100, 30), (160, 50)])
+def test_the_map_keeps_the_region_aspect_on_two_to_one_cells(width: int, height: int) -> None:
+    model = engine_model("paper-stationary", 6, 20)
+    vertices = model.scenario.region.vertices
+    aspect = np.ptp(vertices[:, 1]) / np.ptp(vertices[:, 0])  # 19 m tall, 7 m wide
+    columns, rows = map_extent(render(model, width, height))
+    assert rows >= height - 4  # a tall region takes the height
+    assert abs((rows / columns) / (aspect / 2.0) - 1.0) < 0.2, (columns, rows)
+
+
+def test_a_large_team_at_80x24_lists_as_many_robots_as_fit() -> None:
+    model = engine_model("paper-stationary", 64, 20)
+    text = render(model, 80, 24)
+    rows = re.findall(r"\br(\d+) \w  +ok\|ok ", text)
+    side = 4 + 2  # the traffic table (head, rule, two rows), Com-bar, Cerr
+    assert [int(robot) for robot in rows] == list(range(24 - 2 - side - 2 - 1))  # header, legend; head; "more"
+    assert f"… and {64 - len(rows)} more robots (r{len(rows)}-r63)" in text
+
+
+def test_the_start_up_frame_says_who_is_up() -> None:
+    model = TeamModel(load_scenario("paper-stationary"), "lockstep")
+    model.expected = ["world", "monitor", *(f"r{robot}" for robot in range(6))]
+    model.up = {"world", "monitor", "r0", "r3"}
+    text = render(model, 80, 24)
+    assert "starting" in text.splitlines()[0] and "4/8 participants up" in text
+    assert "up: world monitor r0 r3" in text and "waiting for: r1 r2 r4 r5" in text
+    assert model.summary_line() == "starting: 4/8 participants up"

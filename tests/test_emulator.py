@@ -115,15 +115,22 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
         while processes_mentioning(str(folder)) and time.monotonic() - sent_at < 20:
             time.sleep(0.01)
         team_gone_in = time.monotonic() - sent_at
-        code = process.wait(timeout=20)
+        printed, complaints = (stream.decode() for stream in process.communicate(timeout=20))
+        code = process.returncode
     finally:
         stop_all(process)
     assert code == 130
+    # Each process says why it stopped: the supervisor forwards the signal it got.
+    logged, said = {signal.SIGINT: ("interrupted (SIGINT)", "interrupted by the user (Ctrl-C)"),
+                    signal.SIGTERM: ("interrupted (SIGTERM)", "terminated (SIGTERM)")}[stop]
+    assert f"run: {said} after " in printed, printed  # the monitor's report
+    assert f"ringtrack: run {said}; every process stopped" in complaints, complaints
     # The supervisor signals, then kills what is left after 1.5 s: the team is gone within 2 s.
     assert team_gone_in < 2.0, f"the team took {team_gone_in:.2f} s to stop"
     print(f"{stop.name}: every process of the team gone {team_gone_in:.2f} s after the signal")
     assert processes_mentioning(str(folder)) == []
     log = read_log(folder / "log.jsonl")
+    assert log.end["reason"] == logged
     steps = [record["step"] for record in log.steps]
     assert len(steps) >= 30 and steps == list(range(1, len(steps) + 1))
     assert_equals_engine(log)

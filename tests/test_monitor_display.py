@@ -77,7 +77,7 @@ def test_refresh_never_waits_for_a_blocked_stream(dashboard: bool) -> None:
     assert not view.drawer.is_alive()
     written = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", stream.getvalue())  # drop ANSI codes
     if dashboard:
-        frames = written.split("ringtrack paper-stationary")[1:]
+        frames = written.split("paper-stationary · 4 robots")[1:]
         assert 1 <= len(frames) <= 3  # perhaps the stuck one, the latest (the final one), the closing redraw
         assert "step 40/3000" in frames[-1] and "done" in frames[-1]
     else:

@@ -63,13 +63,13 @@ def printed(monitor_report: MonitorReport) -> str:
 def test_report_lists_estimation_traffic_and_every_robot_link() -> None:
     text = printed(report(seen_rows()))
     assert re.search(r"│\s+estimation │\s+10 │\s+300 │\s+10 │\s+300 │\s+30\.0 │", text), text
-    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+) │\s+(\d+) │\s+(\d+) │\s+(\d+) │", text)
+    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+)/(\d+) │\s+(\d+)/(\d+) │", text)
     assert links == [("r0 > r1", "5", "150", "5", "150"), ("r1 > r0", "5", "175", "5", "175"),
                      ("r1 > r2", "1", "20", "1", "20"), ("r2 > r1", "1", "45", "1", "45")]
     assert "monitor vs senders: equal on every link" in text
 
     text = printed(report(seen_rows({("request", "r0", "r1"): (2, 40), ("request", "r0", "r2"): (1, 20)})))
-    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+) │\s+(\d+) │\s+(\d+) │\s+(\d+) │", text)
+    links = re.findall(r"│\s+(r\d > r\d) │\s+(\d+)/(\d+) │\s+(\d+)/(\d+) │", text)
     assert links[:2] == [("r0 > r1", "4", "130", "5", "150"), ("r0 > r2", "1", "20", "0", "0")]
     assert "monitor vs senders: DIFFERENT" in text
 
@@ -91,3 +91,41 @@ def test_the_recorder_hands_fault_events_to_the_dashboard() -> None:
     assert written == [{"type": "event", "event": "dropped", "step": 3, "subject": "request", "sender": 1,
                         "receiver": 2, "reason": "range", "delay_s": None}]
     assert model.link_state(1, 2) == model.link_state(2, 1) == "range" and model.link_state(0, 1) == "ok"
+
+
+def test_reports_of_large_teams_are_summarised_unless_all_robots() -> None:
+    from ringtrack.tools.views import per_link_table, per_robot_table
+
+    robots = 30
+    rows = [("request", f"r{robot}", f"r{(robot + 1) % robots}", robot + 1, 18 * (robot + 1)) for robot in range(robots)]
+    rows += [("measurement", "world", f"r{robot}", 10, 500) for robot in range(robots)]
+    console = Console(record=True, width=80, force_terminal=False, color_system=None)
+    console.print(per_robot_table(rows))
+    text = console.export_text()
+    assert re.search(r"│ +min of 30 │ +1/18 │ +1/18 │ +10/500 │", text), text
+    assert re.search(r"│ +median of 30 │ +15/270 │", text) and re.search(r"│ +max of 30 │ +30/540 │", text), text
+    busiest = re.findall(r"busiest: (r\d+)", text)
+    assert busiest == ["r29", "r28", "r27", "r26", "r25"], busiest  # by sent + received: 59, 57, 55, ...
+    assert len(re.findall(r"^│", text, re.MULTILINE)) == 3 + 5 and all(len(line) <= 80 for line in text.splitlines())
+    console = Console(record=True, width=80, force_terminal=False, color_system=None)
+    console.print(per_robot_table(rows, all_robots=True))
+    assert len(re.findall(r"^│ +r\d+ │", console.export_text(), re.MULTILINE)) == robots
+    # A link where the monitor and the sender differ is shown even in a summary.
+    senders = {"r0": [("request", "r0", "r1", 2, 36)]}
+    report = MonitorReport(received=rows, senders=senders, rejected={}, rss_kib={}, end=None, late=0)
+    console = Console(record=True, width=80, force_terminal=False, color_system=None)
+    console.print(per_link_table(report))
+    text = console.export_text()
+    assert "min of 30" in text and re.search(r"│ +r0 > r1 │ +1/18 │ +2/36 │", text), text
+
+
+def test_simulate_summarises_the_polls_of_a_large_team(capsys) -> None:
+    from ringtrack.tools.cli import main
+
+    assert main(["simulate", "--robots", "25", "--steps", "5"]) == 0
+    text = capsys.readouterr().out
+    assert "per robot min " in text and "busiest r" in text and "(--all-robots lists all)" in text
+    assert all(len(line) <= 80 for line in text.splitlines())
+    assert main(["simulate", "--robots", "25", "--steps", "5", "--all-robots"]) == 0
+    polls = capsys.readouterr().out
+    assert "busiest" not in polls and "Com-bar" in polls and "saved" in polls

@@ -47,9 +47,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         "engine",
         help="in-process engine: one run, the 30-trial N = 6 experiment, the N = 3..30 sweep",
     )
-    engine_parser.add_argument("--trials", type=at_least(1), default=30)
+    engine_parser.add_argument("--trials", type=at_least(1), default=30, help="trials per batch (default 30)")
     engine_parser.add_argument("--sweep", type=str, default="3-30", help="team sizes of the sweep, e.g. 3-30")
-    engine_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
+    engine_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
     engine_parser.set_defaults(handler=run_engine_bench)
 
     emulator_parser = kinds.add_parser(
@@ -57,8 +57,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="lockstep steps per second of a multi-process team over Zenoh, start-up, bytes per message, memory",
     )
     emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
-    emulator_parser.add_argument("--steps", type=at_least(1), default=1000)
-    emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self")
+    emulator_parser.add_argument("--steps", type=at_least(1), default=1000, help="steps per run (default 1000)")
+    emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self",
+                                 help="communication strategy (default self)")
     emulator_parser.add_argument("--repeat", type=at_least(1), default=1, help="runs per configuration; medians reported")
     emulator_parser.add_argument("--robots-per-process", type=at_least(1), default=1, metavar="K",
                                  help="host K robots per process (each its own Zenoh participant)")
@@ -71,25 +72,29 @@ def register(commands: argparse._SubParsersAction) -> None:
                                  "temporary folder), or alternate plain and secure runs to measure the cost; compare "
                                  "runs each team in a private network namespace when it can, to count the bytes "
                                  "on the wire")
-    emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
-    emulator_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
+    emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR",
+                                 help="parent of the run folders (default runs)")
+    emulator_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
     emulator_parser.set_defaults(handler=run_emulator_bench)
 
     latency_parser = kinds.add_parser(
         "latency",
         help="neighbour round trip (request and reply between two robot processes): median, p99, CPU",
     )
-    latency_parser.add_argument("--rounds", type=at_least(1), default=5000)
-    latency_parser.add_argument("--warmup", type=at_least(0), default=500)
-    latency_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
+    latency_parser.add_argument("--rounds", type=at_least(1), default=5000,
+                                help="timed round trips (default 5000)")
+    latency_parser.add_argument("--warmup", type=at_least(0), default=500,
+                                help="untimed round trips first (default 500)")
+    latency_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
     latency_parser.set_defaults(handler=run_latency_bench)
 
     suite_parser = kinds.add_parser(
         "suite",
         help="engine, neighbour latency and the emulator for N = 6, 24, 64 and 256 (16 per process)",
     )
-    suite_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR")
-    suite_parser.add_argument("--json", type=JSON_FILE, metavar="PATH")
+    suite_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR",
+                              help="parent of the run folders (default runs)")
+    suite_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
     suite_parser.set_defaults(handler=run_suite)
 
 

@@ -14,7 +14,8 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment", "bench", "certs")
+COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment", "bench", "certs", "introspect",
+            "export")
 
 # One-line errors of bad input: (module, class). A class whose module was never imported cannot
 # have been raised, so none is imported just to be caught.

@@ -15,12 +15,17 @@ from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.bus.messages import poll_bytes
-from ringtrack.tools.console import UsageError, err, out, write_json
+from ringtrack.tools.console import UsageError, err, out, write_csv, write_json
 from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
 
 STRATEGIES = ("constant", "self")
+CSV_FILE = output_path((".csv",))
+STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
+MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "cerr_mean_deg",
+                  "terr_mean", "poll_rate", "robot_messages_per_step", "robot_bytes_per_step",
+                  "estimation_messages_per_step"]
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -41,6 +46,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
     stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
     stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the comparison figure")
+    stationary.add_argument("--csv", type=CSV_FILE, metavar="PATH",
+                            help="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
     stationary.set_defaults(handler=run_stationary)
 
     moving = kinds.add_parser(
@@ -60,6 +67,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
     moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
+    moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
+                        help="write one row per run (setting, strategy, estimation: means over the trials) as CSV")
     moving.set_defaults(handler=run_moving)
 
 
@@ -189,6 +198,8 @@ def run_stationary(args: argparse.Namespace) -> int:
     out.print(results_table(result))
     if args.json:
         write_json(args.json, result)
+    if args.csv:
+        write_csv(args.csv, result["rows"], STATIONARY_COLUMNS)
     if args.plot:
         from ringtrack.tools.figures import stationary_comparison
 
@@ -347,6 +358,8 @@ def run_moving(args: argparse.Namespace) -> int:
     out.print(moving_table(result))
     if args.json:
         write_json(args.json, result)
+    if args.csv:
+        write_csv(args.csv, result["runs"], MOVING_COLUMNS)
     if args.plot:
         from ringtrack.tools.figures import moving_comparison, moving_velocities
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -17,7 +18,7 @@ def stationary_comparison(result: dict, path: Path) -> None:
     """The paper's comparison figure: Ctime and Com-bar (mean +- std) per strategy; a sweep over team
     sizes draws them against N."""
     sizes = result["robots"]
-    figure, (left, right) = plt.subplots(1, 2, figsize=(9, 3.6), constrained_layout=True)
+    figure, (left, right) = plt.subplots(1, 2, figsize=(9, 4.0), layout="constrained")
     for strategy in ("constant", "self"):
         entries = [entry for entry in result["summary"] if entry["strategy"] == strategy and entry["ctime_mean"]]
         style = {"color": STRATEGY_COLOURS[strategy], "label": STRATEGY_LABELS[strategy], "capsize": 4}
@@ -34,26 +35,30 @@ def stationary_comparison(result: dict, path: Path) -> None:
     if len(sizes) == 1:
         for axis in (left, right):
             axis.set_xticks([0, 1], [STRATEGY_LABELS["constant"], STRATEGY_LABELS["self"]])
+            axis.set_xlabel("strategy")
         title = f"N = {sizes[0]}, {result['trials']} random starts"
     else:
         for axis in (left, right):
             axis.set_xlabel("robots N")
             axis.set_xticks(sizes)
-            axis.legend()
+        handles, labels = left.get_legend_handles_labels()
+        figure.legend(handles, labels, loc="outside lower center", ncols=2)
         title = f"{result['trials']} random starts per team size"
     left.set_ylabel("Ctime (steps)")
-    left.set_title("(a) convergence time")
+    left.set_title("(a) convergence time, mean ± 1 sd")
     right.set_ylabel("Com-bar (polls per robot per step)")
-    right.set_title("(b) communication")
+    right.set_title("(b) communication, mean ± 1 sd")
     right.set_ylim(0, 1.1)
-    figure.suptitle(f"Stationary target: constant vs self-triggered ({title})")
+    figure.suptitle(f"Stationary target: constant vs self-triggered ({title}); error bars: ±1 standard deviation "
+                    "over the trials", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
     plt.close(figure)
 
 
-RUN_STYLES = {
-    ("constant", "centralized"): {"color": "tab:blue", "linestyle": "--", "label": "constant, centralized EKF"},
+RUN_STYLES: dict[tuple[str, str], dict[str, Any]] = {
+    ("constant", "centralized"): {"color": "tab:blue", "linestyle": "--", "zorder": 3,  # on top: often equal
+                                  "label": "constant, centralized EKF"},
     ("self", "centralized"): {"color": "tab:orange", "label": "self-triggered, centralized EKF"},
     ("self", "decentralized"): {"color": "tab:green", "label": "self-triggered, decentralized EKF + CI"},
 }
@@ -67,7 +72,7 @@ def _time_axis(result: dict, run: dict) -> list[float]:
 def moving_comparison(result: dict, path: Path) -> None:
     """Cerr and Terr over time (trial means) of the three strategies at the main setting."""
     runs = [run for run in result["runs"] if run["group"] == "comparison"]
-    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
+    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
     for run in runs:
         style = RUN_STYLES[run["strategy"], run["estimation"]]
         times = _time_axis(result, run)
@@ -80,9 +85,11 @@ def moving_comparison(result: dict, path: Path) -> None:
     right.set_ylabel("Terr (m)")
     right.set_yscale("log")
     right.set_title("(b) target estimate error")
-    left.legend(fontsize=8)
+    handles, labels = left.get_legend_handles_labels()
+    figure.legend(handles, labels, loc="outside lower center", ncols=3, fontsize=8)
     speed, angular = runs[0]["speed"], runs[0]["angular_speed"]
-    figure.suptitle(f"Moving target (v = {speed} m/s, w = {angular} rad/s), mean of {result['trials']} trials")
+    figure.suptitle(f"Moving target (v = {speed} m/s, w = {angular} rad/s), mean of {result['trials']} trials; "
+                    "no convergence threshold: the target never stops")
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
     plt.close(figure)
@@ -92,16 +99,17 @@ def moving_velocities(result: dict, path: Path) -> None:
     """Cerr over time for each target velocity: constant + centralized vs self-triggered + decentralized."""
     runs = [run for run in result["runs"] if run["group"] == "velocities"]
     settings = sorted({(run["speed"], run["angular_speed"]) for run in runs}, key=lambda pair: (pair[0], -pair[1]))
-    figure, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.4), sharey=True,
-                                constrained_layout=True)
+    figure, axes = plt.subplots(1, len(settings), figsize=(3.4 * len(settings), 3.8), sharey=True,
+                                layout="constrained")
     for axis, (speed, angular) in zip(axes, settings, strict=True):
         for run in (run for run in runs if (run["speed"], run["angular_speed"]) == (speed, angular)):
             axis.plot(_time_axis(result, run), run["cerr_series_deg"], linewidth=1.0,
                       **RUN_STYLES[run["strategy"], run["estimation"]])
-        axis.set_title(f"v = {speed}, w = {angular} (r = {speed / angular:.2f} m)", fontsize=9)
+        axis.set_title(f"v = {speed} m/s, w = {angular} rad/s (r = {speed / angular:.2f} m)", fontsize=9)
         axis.set_xlabel("time (s)")
     axes[0].set_ylabel("Cerr (deg, true)")
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=8)
     figure.suptitle(f"Cerr against target velocity and radius, mean of {result['trials']} trials")
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)

@@ -35,7 +35,7 @@ from ringtrack.bus.messages import (
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
-from ringtrack.tools.dashboard import TeamModel
+from ringtrack.tools.dashboard import TeamModel, ending_text
 from ringtrack.tools.runlog import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
@@ -190,6 +190,13 @@ def senders(scenario: Scenario) -> set[str]:
     return participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=False)
 
 
+def startup_names(scenario: Scenario) -> list[str]:
+    """Everyone a run of ``scenario`` starts with, the monitor included, in the order the dashboard's
+    start-up frame lists them: world, fusion centre, monitor, robots."""
+    order = {WORLD: -3, FUSION: -2, MONITOR: -1}
+    return sorted(senders(scenario) | {MONITOR}, key=lambda name: order.get(name, robot_index(name) or 0))
+
+
 @dataclass
 class MonitorReport:
     """What the monitor saw, and whether it matches what the senders counted."""
@@ -240,6 +247,14 @@ async def run_monitor(
     the report (None when stopped before the start)."""
     keys = Keys(run)
     report: MonitorReport | None = None
+    if model is not None:
+        model.expected = startup_names(scenario)
+
+    def show_startup(roster: Roster) -> None:
+        """Who is up so far, on the dashboard's start-up frame."""
+        if model is not None and refresh is not None:
+            model.up = roster.alive | {MONITOR}
+            refresh(False)
 
     async def main(participant: Participant, roster: Roster, held: list) -> int:
         nonlocal report
@@ -267,13 +282,13 @@ async def run_monitor(
                 }
             )
         if model is not None:
-            model.status = report.end.reason if report.end else "stopped" if code == STOPPED else "world lost"
+            model.status = ending_text(report.end.reason) if report.end else "stopped" if code == STOPPED else "world lost"
         if refresh is not None:
             refresh(True)
         return code
 
     role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=(keys.everything,),
-                stats=lambda participant, code: None)
+                stats=lambda participant, code: None, on_gathering=show_startup)
     code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
     return code, report
 

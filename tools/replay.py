@@ -10,7 +10,7 @@ from pathlib import Path
 from rich.console import Console
 
 from ringtrack.tools.console import out
-from ringtrack.tools.dashboard import Dashboard, TeamModel
+from ringtrack.tools.dashboard import Dashboard, TeamModel, ending_text
 from ringtrack.tools.options import positive
 from ringtrack.tools.runlog import RunLog, read_log
 from ringtrack.tools.views import LiveView
@@ -53,7 +53,7 @@ def run_replay(args: argparse.Namespace) -> int:
 
 def ending(log: RunLog) -> str:
     """The status the last frame shows: why the run ended, or that its log stops short."""
-    return log.end["reason"] if log.end else "log ends here (the run was stopped)"
+    return ending_text(log.end["reason"]) if log.end else "log ends here (the run was stopped)"
 
 
 def replay(model: TeamModel, records: list[dict], speed: float, refresh: Callable[[bool], None]) -> None:

@@ -18,7 +18,9 @@ SECURE_HELP = "team folder made by ringtrack certs: mutual TLS on every link (tl
 def register(commands: argparse._SubParsersAction) -> None:
     world = commands.add_parser("world", help="run the world process of a team")
     _common(world)
-    world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
+                       help="lockstep: wait for every robot each step; realtime: a step every dt / rate wall "
+                       "seconds (default lockstep)")
     world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
@@ -59,10 +61,17 @@ def register(commands: argparse._SubParsersAction) -> None:
     monitor = commands.add_parser("monitor", help="tally a team's messages live and write its run log")
     _common(monitor)
     monitor.add_argument("--log", type=LOG_FILE, required=True, metavar="PATH", help="run log to write (JSON lines)")
-    monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    monitor.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
+                         help="the world's clock, shown on the dashboard and written to the log (default lockstep)")
     display = monitor.add_mutually_exclusive_group()
     display.add_argument("--dashboard", action="store_true", help="draw the live dashboard even without a terminal")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
+    monitor.add_argument("--connect-from", type=Path, metavar="PATH",
+                         help="wait for PATH (written by world --announce) and connect to the endpoints it lists; "
+                         "the dashboard shows the start-up meanwhile")
+    monitor.add_argument("--all-robots", action="store_true",
+                         help="list every robot and link in the end-of-run report (default: above 20, "
+                         "min/median/max and the 5 busiest)")
     monitor.set_defaults(handler=run_monitor_role)
 
 
@@ -208,27 +217,66 @@ def run_fusion_role(args: argparse.Namespace) -> int:
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
+    import signal
+
     from rich.console import Console
 
     from ringtrack.tools.dashboard import TeamModel
-    from ringtrack.tools.monitor import run_monitor
-    from ringtrack.tools.views import LiveView, print_report
+    from ringtrack.tools.monitor import run_monitor, startup_names
+    from ringtrack.tools.views import LiveView, print_outcome, print_report
 
     scenario = scenario_from_arguments(args)
     model = TeamModel(scenario, args.clock)
+    model.expected, model.up = startup_names(scenario), {MONITOR}
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     with LiveView(console, model, dashboard) as view:
+        if args.connect_from is not None:
+            args.connect = [*(args.connect or []), *wait_for_endpoints(args.connect_from)]
         code, report = asyncio.run(
             run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots), args.log,
                         scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent)
         )
     if report is not None:
-        print_report(out, report)
+        # The log is complete: a second signal (the supervisor's, halfway through its grace) must not
+        # cut the report short.
+        for number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(number, signal.SIG_IGN)
+        print_report(out, report, all_robots=args.all_robots)
+        outcome = run_outcome(args.log)
+        if outcome is not None:
+            print_outcome(out, outcome, report)
         if not report.consistent():
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)
     return finished("monitor", code)
+
+
+ENDPOINTS_TIMEOUT_S = 20.0
+
+
+def wait_for_endpoints(path: Path, timeout_s: float = ENDPOINTS_TIMEOUT_S) -> list[str]:
+    """The endpoints announced in ``path`` (``world --announce``), waiting at most ``timeout_s``."""
+    import time
+
+    from ringtrack.bus.config import announced_endpoints
+
+    deadline = time.monotonic() + timeout_s
+    while (endpoints := announced_endpoints(path)) is None:
+        if time.monotonic() > deadline:
+            raise UsageError(f"--connect-from {path}: no endpoints announced within {timeout_s:.0f} s; start the "
+                             "world with --announce PATH")
+        time.sleep(0.02)
+    return endpoints
+
+
+def run_outcome(log_path: Path) -> dict | None:
+    """The summary (Ctime, Com-bar, ...) of the run a log holds, None when it has no step."""
+    from ringtrack.agents.engine import summary
+    from ringtrack.tools.runlog import history_from_log, read_log
+
+    log = read_log(log_path)
+    return summary(history_from_log(log)) if log.steps else None
 
 
 def finished(role: str, code: int) -> int:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import statistics
 
 from rich.table import Table
 
 from ringtrack.agents import engine
-from ringtrack.tools.console import out, write_json
+from ringtrack.tools.console import BUSIEST, SUMMARISED_ABOVE, out, write_json
+from ringtrack.tools.dashboard import messages_saved
 from ringtrack.tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, scenario_from_arguments
 from ringtrack.tools.runlog import write_engine_log
 
@@ -22,6 +24,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     add_scenario_arguments(parser, steps_help="run exactly this many steps")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the summary as JSON")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="write the run log (same format as spawn's)")
+    parser.add_argument("--all-robots", action="store_true",
+                        help="list every robot's polls (default: above 20 robots, min/median/max and the 5 busiest)")
     parser.set_defaults(handler=run)
 
 
@@ -29,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
     history = engine.run(scenario, until_converged=args.steps is None, record_positions=args.log is not None)
     result = engine.summary(history)
-    out.print(summary_table(result))
+    out.print(summary_table(result, int(history.sent[:, 0].sum()), args.all_robots))
     if args.json:
         write_json(args.json, result)
     if args.log:
@@ -37,19 +41,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def summary_table(result: dict) -> Table:
-    """A two-column rich table of a run summary."""
+def summary_table(result: dict, robot_messages: int, all_robots: bool = False) -> Table:
+    """A two-column rich table of a run summary (under 80 columns); ``robot_messages`` the
+    robot-to-robot messages the run sent. Polls per robot are listed for at most ``SUMMARISED_ABOVE``
+    robots (or with ``all_robots``), else summarised: min, median, max and the ``BUSIEST``."""
     table = Table(title=f"{result['scenario']}: {result['strategy']} strategy", show_header=False)
     table.add_column(style="bold")
     table.add_column()
-    ctime = result["ctime"]
+    ctime, triggers = result["ctime"], result["triggers"]
+    saved, share = messages_saved(result["robots"], result["steps"], robot_messages)
     rows = [
         ("robots", str(result["robots"])),
         ("seed", str(result["seed"])),
         ("steps run", str(result["steps"])),
         ("converged", f"yes, Ctime = {ctime} steps" if ctime else "no"),
-        ("Com-bar", f"{result['com_bar']:.3f}" if ctime else "-"),
-        ("triggers", f"{result['triggers']['total']}  per robot {result['triggers']['per_robot']}"),
+        ("Com-bar", f"{result['com_bar']:.3f} polls per robot-step to Ctime (constant: 1)" if ctime else "-"),
+        ("polls", f"{triggers['total']}; per robot {polls_text(triggers['per_robot'], all_robots)}"),
+        ("robot-to-robot", f"{robot_messages} messages; {saved} saved ({share:.0%}) vs constant"),
         ("final Cerr", f"{result['cerr_final_deg']:.4f} deg (true {result['cerr_true_final_deg']:.4f} deg)"),
     ]
     if result["estimation"] != "known":
@@ -58,3 +66,12 @@ def summary_table(result: dict) -> Table:
     for name, value in rows:
         table.add_row(name, value)
     return table
+
+
+def polls_text(per_robot: list[int], all_robots: bool) -> str:
+    """Every robot's polls, or above ``SUMMARISED_ABOVE`` robots min/median/max and the busiest."""
+    if all_robots or len(per_robot) <= SUMMARISED_ABOVE:
+        return " ".join(map(str, per_robot))
+    busiest = sorted(range(len(per_robot)), key=lambda robot: -per_robot[robot])[:BUSIEST]
+    return (f"min {min(per_robot)}, median {statistics.median_low(per_robot)}, max {max(per_robot)}; busiest "
+            + ", ".join(f"r{robot} {per_robot[robot]}" for robot in busiest) + " (--all-robots lists all)")

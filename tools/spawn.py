@@ -13,11 +13,11 @@ import argparse
 import contextlib
 import datetime
 import math
+import signal
 import sys
 import time
 from pathlib import Path
 
-from ringtrack.agents import engine
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id, participants
@@ -51,7 +51,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     add_scenario_arguments(parser, steps_help="run exactly this many steps (default: until converged, at "
                            "most control.max_steps)")
-    parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
+                        help="lockstep: each step waits for every robot (deterministic, equals the engine); "
+                        "realtime: a step every dt / rate wall seconds (default lockstep)")
     parser.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the summary JSON here")
@@ -67,6 +69,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     display.add_argument("--dashboard", action="store_true",
                          help="draw the live dashboard even without a terminal (the default on a terminal)")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
+    parser.add_argument("--all-robots", action="store_true",
+                        help="list every robot and link in the end-of-run report (default: above 20, "
+                        "min/median/max and the 5 busiest)")
     parser.set_defaults(handler=run_spawn)
 
 
@@ -83,6 +88,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         topology=args.topology,
         robots_per_process=args.robots_per_process,
         secure=args.secure,
+        all_robots=args.all_robots,
     )
     if args.json:
         write_json(args.json, result)
@@ -109,6 +115,7 @@ def spawn_team(
     topology: str | None = None,
     robots_per_process: int = 1,
     secure: Path | None = None,
+    all_robots: bool = False,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -118,7 +125,8 @@ def spawn_team(
     router that every other process reaches as a client; None picks mesh up to
     ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
     still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
-    mutual TLS and every participant enforce the team's access control."""
+    mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
+    robot in the monitor's report."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -139,10 +147,15 @@ def spawn_team(
     common += [] if secure is None else ["--secure", str(secure.resolve())]
     started = time.perf_counter()
     interrupted = ""
+    stop_signal = signal.SIGTERM
     sessions = len(participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True))
     topology = topology or ("mesh" if sessions <= MESH_LIMIT else "star")
     world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
     first_step = FirstStep(log_path, started)
+    if not quiet:
+        fusion = ", the fusion centre" if scenario.estimation.mode == "centralized" else ""
+        err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
+                  f"robots in {processes} processes", highlight=False)
     with Supervisor(folder) as supervisor:
         try:
             with terminate_as_exception():
@@ -150,17 +163,23 @@ def spawn_team(
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", listen,
                                            "--announce", str(announce), *stop_rule])
+                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
+                monitor_flags += ["--all-robots"] if all_robots else []
+                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
+                    # Started at once: it draws the start-up frame while the world comes up.
+                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
+                                                 str(announce), "--log", str(log_path), "--clock", clock,
+                                                 *monitor_flags], stdout=display)
                 endpoints = supervisor.endpoints(announce, "world")
+                if not quiet:
+                    err.print(f"spawn: the world listens on {', '.join(endpoints)} after "
+                              f"{time.perf_counter() - started:.1f} s; starting the others", highlight=False)
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "secure": None if secure is None else str(secure.resolve()),
                                                  "reply_timeout": None if clock == "lockstep" else
                                                  scenario.control.dt / rate})
-                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
-                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
-                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
-                                                 "--clock", clock, *monitor_flags], stdout=display)
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 for first in range(0, scenario.robots, robots_per_process):
@@ -171,16 +190,16 @@ def spawn_team(
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step)
         except KeyboardInterrupt:
-            interrupted = "interrupted (Ctrl-C)"
+            interrupted, stop_signal = "interrupted by the user (Ctrl-C)", signal.SIGINT  # the children say so too
         except Terminated:
             interrupted = "terminated (SIGTERM)"
         except TimeoutError as error:
             interrupted = f"stalled: {error}"
         finally:
-            supervisor.stop()
+            supervisor.stop(stop_signal=stop_signal)
     failures = {child.name: child.process.returncode for child in supervisor.children if child.process.returncode}
     for child in supervisor.children:
-        if child.process.returncode not in (0, None, -15, 130) and not interrupted:
+        if child.process.returncode not in (0, None, -15, -2, 130) and not interrupted:
             detail = child.stderr_tail()
             err.print(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""),
                       highlight=False)
@@ -240,6 +259,8 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
                     "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
     if not log_path.exists():
         return result
+    from ringtrack.agents import engine  # here: spawn's first line comes before this import
+
     log = read_log(log_path)
     if log.steps:
         result.update(engine.summary(history_from_log(log)))
@@ -259,10 +280,8 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
 
 
 def _summary_line(result: dict) -> str:
+    """Speed and run folder (the monitor's report above it gives Ctime, Com-bar and the traffic)."""
     if "ctime" not in result:
-        return f"run folder: {result['folder']}"
-    converged = f"converged at step {result['ctime']}" if result.get("converged") else "did not converge"
-    robot = result.get("messages", {}).get("robot", 0)
-    speed = f", {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
-    return (f"{result['robots']} robots, {result['strategy']} strategy: {converged} in {result['steps']} steps"
-            f"{speed}; robot-to-robot messages {robot}; run folder {result['folder']}")
+        return f"spawn: run folder {result['folder']}"
+    speed = f" at {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
+    return f"spawn: {result['steps']} steps{speed}\nrun folder: {result['folder']}"

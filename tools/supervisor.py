@@ -9,7 +9,6 @@ supervisor dies, even by SIGKILL, the pipe closes and the child stops itself (``
 from __future__ import annotations
 
 import contextlib
-import json
 import signal
 import subprocess
 import threading
@@ -20,6 +19,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+from ringtrack.bus.config import announced_endpoints
 from ringtrack.tools.console import UsageError
 
 ANNOUNCE_TIMEOUT_S = 20.0
@@ -91,24 +91,25 @@ class Supervisor:
         :func:`bus.config.announce_endpoints`) and return them."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if path.exists():
-                return list(json.loads(path.read_text())["endpoints"])
+            if (endpoints := announced_endpoints(path)) is not None:
+                return endpoints
             if self.failed():
                 raise UsageError(f"the {name} process failed to start: {self.failed()[0].stderr_tail()}")
             time.sleep(0.02)
         raise TimeoutError(f"the {name} process did not announce its endpoints within {timeout_s:.0f} s")
 
-    def stop(self, grace_s: float = STOP_GRACE_S) -> None:
-        """End every child within ``grace_s`` (+ reaping): SIGTERM the first child started (the
-        leader, whose End makes the others finish on their own), then SIGTERM whoever is still running
-        halfway through the grace, then SIGKILL what is left."""
+    def stop(self, grace_s: float = STOP_GRACE_S, stop_signal: signal.Signals = signal.SIGTERM) -> None:
+        """End every child within ``grace_s`` (+ reaping): ``stop_signal`` to the first child started
+        (the leader, whose End makes the others finish on their own), then to whoever is still running
+        halfway through the grace, then SIGKILL what is left. The signal tells the children why:
+        SIGINT for the user's Ctrl-C (their own sessions keep the terminal's from them), else SIGTERM."""
         started = time.monotonic()
         deadline = started + grace_s
         for phase_end, group in ((started + grace_s / 2, self.children[:1]), (deadline, self.children)):
             for child in group:
                 if child.process.poll() is None:
                     with contextlib.suppress(ProcessLookupError):
-                        child.process.send_signal(signal.SIGTERM)
+                        child.process.send_signal(stop_signal)
             while self.running() and time.monotonic() < phase_end:
                 time.sleep(0.01)
         for child in self.children:

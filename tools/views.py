@@ -8,6 +8,7 @@ monitor, and through it the robots.
 
 from __future__ import annotations
 
+import statistics
 import threading
 import time
 from collections.abc import Callable
@@ -20,7 +21,8 @@ from rich.table import Table
 
 from ringtrack.bus.counting import category_of, robot_link_totals
 from ringtrack.bus.keys import robot_index
-from ringtrack.tools.dashboard import Dashboard, TeamModel
+from ringtrack.tools.console import BUSIEST, SUMMARISED_ABOVE
+from ringtrack.tools.dashboard import Dashboard, TeamModel, ending_text, messages_saved
 from ringtrack.tools.monitor import COMPARED, MonitorReport
 
 LINE_PERIOD_S = 2.0
@@ -79,6 +81,8 @@ class LiveView:
 
     def __enter__(self) -> LiveView:
         self.drawer.start()
+        if self.dashboard:
+            self.refresh()  # the first frame at once (before the first step: the start-up view)
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
@@ -112,65 +116,124 @@ class LiveView:
             live.stop()  # draws the last snapshot once more, in full
 
 
-def per_robot_table(rows: list) -> Table:
-    """Robot-to-robot messages and bytes each robot sent and received, and its world traffic."""
+CATEGORY_NAMES = {"robot": "robot-to-robot", "world": "world", "estimation": "estimation", "monitoring": "monitoring"}
+CATEGORY_HELP = ("robot-to-robot: the polls' requests and replies; world: measurements, commands, ticks and the "
+                 "end; estimation: ranges to and estimates from the fusion centre; monitoring: statistics and "
+                 "fault notices the processes send the monitor (not compared: a final statistics message cannot "
+                 "count itself). seen: by the monitor; sent: as the senders counted")
+
+Counts = list[tuple[int, int]]  # (messages, bytes) per column of a row
+
+
+def summarised(rows: list[tuple[str, Counts]], all_rows: bool, busy: Callable[[Counts], int],
+               keep: Callable[[str], bool] = lambda _: False) -> list[tuple[str, Counts, str | None]]:
+    """``(label, counts, style)`` to show: every row of a table of at most ``SUMMARISED_ABOVE`` (or with
+    ``all_rows``); else min, median and max of every column (messages and bytes apart), the
+    ``BUSIEST`` rows by ``busy(counts)``, and every row for which ``keep(label)`` (marked red)."""
+    if all_rows or len(rows) <= SUMMARISED_ABOVE:
+        return [(label, counts, "red" if keep(label) else None) for label, counts in rows]
+    columns = len(rows[0][1])
+    shown: list[tuple[str, Counts, str | None]] = []
+    for name, pick in (("min", min), ("median", statistics.median_low), ("max", max)):
+        shown.append((f"{name} of {len(rows)}", [(pick(counts[column][0] for _, counts in rows),
+                                                  pick(counts[column][1] for _, counts in rows))
+                                                 for column in range(columns)], "bold"))
+    busiest = sorted(rows, key=lambda row: -busy(row[1]))[:BUSIEST]
+    shown += [(f"busiest: {label}", counts, None) for label, counts in busiest]
+    shown += [(label, counts, "red") for label, counts in rows if keep(label)]
+    return shown
+
+
+def per_robot_table(rows: list, all_robots: bool = False) -> Table:
+    """Robot-to-robot messages and bytes each robot sent and received, and its world traffic; above
+    ``SUMMARISED_ABOVE`` robots only min/median/max and the busiest, unless ``all_robots``."""
     robots = sorted({name for _, source, destination, _, _ in rows for name in (source, destination)
                      if robot_index(name) is not None}, key=robot_index)
-    table = Table(title="per robot (messages / bytes)")
-    for column in ("robot", "robot-to-robot sent", "robot-to-robot received", "from world", "to world"):
+    table = Table(title="per robot (messages/bytes)", caption="robot-to-robot sent and received; world: "
+                  "measurements from it, commands to it", caption_justify="left")
+    for column in ("robot", "sent", "received", "from world", "to world"):
         table.add_column(column, justify="right")
-    for name in robots:
-        table.add_row(
-            name,
-            _sum(rows, lambda kind, source, _, name=name: category_of(kind) == "robot" and source == name),
-            _sum(rows, lambda kind, _, destination, name=name: category_of(kind) == "robot" and destination == name),
-            _sum(rows, lambda _, source, destination, name=name: source == "world" and destination == name),
-            _sum(rows, lambda _, source, destination, name=name: source == name and destination == "world"),
-        )
+    counted = [(name, [
+        _sum(rows, lambda kind, source, _, name=name: category_of(kind) == "robot" and source == name),
+        _sum(rows, lambda kind, _, destination, name=name: category_of(kind) == "robot" and destination == name),
+        _sum(rows, lambda _, source, destination, name=name: source == "world" and destination == name),
+        _sum(rows, lambda _, source, destination, name=name: source == name and destination == "world"),
+    ]) for name in robots]
+    for label, counts, style in summarised(counted, all_robots, lambda counts: counts[0][0] + counts[1][0]):
+        table.add_row(label, *(f"{messages}/{size}" for messages, size in counts), style=style)
     return table
 
 
-def _sum(rows: list, match: Callable[[str, str, str], bool]) -> str:
-    """``"messages / bytes"`` over the traffic rows whose (kind, source, destination) match."""
+def _sum(rows: list, match: Callable[[str, str, str], bool]) -> tuple[int, int]:
+    """``(messages, bytes)`` over the traffic rows whose (kind, source, destination) match."""
     selected = [(count, size) for kind, source, destination, count, size in rows if match(kind, source, destination)]
-    return f"{sum(count for count, _ in selected)} / {sum(size for _, size in selected)}"
+    return sum(count for count, _ in selected), sum(size for _, size in selected)
 
 
-def per_link_table(report: MonitorReport) -> Table:
+def per_link_table(report: MonitorReport, all_robots: bool = False) -> Table:
     """Robot-to-robot messages and bytes on every directed link that carried any, as the monitor saw
-    them and as their senders counted them, ordered by sender then receiver (2N rows for a ring of N);
-    a link where the two differ is red."""
+    them and as their senders counted them, ordered by sender then receiver (2N rows for a ring of N;
+    above ``SUMMARISED_ABOVE`` links min/median/max and the busiest, unless ``all_robots``); a link
+    where the two differ is red, and always shown."""
     seen, said = robot_link_totals(report.received), robot_link_totals(report.sender_rows())
-    table = Table(title="robot-to-robot traffic per link (payload bytes)")
-    for column in ("link", "messages seen", "bytes seen", "messages sent", "bytes sent"):
+    table = Table(title="robot-to-robot traffic per link (messages/bytes)")
+    for column in ("link", "seen", "sent"):
         table.add_column(column, justify="right")
+    none = {"messages": 0, "bytes": 0}
+    counted = []
     for source, destination in sorted(seen.keys() | said.keys(), key=lambda pair: tuple(map(robot_index, pair))):
-        none = {"messages": 0, "bytes": 0}
         mine, theirs = seen.get((source, destination), none), said.get((source, destination), none)
-        table.add_row(f"{source} > {destination}", *(str(entry[field]) for entry in (mine, theirs)
-                                                     for field in ("messages", "bytes")),
-                      style=None if mine == theirs else "red")
+        counted.append((f"{source} > {destination}", [(entry["messages"], entry["bytes"]) for entry in (mine, theirs)]))
+    differing = {label for label, counts in counted if counts[0] != counts[1]}
+    for label, counts, style in summarised(counted, all_robots, lambda counts: counts[0][0],
+                                           keep=lambda label: label in differing):
+        table.add_row(label, *(f"{messages}/{size}" for messages, size in counts), style=style)
     return table
 
 
-def print_report(console: Console, report: MonitorReport) -> None:
+def outcome_lines(outcome: dict, robot_messages: int) -> list[str]:
+    """Ctime, Com-bar (against the constant strategy's 1) and the robot-to-robot messages saved,
+    from a run summary (:func:`agents.engine.summary`), each line under 80 columns."""
+    steps, robots = outcome["steps"], outcome["robots"]
+    converged = f"converged at step {outcome['ctime']} (Ctime)" if outcome.get("converged") else \
+        f"did not converge in {steps} steps"
+    com_bar = f"Com-bar {outcome['com_bar']:.3f} (constant 1)" if outcome.get("com_bar") is not None else \
+        "Com-bar - (not converged)"
+    saved, share = messages_saved(robots, steps, robot_messages)
+    return [f"outcome: {converged}; {com_bar}",
+            f"robot-to-robot messages {robot_messages}: {saved} saved ({share:.0%}) against the constant strategy"]
+
+
+def print_report(console: Console, report: MonitorReport, outcome: dict | None = None,
+                 all_robots: bool = False) -> None:
     """Traffic by category as the monitor saw it and as the senders counted it, per robot and per
-    robot-to-robot link; the verdict compares every link of the categories in ``COMPARED``."""
-    table = Table(title="traffic (payload bytes)")
-    for column in ("category", "messages seen", "bytes seen", "messages sent", "bytes sent", "bytes/message"):
+    robot-to-robot link (summarised above ``SUMMARISED_ABOVE`` robots unless ``all_robots``), the
+    run's outcome (``outcome``: its summary, when it has steps); the verdict compares every link of
+    the categories in ``COMPARED``."""
+    table = Table(title="traffic by category (payload bytes)", caption=CATEGORY_HELP, caption_justify="left")
+    for column in ("category", "msgs seen", "bytes seen", "msgs sent", "bytes sent", "B/msg"):
         table.add_column(column, justify="right")
     mine, theirs = report.monitor_totals(), report.sender_totals()
     for category in (*COMPARED, "monitoring"):
         seen = mine.get(category, {"messages": 0, "bytes": 0})
         sent = theirs.get(category, {"messages": 0, "bytes": 0})
         per_message = f"{seen['bytes'] / seen['messages']:.1f}" if seen["messages"] else "-"
-        table.add_row(category, str(seen["messages"]), str(seen["bytes"]), str(sent["messages"]),
-                      str(sent["bytes"]), per_message)
+        compared = category in COMPARED
+        table.add_row(CATEGORY_NAMES[category], str(seen["messages"]), str(seen["bytes"]),
+                      str(sent["messages"]) if compared else "-", str(sent["bytes"]) if compared else "-", per_message)
     console.print(table)
-    console.print(per_robot_table(report.received))
-    console.print(per_link_table(report))
+    console.print(per_robot_table(report.received, all_robots))
+    console.print(per_link_table(report, all_robots))
     verdict = "equal on every link" if report.consistent() else "DIFFERENT"
     rejected = ", ".join(f"{reason} {count}" for reason, count in report.rejected.items()) or "none"
-    ending = f"{report.end.reason} after {report.end.step} steps" if report.end else "no end record"
-    console.print(f"run: {ending}; monitor vs senders: {verdict}; rejected: {rejected}; late: {report.late}",
-                  highlight=False)
+    ending = f"{ending_text(report.end.reason)} after {report.end.step} steps" if report.end else "no end record"
+    console.print(f"run: {ending}; rejected: {rejected}; late: {report.late}", highlight=False)
+    console.print(f"monitor vs senders: {verdict}", highlight=False)
+    if outcome is not None:
+        print_outcome(console, outcome, report)
+
+
+def print_outcome(console: Console, outcome: dict, report: MonitorReport) -> None:
+    """The lines of :func:`outcome_lines` for a run summary and the robot-to-robot messages seen."""
+    for line in outcome_lines(outcome, report.monitor_totals().get("robot", {"messages": 0})["messages"]):
+        console.print(line, highlight=False)

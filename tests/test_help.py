@@ -1,0 +1,35 @@
+"""Every flag and positional of every ``ringtrack`` command says what it is for."""
+
+from __future__ import annotations
+
+import argparse
+
+from ringtrack.tools.cli import COMMANDS, build_parser
+
+
+def walk(parser: argparse.ArgumentParser, path: str = "ringtrack") -> list[tuple[str, argparse.Action]]:
+    """``(command path, action)`` of every argument of ``parser`` and of all its sub-commands."""
+    found: list[tuple[str, argparse.Action]] = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                found += walk(child, f"{path} {name}")
+        elif not isinstance(action, argparse._HelpAction):
+            found.append((path, action))
+    return found
+
+
+def test_every_argument_of_every_command_has_help() -> None:
+    actions = walk(build_parser(COMMANDS))
+    assert len({path for path, _ in actions}) >= 16  # every command and sub-command was walked
+    missing = [f"{path} {'/'.join(action.option_strings) or action.dest}" for path, action in actions
+               if action.help != argparse.SUPPRESS and not (action.help or "").strip()]
+    assert not missing, "arguments without help text: " + ", ".join(missing)
+
+
+def test_every_command_has_a_one_line_help() -> None:
+    parser = build_parser(COMMANDS)
+    subcommands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    listed = {choice.dest: choice.help for choice in subcommands._choices_actions}
+    assert set(listed) == set(subcommands.choices)
+    assert all(help_text and help_text.strip() for help_text in listed.values()), listed

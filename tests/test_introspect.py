@@ -1,0 +1,83 @@
+"""Looking at a live run from outside: ``ringtrack list``, ``echo`` and ``hz`` (tools/introspect.py,
+bus/observer.py) see it as it is and change nothing."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from ringtrack.bus.keys import Route, parse_any
+from ringtrack.bus.messages import SCHEMA, Rejected, Request, encode, peek
+from ringtrack.bus.observer import Heard
+from ringtrack.tools.cli import main
+from ringtrack.tools.introspect import echo_line
+from ringtrack.tools.runlog import read_log
+from tests.emulation import RINGTRACK, assert_equals_engine, processes_mentioning, start_spawn, stop_all
+
+pytestmark = pytest.mark.timeout(240)
+
+
+def test_keys_of_any_run_and_lines_of_any_message() -> None:
+    assert parse_any("ringtrack/0000002a/r1/r0/request") == (42, Route("r1", "r0", "request"))
+    assert parse_any("ringtrack/zz/r1/r0/request") is None and parse_any("ringtrack/2a/alive/r0") is None
+    payload = encode(Request(SCHEMA, 42, 7, 0, 1, 99))
+    message = peek(payload)
+    heard = Heard(42, Route("r1", "r0", "request"), "ringtrack/0000002a/r1/r0/request", payload, 0.0)
+    line = f"request     r0>r1         {len(payload):>4} B step 7: sender=0 receiver=1 nonce=99"
+    assert echo_line(heard, message) == line
+    with pytest.raises(Rejected):
+        peek(b"junk")
+    assert echo_line(heard, None).endswith("(not a message: dropped by every participant)")
+
+
+def test_bad_run_arguments_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["echo", "not-a-run", "--runs", str(tmp_path)]) == 2
+    assert "RUN 'not-a-run': give a run folder (holding run.json) or a run id in hex" in capsys.readouterr().err
+    assert main(["hz", "1f2e3d4c", "--runs", str(tmp_path)]) == 2
+    assert "give --connect ENDPOINT" in capsys.readouterr().err
+
+
+def ringtrack(*arguments: str) -> str:
+    """Run a ringtrack command as its own process (as a user would attach one) and return its output."""
+    done = subprocess.run([*RINGTRACK, *arguments], capture_output=True, timeout=60, env={"COLUMNS": "200",
+                          "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 0, done.stderr.decode()
+    return done.stdout.decode()
+
+
+def test_a_lockstep_run_watched_by_list_echo_and_hz_equals_the_engine(tmp_path: Path) -> None:
+    steps = 1500
+    process = start_spawn(tmp_path, "--steps", str(steps))
+    try:
+        deadline = time.monotonic() + 60
+        while not (logs := list(tmp_path.glob("*/log.jsonl"))) or b'"type":"step"' not in logs[0].read_bytes():
+            assert time.monotonic() < deadline and process.poll() is None
+            time.sleep(0.05)
+        folder = next(tmp_path.glob("*/run.json")).parent
+        listed = ringtrack("list", str(folder), "--duration", "0.5")
+        run = folder.name.rsplit("-", 1)[-1]
+        assert f"run {run}: 8 participants, 8 alive" in listed  # the observer itself is no participant
+        for name in ("world", "monitor", *(f"r{robot}" for robot in range(6))):
+            assert re.search(rf"^│ {name} +│ alive ", listed, re.MULTILINE), listed
+        assert f"ringtrack/{run}/monitor/world/tick" in listed
+        echoed = ringtrack("echo", str(folder), "--kind", "measurement", "--robot", "2", "--count", "5").splitlines()
+        assert len(echoed) == 5
+        assert all(re.match(r"measurement world>r2 +\d+ B step \d+: time=", line) for line in echoed), echoed
+        firsts = [int(re.search(r"step (\d+)", line).group(1)) for line in echoed]
+        assert firsts == list(range(firsts[0], firsts[0] + 5))  # one per step, none lost, in order
+        rates = ringtrack("hz", str(folder), "--reports", "1", "--period", "0.5")
+        assert re.search(r"measurement │ +\d+\.\d │ +\d+ │ +\d+\.\d", rates), rates
+        assert re.search(r"world>r0 │", rates), rates
+        assert re.search(r"world>monitor │ +\d+\.\d │ +\d+ │ +\d+\.\d", rates), rates
+        code = process.wait(timeout=180)
+    finally:
+        stop_all(process)
+    assert code == 0
+    log = read_log(folder / "log.jsonl")
+    assert len(log.steps) == steps and log.end["consistent"] is True and log.end["rejected"] == {}
+    assert_equals_engine(log)
+    assert processes_mentioning(str(folder)) == []
