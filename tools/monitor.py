@@ -19,7 +19,7 @@ from pathlib import Path
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
 from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic
-from ringtrack.bus.keys import MONITOR, WORLD, Keys, participants, robot_index
+from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import (
     Command,
     End,
