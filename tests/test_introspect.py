@@ -16,7 +16,7 @@ from ringtrack.bus.observer import Heard
 from ringtrack.tools.cli import main
 from ringtrack.tools.introspect import echo_line
 from ringtrack.tools.runlog import read_log
-from tests.emulation import RINGTRACK, assert_equals_engine, processes_mentioning, start_spawn, stop_all
+from tests.helpers import RINGTRACK, assert_equals_engine, processes_mentioning, start_spawn, stop_all
 
 pytestmark = pytest.mark.timeout(240)
 
