@@ -49,6 +49,7 @@ def ringtrack(*arguments: str) -> str:
     return done.stdout.decode()
 
 
+@pytest.mark.processes
 def test_a_lockstep_run_watched_by_list_echo_and_hz_equals_the_engine(tmp_path: Path) -> None:
     steps = 1500
     process = start_spawn(tmp_path, "--steps", str(steps))
