@@ -22,6 +22,7 @@ import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
@@ -98,7 +99,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     suite_parser.set_defaults(handler=run_suite)
 
 
-def machine() -> dict[str, object]:
+def machine() -> dict[str, Any]:
     """Core count, Python and library versions that a benchmark result depends on."""
     versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy",
                                                             "cryptography")}
@@ -162,7 +163,8 @@ def engine_table(results: dict, cores: object) -> Table:
 
 
 def run_engine_bench(args: argparse.Namespace) -> int:
-    results = {"benchmark": "engine", "machine": machine(), **engine_results(args.trials, parse_range(args.sweep))}
+    results: dict[str, Any] = {"benchmark": "engine", "machine": machine(),
+                               **engine_results(args.trials, parse_range(args.sweep))}
     out.print(engine_table(results, results["machine"]["cores"]))
     if args.json:
         write_json(args.json, results)
@@ -243,9 +245,9 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
         "run_folder": result["folder"],
     }
     if dashboard == "compare":
-        with_dashboard = results[variants[1]]
-        row["runs_steps_per_s_with_dashboard"] = [run["steps_per_s"] for run in with_dashboard]
-        row["steps_per_s_with_dashboard"] = median_of(with_dashboard, "steps_per_s")
+        drawn = results[variants[1]]
+        row["runs_steps_per_s_with_dashboard"] = [run["steps_per_s"] for run in drawn]
+        row["steps_per_s_with_dashboard"] = median_of(drawn, "steps_per_s")
         row["dashboard_cost"] = 1.0 - row["steps_per_s_with_dashboard"] / row["steps_per_s"]
     if secure == "compare":
         plain, secured_runs = results[variants[0]], results[variants[1]]
@@ -340,7 +342,7 @@ def run_emulator_bench(args: argparse.Namespace) -> int:
     except BenchFailed as failure:
         err.print(str(failure), highlight=False)
         return 1
-    results: dict[str, object] = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy,
+    results: dict[str, Any] = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy,
                                   "rows": rows}
     if len(rows) == 1:
         results["steps_per_s"] = rows[0]["steps_per_s"]
@@ -400,7 +402,7 @@ def run_latency_bench(args: argparse.Namespace) -> int:
     except BenchFailed as failure:
         err.print(str(failure), highlight=False)
         return 1
-    results = {"benchmark": "latency", "machine": machine(), **result}
+    results: dict[str, Any] = {"benchmark": "latency", "machine": machine(), **result}
     out.print(latency_table(result, results["machine"]["cores"]))
     if args.json:
         write_json(args.json, results)
@@ -409,7 +411,7 @@ def run_latency_bench(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------------------- suite
 def run_suite(args: argparse.Namespace) -> int:
-    results: dict[str, object] = {"benchmark": "suite", "machine": machine()}
+    results: dict[str, Any] = {"benchmark": "suite", "machine": machine()}
     cores = results["machine"]["cores"]
     try:
         results["engine"] = engine_results(30, parse_range("3-30"))
