@@ -85,7 +85,9 @@ class BusConfig:
 # One small Tokio runtime per process instead of one worker pool per runtime: a team runs many
 # processes on few cores, where idle worker threads cost more than they give (measured: CPU per
 # message round trip 160 us -> 90 us). An explicit ZENOH_RUNTIME in the environment wins.
-COMPACT_RUNTIME = "(app: (worker_threads: 1), acc: (handover: app), rx: (handover: app), tx: (handover: app), net: (handover: app))"
+COMPACT_RUNTIME = (
+    "(app: (worker_threads: 1), acc: (handover: app), rx: (handover: app), tx: (handover: app), net: (handover: app))"
+)
 
 
 def open_session(config: BusConfig, name: str | None = None) -> zenoh.Session:

@@ -61,7 +61,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     emulator_parser.add_argument("--steps", type=at_least(1), default=1000, help="steps per run (default 1000)")
     emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self",
                                  help="communication strategy (default self)")
-    emulator_parser.add_argument("--repeat", type=at_least(1), default=1, help="runs per configuration; medians reported")
+    emulator_parser.add_argument("--repeat", type=at_least(1), default=1,
+                                 help="runs per configuration; medians reported")
     emulator_parser.add_argument("--robots-per-process", type=at_least(1), default=1, metavar="K",
                                  help="host K robots per process (each its own Zenoh participant)")
     emulator_parser.add_argument("--topology", choices=["mesh", "star"], help="as for spawn (default: by size)")
@@ -346,7 +347,8 @@ def run_emulator_bench(args: argparse.Namespace) -> int:
                                   "rows": rows}
     if len(rows) == 1:
         results["steps_per_s"] = rows[0]["steps_per_s"]
-    out.print(emulator_table(rows, f"lockstep emulator ({results['machine']['cores']} cores, {args.strategy} strategy)"))
+    cores = results["machine"]["cores"]
+    out.print(emulator_table(rows, f"lockstep emulator ({cores} cores, {args.strategy} strategy)"))
     if args.json:
         write_json(args.json, results)
     return 0
