@@ -82,3 +82,23 @@ def test_a_lockstep_run_watched_by_list_echo_and_hz_equals_the_engine(tmp_path: 
     assert len(log.steps) == steps and log.end["consistent"] is True and log.end["rejected"] == {}
     assert_equals_engine(log)
     assert processes_mentioning(str(folder)) == []
+
+
+def test_echo_and_hz_give_up_on_a_run_that_is_not_running(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from ringtrack.world.scenario import load_scenario
+
+    folder = tmp_path / "20261201T000000Z-paper-stationary-0000abcd"
+    folder.mkdir()
+    (folder / "scenario.toml").write_bytes(load_scenario("paper-stationary").to_toml())
+    (folder / "run.json").write_text(json.dumps({"run": "0000abcd", "connect": ["tcp/127.0.0.1:9"]}))
+    started = time.monotonic()
+    assert main(["echo", str(folder)]) == 1
+    assert "echo: nothing of run 0000abcd heard for 3 s: is it running?" in capsys.readouterr().err
+    assert main(["hz", "abcd", "--runs", str(tmp_path), "--period", "10"]) == 1
+    assert "hz: nothing of run 0000abcd heard" in capsys.readouterr().err
+    assert time.monotonic() - started < 30
+    assert main(["list", str(folder), "--duration", "0.2"]) == 0
+    listed = capsys.readouterr().out
+    assert "run 0000abcd: 8 participants, 0 alive" in listed and listed.count(" gone ") == 8

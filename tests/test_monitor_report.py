@@ -97,7 +97,8 @@ def test_reports_of_large_teams_are_summarised_unless_all_robots() -> None:
     from ringtrack.tools.views import per_link_table, per_robot_table
 
     robots = 30
-    rows = [("request", f"r{robot}", f"r{(robot + 1) % robots}", robot + 1, 18 * (robot + 1)) for robot in range(robots)]
+    rows = [("request", f"r{robot}", f"r{(robot + 1) % robots}", robot + 1, 18 * (robot + 1))
+            for robot in range(robots)]
     rows += [("measurement", "world", f"r{robot}", 10, 500) for robot in range(robots)]
     console = Console(record=True, width=80, force_terminal=False, color_system=None)
     console.print(per_robot_table(rows))

@@ -25,10 +25,11 @@ from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
 from ringtrack.bus.keys import robot_name
 from ringtrack.bus.messages import KINDS, AnyMessage, End, Rejected, peek
 from ringtrack.bus.observer import Heard, Observer, Token
-from ringtrack.tools.console import UsageError, out
+from ringtrack.tools.console import UsageError, err, out
 from ringtrack.tools.options import at_least, positive
 
 POLL_S = 0.05
+QUIET_S = 3.0  # echo and hz give up on a run heard nothing of for this long
 HEX_RUN = re.compile(r"^[0-9a-fA-F]{1,8}$")
 
 
@@ -185,15 +186,37 @@ def _braced(names: list[str]) -> str:
     return names[0] if len(names) == 1 else "{" + ",".join(names) + "}"
 
 
+class Quiet:
+    """Ends a watch of one run: nothing of it heard for ``QUIET_S`` seconds (not running, or
+    unreachable), or its world withdrew its token (the run is over)."""
+
+    def __init__(self, run: int | None) -> None:
+        self.run = run
+        self.last = time.monotonic()
+        self.reason = ""
+
+    def heard(self, item: Heard | Token) -> None:
+        self.last = item.at
+        if isinstance(item, Token) and item.name == "world" and not item.up:
+            self.reason = "the world left: the run is over"
+
+    def over(self) -> bool:
+        if not self.reason and time.monotonic() - self.last > QUIET_S:
+            self.reason = f"nothing of run {self.run:08x} heard for {QUIET_S:g} s: is it running? (ringtrack list)"
+        return bool(self.reason)
+
+
 # ---------------------------------------------------------------------------- echo
 def run_echo(args: argparse.Namespace) -> int:
     target = resolve(args)
     kinds = set(args.kind or KINDS)
     robot = None if args.robot is None else robot_name(args.robot)
     printed = 0
+    quiet = Quiet(target.run)
     with observer(target, args.mode) as bus:
-        while True:
+        while not quiet.over():
             for item in bus.poll():
+                quiet.heard(item)
                 if not isinstance(item, Heard) or item.route.kind not in kinds:
                     continue
                 if robot is not None and robot not in (item.route.source, item.route.destination):
@@ -207,6 +230,8 @@ def run_echo(args: argparse.Namespace) -> int:
                 if (args.count and printed >= args.count) or isinstance(message, End):
                     return 0
             time.sleep(POLL_S)
+    err.print(f"echo: {quiet.reason}", highlight=False)
+    return 1
 
 
 def echo_line(heard: Heard, message: AnyMessage | None) -> str:
@@ -243,8 +268,13 @@ def run_hz(args: argparse.Namespace) -> int:
         messages: Counter[tuple[str, str]] = Counter()  # (what, name) -> messages
         sizes: Counter[tuple[str, str]] = Counter()
         ended = False
+        quiet = Quiet(target.run)
         while not ended:
+            if quiet.over():
+                err.print(f"hz: {quiet.reason}", highlight=False)
+                return 1
             for item in bus.poll():
+                quiet.heard(item)
                 if isinstance(item, Heard):
                     for key in (("kind", item.route.kind), ("link", f"{item.route.source}>{item.route.destination}")):
                         messages[key] += 1
