@@ -22,6 +22,7 @@ USER_ERRORS = (
     ("ringtrack.world.scenario", "ScenarioError"),
     ("ringtrack.world.geometry", "RegionError"),
     ("ringtrack.tools.console", "UsageError"),
+    ("ringtrack.tools.console", "OutputError"),
     ("ringtrack.bus.config", "BusError"),
     ("ringtrack.tools.runlog", "LogError"),
 )
@@ -58,7 +59,7 @@ def main(argv: Sequence[str] | None = None, commands: Sequence[str] = COMMANDS) 
         from ringtrack.tools.console import err
 
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
-        return 2
+        return getattr(error, "exit_code", 2)
     except KeyboardInterrupt:
         print("ringtrack: interrupted", file=sys.stderr)
         return 130

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from collections.abc import Callable
 from pathlib import Path
 
+from ringtrack.tools.console import unwritable
 from ringtrack.world.scenario import Scenario, load_scenario
 
 DEFAULT_SCENARIO = "paper-stationary"
@@ -84,8 +84,8 @@ def at_least(minimum: int) -> Callable[[str], int]:
 
 
 def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
-    """An argparse type: a file to write, ending in one of ``suffixes``; its folder is made (or
-    found writable) before any work starts, so a long run never fails at its very end."""
+    """An argparse type: a file to write, ending in one of ``suffixes``; its folder is made and the
+    file opened for writing before any work starts, so a long run never fails at its very end."""
 
     def parse(text: str) -> Path:
         path = Path(text)
@@ -93,12 +93,9 @@ def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
             raise argparse.ArgumentTypeError(f"{text!r}: give a file name ending in {' or '.join(suffixes)}")
         if path.is_dir():
             raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name ending in {suffixes[0]}")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise argparse.ArgumentTypeError(f"{text!r}: cannot make its folder ({error.strerror}); give a writable path") from None
-        if not os.access(path.parent, os.W_OK):
-            raise argparse.ArgumentTypeError(f"{text!r}: its folder is not writable; give a writable path")
+        problem = unwritable(path)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot write there ({problem}); give a writable path")
         return path
 
     return parse

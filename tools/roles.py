@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 from pathlib import Path
+from typing import NoReturn
 
 from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
 from ringtrack.tools.console import UsageError, err, out
@@ -200,23 +201,41 @@ def run_monitor_role(args: argparse.Namespace) -> int:
 
     from ringtrack.tools.dashboard import TeamModel
     from ringtrack.tools.monitor import run_monitor
+    from ringtrack.tools.runlog import LogWriteError
     from ringtrack.tools.views import LiveView, print_report
 
     scenario = scenario_from_arguments(args)
     model = TeamModel(scenario, args.clock)
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
-    with LiveView(console, model, dashboard) as view:
-        code, report = asyncio.run(
-            run_monitor(scenario, scenario.seed, args.run, bus_config(args), args.log, scenario.max_steps,
-                        args.clock, model, view.refresh, args.exit_with_parent)
-        )
+    try:
+        with LiveView(console, model, dashboard) as view:
+            code, report = asyncio.run(
+                run_monitor(scenario, scenario.seed, args.run, bus_config(args), args.log, scenario.max_steps,
+                            args.clock, model, view.refresh, args.exit_with_parent)
+            )
+    except LogWriteError as error:
+        log_write_failed(error)
     if report is not None:
         print_report(out, report)
         if not report.consistent():
             err.print("monitor: warning: the traffic seen differs from what the senders counted (lost or injected "
                       "messages; see the table and the log's end record)", highlight=False)
     return finished("monitor", code)
+
+
+def log_write_failed(error: Exception) -> NoReturn:
+    """End a monitor whose run log could not be written with ``LogWriteError.exit_code``, whatever
+    becomes of its message: its standard error may be a file on the same full disk, and a failed
+    flush at interpreter exit would turn the code into 120."""
+    import contextlib
+    import os
+
+    from ringtrack.tools.runlog import LogWriteError
+
+    with contextlib.suppress(OSError):
+        err.print(f"monitor: {error}; stopping", highlight=False, markup=False)
+    os._exit(LogWriteError.exit_code)
 
 
 def finished(role: str, code: int) -> int:

@@ -21,7 +21,7 @@ from ringtrack.agents import engine
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id
-from ringtrack.tools.console import UsageError, err, out, write_json
+from ringtrack.tools.console import OutputError, UsageError, err, out, write_json
 from ringtrack.tools.options import (
     JSON_FILE,
     LOG_FILE,
@@ -30,7 +30,7 @@ from ringtrack.tools.options import (
     positive,
     scenario_from_arguments,
 )
-from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.tools.runlog import LogWriteError, history_from_log, read_log
 from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
 from ringtrack.world.scenario import Scenario
 
@@ -88,9 +88,16 @@ def run_spawn(args: argparse.Namespace) -> int:
 
 
 def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
+    """Make ``runs/<UTC time>-<name>-<run id>/``; a ``runs`` that cannot hold it (a file, a read-only
+    file system, no permission) is a :class:`UsageError` naming ``--runs``, before any process starts."""
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
     folder = runs / f"{stamp}-{scenario.name}-{run:08x}"
-    folder.mkdir(parents=True, exist_ok=False)
+    try:
+        folder.mkdir(parents=True, exist_ok=False)
+    except OSError as error:
+        problem = "it is not a folder" if isinstance(error, NotADirectoryError) else error.strerror
+        raise UsageError(f"--runs {runs}: cannot make a run folder there ({problem}); give a writable folder "
+                         "with --runs DIR") from None
     return folder
 
 
@@ -170,24 +177,42 @@ def spawn_team(
             interrupted = f"stalled: {error}"
         finally:
             supervisor.stop()
-    failures = {child.name: child.process.returncode for child in supervisor.children if child.process.returncode}
-    for child in supervisor.children:
-        if child.process.returncode not in (0, None, -15, 130) and not interrupted:
-            detail = child.stderr_tail()
-            err.print(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""),
-                      highlight=False)
+    failures = {child.name: child.process.returncode for child in supervisor.crashed()}
+    if not interrupted:
+        for line in _failure_lines(supervisor, log_path):
+            err.print(line, highlight=False, markup=False)
     result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started)
     result["topology"] = topology
     result["startup_s"] = first_step.after
     result["failures"] = failures
     result["stopped"] = interrupted or None
     result["exit_code"] = 130 if interrupted.startswith(("interrupted", "terminated")) else int(bool(failures or interrupted))
-    write_json(folder / "summary.json", result)
+    try:
+        write_json(folder / "summary.json", result)
+    except OutputError as error:
+        err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
+        result["exit_code"] = result["exit_code"] or 1
     if interrupted:
         err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
+
+
+def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:
+    """One line per child that crashed on its own, with the tail of its standard error; a monitor
+    that stopped because the run log could not be written (a full disk, whose stderr file cannot
+    hold its message either) says which file and how many complete steps it holds."""
+    lines = []
+    for child in supervisor.crashed():
+        if child.name == "monitor" and child.process.returncode == LogWriteError.exit_code:
+            steps = len(read_log(log_path).steps) if log_path.is_file() else 0
+            lines.append(f"ringtrack: error: {log_path}: the run log could not be written (disk full or not "
+                         f"writable) after {steps} complete steps; the team was stopped")
+            continue
+        detail = child.stderr_tail()
+        lines.append(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""))
+    return lines
 
 
 def process_budget() -> int:

@@ -50,6 +50,7 @@ class Supervisor:
     def __init__(self, folder: Path) -> None:
         self.folder = folder
         self.children: list[Child] = []
+        self.ended: set[str] = set()  # children still running when stop() signalled them: not crashes
 
     def start(self, name: str, argv: Sequence[str], stdout: int | IO[bytes] | None = subprocess.DEVNULL) -> Child:
         stderr_path = self.folder / f"{name}.stderr"
@@ -66,6 +67,12 @@ class Supervisor:
 
     def failed(self) -> list[Child]:
         return [child for child in self.children if child.process.poll() not in (None, 0)]
+
+    def crashed(self) -> list[Child]:
+        """Children that failed on their own (a non-zero exit other than a stop they were asked
+        for): not those ``stop()`` ended, nor those that obeyed a SIGTERM or Ctrl-C."""
+        return [child for child in self.children if child.name not in self.ended
+                and child.process.returncode not in (0, None, -15, 130)]
 
     def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
              watched: Path | None = None, on_poll: Callable[[], None] | None = None) -> None:
@@ -107,6 +114,7 @@ class Supervisor:
         for phase_end, group in ((started + grace_s / 2, self.children[:1]), (deadline, self.children)):
             for child in group:
                 if child.process.poll() is None:
+                    self.ended.add(child.name)
                     with contextlib.suppress(ProcessLookupError):
                         child.process.send_signal(signal.SIGTERM)
             while self.running() and time.monotonic() < phase_end:
