@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
 import signal
 import sys
@@ -20,7 +21,7 @@ from dataclasses import dataclass, field
 
 from ringtrack.bus.config import BusConfig, open_session
 from ringtrack.bus.keys import WORLD, Keys
-from ringtrack.bus.participant import Event, Interrupt, Participant, Presence
+from ringtrack.bus.participant import Event, Interrupt, Participant, Presence, peak_rss_kib
 
 
 class Interrupts:
@@ -83,9 +84,29 @@ async def joined(
     try:
         yield participant
     finally:
+        write_final_counts(participant)
         interrupts.remove(participant)
         participant.close()
         session.close()
+
+
+COUNTS_FOLDER_ENV = "RINGTRACK_COUNTS_FOLDER"  # set by a supervisor (spawn) to its run folder
+
+
+def write_final_counts(participant: Participant) -> None:
+    """With ``RINGTRACK_COUNTS_FOLDER`` set, write what ``participant`` sent (its traffic rows) and
+    its peak memory (KiB) to ``<folder>/<name>.sent.json`` as it leaves: the senders' own counts,
+    which a supervisor reads when the monitor that collects them was lost. Best effort: a process
+    killed by SIGKILL writes nothing, and a file that cannot be written is skipped."""
+    folder = os.environ.get(COUNTS_FOLDER_ENV)
+    if not folder:
+        return
+    path = os.path.join(folder, f"{participant.name}.sent.json")
+    with contextlib.suppress(OSError):
+        with open(f"{path}.partial", "w") as file:
+            json.dump({"name": participant.name, "sent": participant.counter.sent_table(),
+                       "rss_kib": peak_rss_kib()}, file)
+        os.replace(f"{path}.partial", path)
 
 
 # A token's withdrawal travels ahead of the data its owner sent before leaving (liveliness

@@ -32,7 +32,7 @@ from ringtrack.bus.messages import (
     Tick,
     Traffic,
 )
-from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, peak_rss_kib
 from ringtrack.bus.runtime import Interrupts, Roster, gather_until, joined
 from ringtrack.tools.dashboard import TeamModel
 from ringtrack.tools.runlog import LogWriter, step_record
@@ -333,7 +333,7 @@ async def _watch(
         received=participant.counter.received_table(),
         senders={name: stats.sent for name, stats in finals.items()},
         rejected=participant.counter.rejected_table(),
-        rss_kib={name: stats.rss_kib for name, stats in finals.items()},
+        rss_kib={name: stats.rss_kib for name, stats in finals.items()} | {MONITOR: peak_rss_kib()},
         end=end,
         late=recorder.late,
         faults=sum((Counter(stats.faults) for stats in finals.values()), Counter()),

@@ -250,14 +250,19 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
     if log.steps:
         result.update(engine.summary(history_from_log(log)))
     end = log.end or {}
-    traffic = [tuple(row) for row in end.get("traffic", [])]
+    senders = supervisor.senders_counts()
+    if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it
+        traffic = [tuple(row) for counts in senders.values() for row in counts["sent"]]
+        result["monitor_lost"] = True
+    else:
+        traffic = [tuple(row) for row in end.get("traffic", [])]
     result["messages"] = {category: entry["messages"] for category, entry in totals_by_category(traffic).items()}
     result["bytes"] = {category: entry["bytes"] for category, entry in totals_by_category(traffic).items()}
     result["by_kind"] = totals_by_kind(traffic)
     result["monitor_equals_senders"] = end.get("consistent")
     result["faults"] = end.get("faults", {})
     result["rejected"] = end.get("rejected", {})
-    result["rss_kib"] = end.get("rss_kib", {})
+    result["rss_kib"] = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
     result["end_reason"] = end.get("reason")
     if end.get("wall_s") and end.get("steps"):
         result["steps_per_s"] = end["steps"] / end["wall_s"]
@@ -269,6 +274,7 @@ def _summary_line(result: dict) -> str:
         return f"run folder: {result['folder']}"
     converged = f"converged at step {result['ctime']}" if result.get("converged") else "did not converge"
     robot = result.get("messages", {}).get("robot", 0)
+    counted = " (the senders' counts: the monitor was lost)" if result.get("monitor_lost") else ""
     speed = f", {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
     return (f"{result['robots']} robots, {result['strategy']} strategy: {converged} in {result['steps']} steps"
-            f"{speed}; robot-to-robot messages {robot}; run folder {result['folder']}")
+            f"{speed}; robot-to-robot messages {robot}{counted}; run folder {result['folder']}")

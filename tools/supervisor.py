@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import subprocess
 import threading
@@ -20,6 +21,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+from ringtrack.bus.runtime import COUNTS_FOLDER_ENV
 from ringtrack.tools.console import UsageError
 
 ANNOUNCE_TIMEOUT_S = 20.0
@@ -56,7 +58,8 @@ class Supervisor:
         stderr_path = self.folder / f"{name}.stderr"
         with stderr_path.open("wb") as stderr:
             process = subprocess.Popen(
-                list(argv), stdin=subprocess.PIPE, stdout=stdout, stderr=stderr, start_new_session=True
+                list(argv), stdin=subprocess.PIPE, stdout=stdout, stderr=stderr, start_new_session=True,
+                env={**os.environ, COUNTS_FOLDER_ENV: str(self.folder)},
             )
         child = Child(name, process, stderr_path)
         self.children.append(child)
@@ -64,6 +67,16 @@ class Supervisor:
 
     def running(self) -> list[Child]:
         return [child for child in self.children if child.process.poll() is None]
+
+    def senders_counts(self) -> dict[str, dict]:
+        """What each child's participants said they sent as they left (``<name>.sent.json``, see
+        :func:`bus.runtime.write_final_counts`), by participant name."""
+        found = {}
+        for path in sorted(self.folder.glob("*.sent.json")):
+            with contextlib.suppress(OSError, ValueError):
+                counts = json.loads(path.read_text())
+                found[counts["name"]] = counts
+        return found
 
     def failed(self) -> list[Child]:
         return [child for child in self.children if child.process.poll() not in (None, 0)]
