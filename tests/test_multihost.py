@@ -110,14 +110,13 @@ def run_team(hosts: Hosts, log: Path, via_router: bool, steps: int | None = None
     common += ["--steps", str(steps)] if steps else []
     hub = [f"tcp/{address}:{PORT}" for address in hosts.addresses["a"]]
     world_listen = [flag for endpoint in hub for flag in ("--listen", endpoint)]
-    stop = [] if steps else ["--until-converged"]
     started = time.monotonic()
     if via_router:
         hosts.start("a", "router", *world_listen)
         time.sleep(0.5)
-        world = hosts.start("a", "world", *common, *stop, "--mode", "client", "--connect", hub[0])
+        world = hosts.start("a", "world", *common, "--mode", "client", "--connect", hub[0])
     else:
-        world = hosts.start("a", "world", *common, *stop, *world_listen)
+        world = hosts.start("a", "world", *common, *world_listen)
     time.sleep(0.5)
     joining = ["--mode", "client"] if via_router else []
     reachable = [] if via_router else ["--listen", f"tcp/{hosts.addresses['a'][0]}:0"]

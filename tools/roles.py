@@ -20,8 +20,6 @@ def register(commands: argparse._SubParsersAction) -> None:
     world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
-    world.add_argument("--until-converged", action="store_true",
-                       help="end the run at the first step whose Cerr is below the threshold")
     world.set_defaults(handler=run_world_role)
 
     robot = commands.add_parser("robot", help="run one robot process")
@@ -64,7 +62,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    add_scenario_arguments(parser, steps_help="steps to run (default: control.max_steps)")
+    add_scenario_arguments(parser, steps_help="run exactly this many steps (default: the world ends the run at "
+                           "convergence, at most control.max_steps)")
     parser.add_argument("--run", type=run_id, default=0, metavar="HEX", help="run id shared by the team (hex)")
     parser.add_argument("--mode", choices=["peer", "router", "client"], default="peer", help="Zenoh mode")
     parser.add_argument("--listen", action="append", metavar="ENDPOINT",
@@ -120,7 +119,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         rate=args.rate,
         expect_monitor=args.monitor,
         announce=args.announce,
-        until_converged=args.until_converged,
+        until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
     )
     config = bus_config(args, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))

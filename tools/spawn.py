@@ -146,7 +146,7 @@ def spawn_team(
     with Supervisor(folder) as supervisor:
         try:
             with terminate_as_exception():
-                stop_rule = ["--until-converged"] if until_converged else []
+                stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
                                            "--announce", str(announce), *stop_rule])

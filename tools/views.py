@@ -172,5 +172,7 @@ def print_report(console: Console, report: MonitorReport) -> None:
     verdict = "equal on every link" if report.consistent() else "DIFFERENT"
     rejected = ", ".join(f"{reason} {count}" for reason, count in report.rejected.items()) or "none"
     ending = f"{report.end.reason} after {report.end.step} steps" if report.end else "no end record"
+    if report.end is not None and report.end.reason == "converged":
+        ending += f" (Ctime = {report.end.step} steps)"
     console.print(f"run: {ending}; monitor vs senders: {verdict}; rejected: {rejected}; late: {report.late}",
                   highlight=False)
