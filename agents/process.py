@@ -18,6 +18,7 @@ from typing import Literal
 
 from ringtrack.agents.node import Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
+from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, robot_index, robot_name
 from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
@@ -59,8 +60,11 @@ async def run_robot(
         participant.listen(keys.inbox(node.name))
         participant.listen(keys.inbox(BROADCAST))
         participant.watch("alive")
+        neighbours = {robot_name(node.predecessor), robot_name(node.successor)}
+        await refuse_if_alive(participant, neighbours)
         participant.announce("alive")
-        needed = {WORLD, robot_name(node.predecessor), robot_name(node.successor)}
+        claim = IdClaim(participant)
+        needed = {WORLD, *neighbours}
         needed |= {MONITOR} if expect_monitor else set()
         needed |= {FUSION} if node.mode == "centralized" else set()
         roster = Roster()
@@ -70,8 +74,9 @@ async def run_robot(
         participant.announce("ready")
         link = RobotLink(participant, node, reply_timeout)
         code = await _serve(link, roster, events)
+        claim.close()
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
-                 "ignored_requests": node.ignored_requests}
+                 "ignored_requests": node.ignored_requests, "id_collisions": len(claim.rivals)}
         participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
         if expect_monitor and code != 130:
             await linger(participant, roster, {MONITOR})

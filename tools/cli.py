@@ -24,6 +24,7 @@ USER_ERRORS = (
     ("ringtrack.tools.console", "UsageError"),
     ("ringtrack.tools.console", "OutputError"),
     ("ringtrack.bus.config", "BusError"),
+    ("ringtrack.bus.identity", "IdCollision"),
     ("ringtrack.tools.runlog", "LogError"),
 )
 

@@ -194,6 +194,9 @@ def spawn_team(
         result["exit_code"] = result["exit_code"] or 1
     if interrupted:
         err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
+    if result.get("id_collisions"):
+        err.print("ringtrack: warning: two processes ran as the same robot (an id collision; see the robots' stderr)",
+                  highlight=False)
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
@@ -264,6 +267,7 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
     result["rejected"] = end.get("rejected", {})
     result["rss_kib"] = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
     result["end_reason"] = end.get("reason")
+    result["id_collisions"] = end.get("notes", {}).get("id_collisions", 0)
     if end.get("wall_s") and end.get("steps"):
         result["steps_per_s"] = end["steps"] / end["wall_s"]
     return result
