@@ -7,8 +7,9 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from ringtrack.tools.console import unwritable
+from ringtrack.tools.console import err, unwritable
 from ringtrack.world.scenario import Scenario, load_scenario
+from ringtrack.world.threshold import loose_threshold
 
 DEFAULT_SCENARIO = "paper-stationary"
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")  # what matplotlib writes here
@@ -54,6 +55,14 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
         duplicate=args.duplicate,
         communication_range=args.communication_range,
     )
+
+
+def warn_if_threshold_loose(scenario: Scenario) -> None:
+    """One warning line on stderr when the scenario's convergence threshold is too loose to mean
+    anything for its team size (:func:`world.threshold.loose_threshold`)."""
+    problem = loose_threshold(math.degrees(scenario.threshold), scenario.robots)
+    if problem is not None:
+        err.print(f"ringtrack: warning: {problem}", highlight=False, markup=False)
 
 
 def positive(text: str) -> float:

@@ -10,7 +10,13 @@ from typing import NoReturn
 
 from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
 from ringtrack.tools.console import UsageError, err, out
-from ringtrack.tools.options import LOG_FILE, add_scenario_arguments, positive, scenario_from_arguments
+from ringtrack.tools.options import (
+    LOG_FILE,
+    add_scenario_arguments,
+    positive,
+    scenario_from_arguments,
+    warn_if_threshold_loose,
+)
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -113,6 +119,7 @@ def run_world_role(args: argparse.Namespace) -> int:
     from ringtrack.world.process import WorldOptions, run_world
 
     scenario = scenario_from_arguments(args)
+    warn_if_threshold_loose(scenario)
     options = WorldOptions(
         steps=scenario.max_steps,
         clock=args.clock,

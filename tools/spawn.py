@@ -29,6 +29,7 @@ from ringtrack.tools.options import (
     at_least,
     positive,
     scenario_from_arguments,
+    warn_if_threshold_loose,
 )
 from ringtrack.tools.runlog import LogWriteError, history_from_log, read_log
 from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
@@ -70,6 +71,7 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def run_spawn(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
+    warn_if_threshold_loose(scenario)
     result = spawn_team(
         scenario,
         clock=args.clock,
