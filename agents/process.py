@@ -76,7 +76,8 @@ async def run_robot(
         code = await _serve(link, roster, events)
         claim.close()
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
-                 "ignored_requests": node.ignored_requests, "id_collisions": len(claim.rivals)}
+                 "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,
+                 "id_collisions": len(claim.rivals)}
         participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
         if expect_monitor and code != 130:
             await linger(participant, roster, {MONITOR})

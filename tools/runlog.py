@@ -281,6 +281,7 @@ class EndRecord(Record, tag="end"):
     senders: dict[str, list[TrafficRow]] = {}
     rejected: dict[str, int] = {}
     late: Count = 0
+    dropped_ahead: Count = 0  # messages for steps too far ahead of the run (forged), dropped by the monitor
     rss_kib: dict[str, int] = {}
     consistent: bool | None = None
     faults: dict[str, int] = {}

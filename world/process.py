@@ -81,6 +81,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         try:
             for index in range(options.steps):
                 await step_once(participant, world, roster, start + (index + 1) * period)
+                refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
                 world.advance()
                 if converged:
@@ -95,6 +96,13 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         participant.send(MONITOR, participant.stats(final=True))
         await linger(participant, roster, team | ({MONITOR} if options.expect_monitor else set()))
         return code
+
+
+def refuse_empty_ring(world: WorldState) -> None:
+    """Raise :class:`RunStopped` once no robot is left in the ring (they all crashed, or all quit on
+    a forged End): such a run ends as failed, never as done or converged."""
+    if not world.live and not world.rejoining:
+        raise RunStopped(f"every robot left the ring by step {world.step}")
 
 
 def _publish(participant: Participant, world: WorldState) -> None:
