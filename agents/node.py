@@ -98,6 +98,7 @@ class RobotNode:
             self.centre = scenario.region.clamp_interior(prior, scenario.estimation.clamp_margin)
         self.covariance: Covariance | None = None
         self.waiting_for_estimate = False
+        self.estimate_step = 0  # step of the centre's estimate the robot steers about (0: none yet)
         self.step = 0
         self.position: FloatArray | None = None
         self.trigger = 0
@@ -161,12 +162,18 @@ class RobotNode:
         return [*outgoing, *self._decide()]
 
     def on_estimate(self, estimate: Estimate) -> Outgoing:
-        if not self.waiting_for_estimate or estimate.step != self.step:
-            return []  # an estimate of a step this robot has left
-        self.waiting_for_estimate = False
+        """Steer about the centre's estimate: at once when it is this step's and the robot waits for
+        it; one of a step the robot has left (realtime: a centre that fell behind) is still newer than
+        the one it holds, and is adopted for its next decision; an older or repeated one is ignored."""
+        if estimate.step <= self.estimate_step or estimate.step > self.step:
+            return []
+        self.estimate_step = estimate.step
         margin = self.scenario.estimation.clamp_margin
         self.centre = self.scenario.region.clamp_interior(np.asarray(estimate.mean), margin)
         self.covariance = estimate.covariance
+        if not self.waiting_for_estimate or estimate.step != self.step:
+            return []
+        self.waiting_for_estimate = False
         return self._decide()
 
     def on_estimate_lost(self) -> Outgoing:
