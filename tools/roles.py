@@ -24,6 +24,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     _common(world)
     world.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
     world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
+    world.add_argument("--lockstep-wait", type=positive, default=10.0, metavar="S",
+                       help="lockstep: treat a robot silent this many seconds in one step as gone (default 10)")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
     world.set_defaults(handler=run_world_role)
@@ -34,7 +36,8 @@ def register(commands: argparse._SubParsersAction) -> None:
                        help="robot index 0..N-1 in counter-clockwise order; 0-7 or 0,2,4 runs several robots in "
                        "this process, each its own Zenoh participant")
     robot.add_argument("--reply-timeout", type=positive, metavar="S",
-                       help="realtime: wall seconds a poll waits for replies (default: wait, as lockstep)")
+                       help="wall seconds a poll waits for replies (spawn: a step period in realtime, half the --lockstep-wait "
+                       "in lockstep; default: wait)")
     robot.add_argument("--join", type=Path, metavar="RUN_FOLDER",
                        help="join the running team of a spawn run folder (scenario, run id, endpoints)")
     robot.set_defaults(handler=run_robot_role)
@@ -127,6 +130,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         expect_monitor=args.monitor,
         announce=args.announce,
         until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
+        lockstep_wait=args.lockstep_wait,
     )
     config = bus_config(args, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))

@@ -36,6 +36,7 @@ from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exce
 from ringtrack.world.scenario import Scenario
 
 STALL_TIMEOUT_S = 60.0
+LOCKSTEP_WAIT_S = 10.0  # the liveliness lease: a frozen robot is seen gone after about as long
 ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
@@ -54,6 +55,9 @@ def register(commands: argparse._SubParsersAction) -> None:
                            "most control.max_steps)")
     parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
     parser.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
+    parser.add_argument("--lockstep-wait", type=positive, default=LOCKSTEP_WAIT_S, metavar="S",
+                        help="lockstep: a robot silent this many seconds in one step is treated as gone, and a poll "
+                        f"gives up on a reply after half of it (default {LOCKSTEP_WAIT_S:g})")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
@@ -82,6 +86,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         until_converged=args.steps is None,
         topology=args.topology,
         robots_per_process=args.robots_per_process,
+        lockstep_wait=args.lockstep_wait,
     )
     if args.json:
         write_json(args.json, result)
@@ -114,6 +119,7 @@ def spawn_team(
     quiet: bool = False,
     topology: str | None = None,
     robots_per_process: int = 1,
+    lockstep_wait: float = LOCKSTEP_WAIT_S,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -122,7 +128,8 @@ def spawn_team(
     "mesh" links every pair of processes directly (Zenoh peers), "star" makes the world a Zenoh
     router that every other process reaches as a client; None picks mesh up to
     ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
-    still its own Zenoh participant."""
+    still its own Zenoh participant. In lockstep the world treats a robot silent for ``lockstep_wait``
+    seconds in one step as gone, and a robot's poll gives up on a reply after half of that."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -151,13 +158,14 @@ def spawn_team(
                 stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", LOOPBACK_ANY_PORT,
-                                           "--announce", str(announce), *stop_rule])
+                                           "--announce", str(announce), "--lockstep-wait", str(lockstep_wait),
+                                           *stop_rule])
                 endpoints = supervisor.endpoints(announce, "world")
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
-                reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
+                reply_wait = lockstep_wait / 2 if clock == "lockstep" else scenario.control.dt / rate
+                reply_timeout = ["--reply-timeout", str(reply_wait)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
-                                                 "reply_timeout": None if clock == "lockstep" else
-                                                 scenario.control.dt / rate})
+                                                 "reply_timeout": reply_wait})
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *connect, "--log", str(log_path),
@@ -170,13 +178,14 @@ def spawn_team(
                     supervisor.start(f"r{ids}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
                                                  "--id", ids])
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
-                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step)
+                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
+                                started=lambda: first_step.after is not None)
         except KeyboardInterrupt:
             interrupted = "interrupted (Ctrl-C)"
         except Terminated:
             interrupted = "terminated (SIGTERM)"
         except TimeoutError as error:
-            interrupted = f"stalled: {error}"
+            interrupted = f"stalled: {error} {stalled_at(log_path, folder)}"
         finally:
             supervisor.stop()
     failures = {child.name: child.process.returncode for child in supervisor.crashed()}
@@ -202,6 +211,18 @@ def spawn_team(
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
+
+
+def stalled_at(log_path: Path, folder: Path) -> str:
+    """What a stalled run waited for: the step after the last one logged, and, from the world's
+    standard error, the robot its lockstep wait last named."""
+    steps = len(read_log(log_path).steps) if log_path.is_file() else 0
+    waiting = ""
+    world_stderr = folder / "world.stderr"
+    if world_stderr.is_file():
+        named = [line for line in world_stderr.read_text(errors="replace").splitlines() if "waits for" in line]
+        waiting = f"; {named[-1].removeprefix('ringtrack.world: ')}" if named else ""
+    return f"after step {steps} (waiting for step {steps + 1}{waiting})"
 
 
 def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:

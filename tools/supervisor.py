@@ -88,9 +88,11 @@ class Supervisor:
                 and child.process.returncode not in (0, None, -15, 130)]
 
     def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
-             watched: Path | None = None, on_poll: Callable[[], None] | None = None) -> None:
+             watched: Path | None = None, on_poll: Callable[[], None] | None = None,
+             started: Callable[[], bool] | None = None) -> None:
         """Wait until every child has exited; return early when a ``critical`` child fails, and raise
-        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run);
+        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run) once
+        ``started()`` says the run is under way (start-up, however long, is not a stall);
         ``on_poll()`` runs at every poll."""
         last_size, last_change = -1, time.monotonic()
         while self.running():
@@ -100,10 +102,10 @@ class Supervisor:
                 return
             if stall_s is not None and watched is not None:
                 size = watched.stat().st_size if watched.exists() else 0
-                if size != last_size:
+                if size != last_size or (started is not None and not started()):
                     last_size, last_change = size, time.monotonic()
                 elif time.monotonic() - last_change > stall_s:
-                    raise TimeoutError(f"no progress for {stall_s:.0f} s")
+                    raise TimeoutError(f"{watched} did not grow for {stall_s:g} s")
             time.sleep(poll_s)
 
     def endpoints(self, path: Path, name: str, timeout_s: float = ANNOUNCE_TIMEOUT_S) -> list[str]:
