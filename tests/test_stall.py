@@ -32,4 +32,5 @@ def test_a_run_that_stops_growing_after_its_first_step_is_a_stall(tmp_path: Path
 
 def test_a_stall_says_which_step_and_which_robot_it_waited_for(tmp_path: Path) -> None:
     (tmp_path / "world.stderr").write_text("ringtrack.world: lockstep step 7 waits for r3\n")
-    assert stalled_at(tmp_path / "log.jsonl", tmp_path) == "after step 0 (waiting for step 1; lockstep step 7 waits for r3)"
+    expected = "after step 0 (waiting for step 1; lockstep step 7 waits for r3)"
+    assert stalled_at(tmp_path / "log.jsonl", tmp_path) == expected

@@ -36,8 +36,8 @@ def register(commands: argparse._SubParsersAction) -> None:
                        help="robot index 0..N-1 in counter-clockwise order; 0-7 or 0,2,4 runs several robots in "
                        "this process, each its own Zenoh participant")
     robot.add_argument("--reply-timeout", type=positive, metavar="S",
-                       help="wall seconds a poll waits for replies (spawn: a step period in realtime, half the --lockstep-wait "
-                       "in lockstep; default: wait)")
+                       help="wall seconds a poll waits for replies (spawn: a step period in realtime, half the "
+                       "--lockstep-wait in lockstep; default: wait)")
     robot.add_argument("--join", type=Path, metavar="RUN_FOLDER",
                        help="join the running team of a spawn run folder (scenario, run id, endpoints)")
     robot.set_defaults(handler=run_robot_role)
