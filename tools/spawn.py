@@ -75,7 +75,6 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def run_spawn(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
-    warn_if_threshold_loose(scenario)
     result = spawn_team(
         scenario,
         clock=args.clock,
@@ -139,6 +138,7 @@ def spawn_team(
             f"this machine holds ({budget}); host several per process with --robots-per-process "
             f"{math.ceil(scenario.robots / budget)}"
         )
+    warn_if_threshold_loose(scenario)
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
