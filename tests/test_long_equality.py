@@ -22,7 +22,8 @@ def test_the_boundary_map_of_a_batch_equals_that_of_each_robot_bit_for_bit() -> 
     batched = region.boundary_point(theta, centres)
     single = np.array([[region.boundary_point(theta[t, i], centres[t, i]) for i in range(6)] for t in range(4)])
     assert np.array_equal(batched, single)
-    assert np.array_equal(region.arc_length(batched), np.array([[region.arc_length(p) for p in row] for row in batched]))
+    arcs = np.array([[region.arc_length(point) for point in row] for row in batched])
+    assert np.array_equal(region.arc_length(batched), arcs)
     assert np.array_equal(region.heights(centres), np.array([[region.heights(c) for c in row] for row in centres]))
 
 
