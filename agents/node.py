@@ -55,6 +55,10 @@ KEPT_STEPS = 16  # own step-start positions (and beliefs) remembered to answer l
 # cannot know the step yet) and at most BUFFERED_LIMIT are waiting; others are ignored (a flood of
 # forged far-future requests cannot grow the robot's memory).
 BUFFERED_LIMIT = 4 * KEPT_STEPS
+# Answers one participant may draw from this robot per step this robot advances: a neighbour sends
+# one request per poll, one probe when unreachable and a duplicate at most; more (a flood of
+# well-formed requests in its name) is ignored and counted in ``rate_limited``.
+ANSWERS_PER_STEP = 4
 
 
 def pack_point(vector: FloatArray) -> Point:
@@ -94,6 +98,7 @@ class RobotNode:
             self.centre = scenario.region.clamp_interior(prior, scenario.estimation.margin)
         self.covariance: Covariance | None = None
         self.waiting_for_estimate = False
+        self.estimate_step = 0  # step of the centre's estimate the robot steers about (0: none yet)
         self.step = 0
         self.position: FloatArray | None = None
         self.trigger = 0
@@ -109,6 +114,9 @@ class RobotNode:
         self.probes = 0
         self.ignored_replies = 0
         self.ignored_requests = 0
+        self.rate_limited = 0
+        self.answers_left: dict[int, int] = {}  # sender -> answers it may still draw this step
+        self.answer_budget = ANSWERS_PER_STEP * KEPT_STEPS  # before the first measurement: requests buffered
         self.finished = False
 
     # ------------------------------------------------------------------ dispatch
@@ -129,6 +137,7 @@ class RobotNode:
     def on_measurement(self, measurement: Measurement) -> Outgoing:
         if measurement.robot != self.robot or measurement.step <= self.step:
             return []  # not ours, duplicate or out of date
+        self._renew_answer_budget(measurement.step - self.step)
         self.step = measurement.step
         self.in_range = None if measurement.in_range is None else set(measurement.in_range)
         self.position = np.asarray(measurement.position, dtype=float)
@@ -153,12 +162,18 @@ class RobotNode:
         return [*outgoing, *self._decide()]
 
     def on_estimate(self, estimate: Estimate) -> Outgoing:
-        if not self.waiting_for_estimate or estimate.step != self.step:
-            return []  # an estimate of a step this robot has left
-        self.waiting_for_estimate = False
+        """Steer about the centre's estimate: at once when it is this step's and the robot waits for
+        it; one of a step the robot has left (realtime: a centre that fell behind) is still newer than
+        the one it holds, and is adopted for its next decision; an older or repeated one is ignored."""
+        if estimate.step <= self.estimate_step or estimate.step > self.step:
+            return []
+        self.estimate_step = estimate.step
         margin = self.scenario.estimation.margin
         self.centre = self.scenario.region.clamp_interior(np.asarray(estimate.mean), margin)
         self.covariance = estimate.covariance
+        if not self.waiting_for_estimate or estimate.step != self.step:
+            return []
+        self.waiting_for_estimate = False
         return self._decide()
 
     def on_estimate_lost(self) -> Outgoing:
@@ -177,7 +192,7 @@ class RobotNode:
             else:
                 self.ignored_requests += 1
             return []
-        return [self._reply(request)]
+        return self._replies([request])
 
     def on_reply(self, reply: Reply) -> Outgoing:
         if self.awaiting.get(reply.sender) != reply.nonce:
@@ -307,4 +322,22 @@ class RobotNode:
     def _answer_buffered(self) -> Outgoing:
         ready = [request for request in self.buffered if request.step <= self.step]
         self.buffered = [request for request in self.buffered if request.step > self.step]
-        return [self._reply(request) for request in ready]
+        return self._replies(ready)
+
+    def _renew_answer_budget(self, steps: int) -> None:
+        """A new step, ``steps`` after the last one: every sender may draw ``ANSWERS_PER_STEP`` answers
+        per step advanced (a robot that skipped steps answers the requests buffered for them)."""
+        self.answers_left = {}
+        self.answer_budget = ANSWERS_PER_STEP * max(1, min(steps, KEPT_STEPS))
+
+    def _replies(self, requests: list[Request]) -> Outgoing:
+        """Answer ``requests`` within each sender's budget for this step; count the rest as rate limited."""
+        answers: Outgoing = []
+        for request in requests:
+            left = self.answers_left.get(request.sender, self.answer_budget)
+            if left <= 0:
+                self.rate_limited += 1
+                continue
+            self.answers_left[request.sender] = left - 1
+            answers.append(self._reply(request))
+        return answers

@@ -18,7 +18,8 @@ from typing import Literal
 
 from ringtrack.agents.node import Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
-from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
+from ringtrack.bus.identity import IdClaim, refuse_if_alive
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
 from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request, Stats
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
@@ -56,16 +57,30 @@ async def run_robot(
     node = RobotNode(robot, scenario, run)
     keys = Keys(run)
     link: RobotLink | None = None
+    claim: IdClaim | None = None
+
+    async def check_identity(participant: Participant) -> None:
+        """Refuse to start as a robot that is alive already (before this one declares its token)."""
+        await refuse_if_alive(participant, {robot_name(node.predecessor), robot_name(node.successor)})
+
+    def claim_identity(participant: Participant) -> None:
+        nonlocal claim
+        claim = IdClaim(participant)
 
     async def main(participant: Participant, roster: Roster, events: list) -> int:
         nonlocal link
         link = RobotLink(participant, node, reply_timeout)
-        return await _serve(link, roster, events)
+        try:
+            return await _serve(link, roster, events)
+        finally:
+            if claim is not None:
+                claim.close()
 
     def stats(participant: Participant, code: int) -> Stats:
-        assert link is not None
+        assert link is not None and claim is not None
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
-                 "ignored_requests": node.ignored_requests}
+                 "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,
+                 "id_collisions": len(claim.rivals)}
         return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes)
 
     role = Role(
@@ -73,6 +88,8 @@ async def run_robot(
         needed=participants((node.predecessor, node.successor), node.mode == "centralized", expect_monitor),
         main=main,
         listen=(keys.inbox(node.name), keys.inbox(BROADCAST)),
+        before_alive=check_identity,
+        on_joined=claim_identity,
         stats=stats,
         linger_for=lambda code: {MONITOR} if expect_monitor and code != STOPPED else set(),
     )

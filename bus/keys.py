@@ -83,6 +83,10 @@ class Keys:
     def ready(self, name: str = "*") -> str:
         return f"{self.prefix}/ready/{name}"
 
+    def claim(self, name: str, session: str = "*") -> str:
+        """The liveliness key by which Zenoh session ``session`` claims participant name ``name``."""
+        return f"{self.prefix}/claim/{name}/{session}"
+
     def parse(self, key: str) -> Route | None:
         """The route of a data key of this run, or ``None`` for a key of another shape or run."""
         return _parse(self.prefix, key)

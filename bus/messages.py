@@ -204,7 +204,16 @@ class Rejected(ValueError):
 
 # "value": well formed and from a team member, but impossible for this run (e.g. a goal off the
 # boundary); counted by the receiver that can tell.
-REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value")
+# "size": longer than its kind can be (trailing fields, padding): refused before or after decoding.
+REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size")
+
+
+def size_limit(kind: str, robots: int) -> int:
+    """The most bytes a payload of ``kind`` can take in a team of ``robots``: generous bounds on the
+    fields (a list of robot ids or positions: at most 64 bytes per robot; statistics: a traffic row
+    per link) refused before decoding, so a 1 MiB payload costs nothing to drop."""
+    per_robot = 1024 if kind == "stats" else 64
+    return 1024 + per_robot * robots
 
 
 def encode(message: Message) -> bytes:
@@ -214,14 +223,19 @@ def encode(message: Message) -> bytes:
 def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMessage:
     """Decode and validate ``payload`` received on ``route`` in run ``run`` of ``robots`` robots.
 
-    Raises :class:`Rejected` for bytes that are not a message ("malformed"), another schema
+    Raises :class:`Rejected` for a payload longer than its kind can be ("size"), bytes that are not
+    a message ("malformed"), another schema
     version ("schema"), another run ("foreign"), a kind that does not match the key ("route"), or
     a sender/receiver that is not the one its key names or not a robot of this team ("sender").
     """
+    if route is not None and len(payload) > size_limit(route.kind, robots):
+        raise Rejected("size", f"{len(payload)} bytes on {route}, more than a {route.kind} can be")
     try:
         message = _decoder.decode(payload)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:
         raise Rejected("malformed", str(error)) from None
+    if len(encode(message)) != len(payload):  # decoding skips trailing fields: the sender added some
+        raise Rejected("size", f"{len(payload)} bytes for a {message.kind} of {len(encode(message))}")
     if message.schema != SCHEMA:
         raise Rejected("schema", f"schema {message.schema}, expected {SCHEMA}")
     if message.run != run or route is None:

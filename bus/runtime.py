@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
 import signal
 import sys
@@ -27,7 +28,7 @@ from typing import Literal
 from ringtrack.bus.config import BusConfig, open_session
 from ringtrack.bus.keys import MONITOR, WORLD, Keys
 from ringtrack.bus.messages import Stats
-from ringtrack.bus.participant import Event, Interrupt, Participant, Presence
+from ringtrack.bus.participant import Event, Interrupt, Participant, Presence, peak_rss_kib
 
 
 class Interrupts:
@@ -90,9 +91,29 @@ async def joined(
     try:
         yield participant
     finally:
+        write_final_counts(participant)
         interrupts.remove(participant)
         participant.close()
         session.close()
+
+
+COUNTS_FOLDER_ENV = "RINGTRACK_COUNTS_FOLDER"  # set by a supervisor (spawn) to its run folder
+
+
+def write_final_counts(participant: Participant) -> None:
+    """With ``RINGTRACK_COUNTS_FOLDER`` set, write what ``participant`` sent (its traffic rows) and
+    its peak memory (KiB) to ``<folder>/<name>.sent.json`` as it leaves: the senders' own counts,
+    which a supervisor reads when the monitor that collects them was lost. Best effort: a process
+    killed by SIGKILL writes nothing, and a file that cannot be written is skipped."""
+    folder = os.environ.get(COUNTS_FOLDER_ENV)
+    if not folder:
+        return
+    path = os.path.join(folder, f"{participant.name}.sent.json")
+    with contextlib.suppress(OSError):
+        with open(f"{path}.partial", "w") as file:
+            json.dump({"name": participant.name, "sent": participant.counter.sent_table(),
+                       "rss_kib": peak_rss_kib()}, file)
+        os.replace(f"{path}.partial", path)
 
 
 # A token's withdrawal travels ahead of the data its owner sent before leaving (liveliness
@@ -188,7 +209,8 @@ class Role:
     for "ready", everyone else for "alive") and after announcing itself ready (``announces_ready``),
     it runs ``main(participant, roster, events seen meanwhile)`` to an exit code, then sends
     ``stats(participant, code)`` to the monitor (None: nothing) and stays up while any of
-    ``linger_for(code)`` is alive (see :func:`linger`). ``on_joined`` runs once it is alive (the
+    ``linger_for(code)`` is alive (see :func:`linger`). ``before_alive`` is awaited just before it
+    declares its ``alive`` token (a robot checks that its id is free), ``on_joined`` runs once it is alive (the
     world announces its endpoints there), ``on_gathering(roster)`` at every presence change while it
     waits for the others (the monitor's start-up frame shows who is up).
     """
@@ -200,6 +222,7 @@ class Role:
     collect: tuple[str, ...] = ()
     start_on: Literal["alive", "ready"] = "alive"
     announces_ready: bool = True
+    before_alive: Callable[[Participant], Awaitable[None]] | None = None
     on_joined: Callable[[Participant], None] | None = None
     on_gathering: Callable[[Roster], None] | None = None
     stats: Callable[[Participant, int], Stats | None] = final_stats
@@ -217,6 +240,8 @@ async def perform(role: Role, bus: BusConfig, keys: Keys, robots: int, interrupt
         participant.watch("alive")
         if role.start_on == "ready":
             participant.watch("ready")
+        if role.before_alive is not None:
+            await role.before_alive(participant)
         participant.announce("alive")
         if role.on_joined is not None:
             role.on_joined(participant)

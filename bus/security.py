@@ -307,7 +307,7 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
         {"id": "send-to-team", "messages": EVERY_MESSAGE, "flows": ["egress"], "permission": "allow",
          "key_exprs": [f"{ROOT}/**"]},
         {"id": "watch-tokens", "messages": WATCHING, "flows": ["ingress"], "permission": "allow",
-         "key_exprs": [f"{ROOT}/*/alive/*", f"{ROOT}/*/ready/*"]},
+         "key_exprs": [f"{ROOT}/*/alive/*", f"{ROOT}/*/ready/*", f"{ROOT}/*/claim/*/*"]},
     ]
     policies: list[dict[str, object]] = []
     for name in names:
@@ -315,7 +315,7 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
             {"id": f"{name}-sends", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
              "key_exprs": [_pattern(source=name)]},
             {"id": f"{name}-tokens", "messages": ["liveliness_token"], "flows": ["ingress"], "permission": "allow",
-             "key_exprs": [f"{ROOT}/*/alive/{name}", f"{ROOT}/*/ready/{name}"]},
+             "key_exprs": [f"{ROOT}/*/alive/{name}", f"{ROOT}/*/ready/{name}", f"{ROOT}/*/claim/{name}/*"]},
             {"id": f"{name}-subscribes", "messages": SUBSCRIBING, "flows": ["ingress"], "permission": "allow",
              "key_exprs": inboxes(name)},
         ]

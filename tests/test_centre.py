@@ -139,8 +139,11 @@ def test_a_robot_without_the_centres_estimate_decides_about_the_last_one():
     command = command_after(node.on_estimate_lost(), node, world)
     assert (command.step, command.centre) == (2, first.mean) and not node.waiting_for_estimate
     assert node.on_estimate_lost() == []  # once per step
-    assert node.handle(Estimate(SCHEMA, RUN, 2, (4.5, 20.5), (0.5, 0.0, 0.5))) == []  # too late: ignored
-    np.testing.assert_array_equal(node.centre, first.mean)
+    late = Estimate(SCHEMA, RUN, 2, (4.5, 20.5), (0.5, 0.0, 0.5))
+    assert node.handle(late) == []  # too late for this step's command ...
+    np.testing.assert_array_equal(node.centre, late.mean)  # ... but newer: steered about next
+    assert node.handle(first) == []  # an older one is ignored
+    np.testing.assert_array_equal(node.centre, late.mean)
 
 
 def test_before_the_first_estimate_a_robot_steers_by_the_centres_prior():
@@ -171,10 +174,34 @@ def _commanded(centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return steps, centres[steps]
 
 
+def _moves_per_command(positions: np.ndarray, centres: np.ndarray) -> float:
+    """A robot's steps of motion per command of it over a stretch of steps (its positions (steps, 2)
+    and centres (steps, 2), NaN where it sent no command). Each command moves it about one step
+    towards its goal, whatever the load; a realtime robot on a loaded machine commands on fewer
+    steps, and moves on fewer, so the bound is measured per command, not per step."""
+    moved = np.linalg.norm(np.diff(positions, axis=0), axis=-1) > 1e-9
+    commands = len(_commanded(centres)[0])
+    return float(moved.sum() / commands) if commands else 0.0
+
+
+def _frozen_terr(history: object, robot: int, since: int, steps: slice) -> float:
+    """Mean distance over ``steps`` from the target to the centre ``robot`` steered by at step
+    ``since``: the error had its estimate stopped following the target there."""
+    steps_before, centres = _commanded(history.estimates[: since + 1, 0, robot])
+    centre = centres[-1]  # the last it steered by at or before ``since``
+    return float(np.nanmean(np.linalg.norm(history.targets[steps, 0] - centre, axis=-1)))
+
+
 def _changing(centres: np.ndarray) -> float:
     """The share of a robot's consecutive commands whose centres differ."""
     _, values = _commanded(centres)
     return float(np.mean(np.any(np.diff(values, axis=0) != 0.0, axis=-1)))
+
+
+def _estimates_adopted(centres: np.ndarray) -> int:
+    """How many times a robot's centre changed between its consecutive commands."""
+    _, values = _commanded(centres)
+    return int(np.sum(np.any(np.diff(values, axis=0) != 0.0, axis=-1)))
 
 
 def _longest_hold(centres: np.ndarray) -> tuple[int, int, int]:
@@ -220,14 +247,24 @@ def test_a_killed_robot_does_not_stall_a_centralized_team(tmp_path: Path, clock:
     assert after == list(range(after[0], steps)) and len(after) >= 150
     history = history_from_log(log)
     others = [0, 1, 2, 4, 5]
-    # every other robot keeps moving along the boundary, step after step; the dead one stays put
+    # every other robot keeps moving along the boundary, about a step per command it sends (in
+    # lockstep one every step; in realtime as many as the load lets it send); the dead one stays put
     positions = history.positions[after, 0]
     moved = np.linalg.norm(np.diff(positions, axis=0), axis=-1) > 1e-9
-    assert moved[:, others].mean(axis=0).min() > 0.8, moved.mean(axis=0)
+    per_command = [_moves_per_command(positions[:, robot], history.estimates[after, 0, robot]) for robot in others]
+    assert min(per_command) > 0.5, per_command
+    if clock == "lockstep":
+        assert moved[:, others].mean(axis=0).min() > 0.8, moved.mean(axis=0)
     assert not moved[:, 3].any()
-    # ... steering by the centre's estimate from the five ranges left, which follows the target
-    assert np.nanmean(history.terr[after[-100:], 0]) < 0.5
-    assert all(_changing(history.estimates[after, 0, robot]) > 0.8 for robot in others)
+    # ... steering by the centre's estimate from the five ranges left, which follows the target: far
+    # closer to it than the estimate of the kill step would have stayed (the target circles at 1 m)
+    last = slice(after[-100], after[-1] + 1)
+    assert np.nanmean(history.terr[last, 0]) < 0.5 * min(_frozen_terr(history, robot, after[0], last)
+                                                          for robot in others)
+    if clock == "lockstep":
+        assert all(_changing(history.estimates[after, 0, robot]) > 0.8 for robot in others)
+    else:  # each robot adopts every newer estimate it gets; how many reach it in time depends on the load
+        assert all(_estimates_adopted(history.estimates[after[-100:], 0, robot]) >= 5 for robot in others)
     if clock == "lockstep":  # every step is estimated once and every live robot commands every step
         assert summary["by_kind"]["estimate"]["messages"] == steps
         assert all(log.steps[index]["trigger"][robot] is not None for index in after for robot in others)
@@ -260,13 +297,18 @@ def test_realtime_robots_do_not_wait_for_a_stalled_centre(tmp_path: Path) -> Non
     holds = [_longest_hold(centres[:, robot]) for robot in range(ROBOTS)]
     # A second at 10x, 100 steps of 0.1 s, went by without an estimate, and each robot went on
     # commanding and moving meanwhile, about its last one. Without the bounded wait it would not
-    # command at all; with the centre up, its estimate changes every step it arrives in time. (On a
-    # loaded machine a realtime robot skips steps: a fifth of them is plenty.)
-    assert all(last - first >= 50 and count >= 20 for first, last, count in holds), holds
-    first, last, _ = holds[0]
-    moved = np.linalg.norm(np.diff(history.positions[first : last + 1, 0], axis=0), axis=-1) > 1e-9
-    assert moved.sum(axis=0).min() >= 20, moved.sum(axis=0)
-    # the centre came back, and the robots track the target with its estimates again
-    assert max(last for _, last, _ in holds) < history.steps - 100
-    assert np.nanmean(history.terr[-100:, 0]) < 0.5
-    assert all(_changing(centres[-100:, robot]) > 0.8 for robot in range(ROBOTS))
+    # command at all; with the centre up, its estimate changes every step it arrives in time. How
+    # many steps a realtime robot commands on depends on the load: the bounds are per command.
+    assert all(last - first >= 50 and count >= 2 for first, last, count in holds), holds
+    per_command = [_moves_per_command(history.positions[first : last + 1, 0, robot],
+                                      centres[first : last + 1, robot])
+                   for robot, (first, last, _) in enumerate(holds)]
+    assert min(per_command) > 0.5, per_command
+    # the centre came back: every robot steered by a newer estimate after its hold, and the robots
+    # track the target with its estimates again, far closer than the held estimate would be
+    assert all(last < _commanded(centres[:, robot])[0][-1] for robot, (_, last, _) in enumerate(holds)), holds
+    final = slice(history.steps - 100, history.steps)
+    assert np.nanmean(history.terr[final, 0]) < 0.5 * min(_frozen_terr(history, robot, first, final)
+                                                           for robot, (first, _, _) in enumerate(holds))
+    # (each robot adopts every newer estimate it gets; how many reach it in time depends on the load)
+    assert all(_estimates_adopted(centres[-100:, robot]) >= 5 for robot in range(ROBOTS))

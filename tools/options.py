@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from collections.abc import Callable
 from pathlib import Path
 
+from ringtrack.tools.console import err, unwritable
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
+from ringtrack.world.threshold import loose_threshold
 
 DEFAULT_SCENARIO = "paper-stationary"
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")  # what matplotlib writes here
@@ -67,6 +68,14 @@ def flag(override: str) -> str:
     return FLAGS.get(override, "--" + override.replace("_", "-"))
 
 
+def warn_if_threshold_loose(scenario: Scenario) -> None:
+    """One warning line on stderr when the scenario's convergence threshold is too loose to mean
+    anything for its team size (:func:`world.threshold.loose_threshold`)."""
+    problem = loose_threshold(math.degrees(scenario.threshold), scenario.robots)
+    if problem is not None:
+        err.print(f"ringtrack: warning: {problem}", highlight=False, markup=False)
+
+
 def positive(text: str) -> float:
     """An argparse type: a finite number > 0 (a rate, a speed factor, seconds)."""
     try:
@@ -95,8 +104,8 @@ def at_least(minimum: int) -> Callable[[str], int]:
 
 
 def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
-    """An argparse type: a file to write, ending in one of ``suffixes``; its folder is made (or
-    found writable) before any work starts, so a long run never fails at its very end."""
+    """An argparse type: a file to write, ending in one of ``suffixes``; its folder is made and the
+    file opened for writing before any work starts, so a long run never fails at its very end."""
 
     def parse(text: str) -> Path:
         path = Path(text)
@@ -104,12 +113,9 @@ def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
             raise argparse.ArgumentTypeError(f"{text!r}: give a file name ending in {' or '.join(suffixes)}")
         if path.is_dir():
             raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name ending in {suffixes[0]}")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise argparse.ArgumentTypeError(f"{text!r}: cannot make its folder ({error.strerror}); give a writable path") from None
-        if not os.access(path.parent, os.W_OK):
-            raise argparse.ArgumentTypeError(f"{text!r}: its folder is not writable; give a writable path")
+        problem = unwritable(path)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(f"{text!r}: cannot write there ({problem}); give a writable path")
         return path
 
     return parse

@@ -6,11 +6,18 @@ from __future__ import annotations
 import argparse
 import asyncio
 from pathlib import Path
+from typing import NoReturn
 
 from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
 from ringtrack.bus.keys import FUSION, MONITOR, ROUTER, WORLD, robot_name
 from ringtrack.tools.console import UsageError, err, out
-from ringtrack.tools.options import LOG_FILE, add_scenario_arguments, positive, scenario_from_arguments
+from ringtrack.tools.options import (
+    LOG_FILE,
+    add_scenario_arguments,
+    positive,
+    scenario_from_arguments,
+    warn_if_threshold_loose,
+)
 
 SECURE_HELP = "team folder made by ringtrack certs: mutual TLS on every link (tls/ endpoints), access control"
 
@@ -22,10 +29,10 @@ def register(commands: argparse._SubParsersAction) -> None:
                        help="lockstep: wait for every robot each step; realtime: a step every dt / rate wall "
                        "seconds (default lockstep)")
     world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
+    world.add_argument("--lockstep-wait", type=positive, default=10.0, metavar="S",
+                       help="lockstep: treat a robot silent this many seconds in one step as gone (default 10)")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
-    world.add_argument("--until-converged", action="store_true",
-                       help="end the run at the first step whose Cerr is below the threshold")
     world.set_defaults(handler=run_world_role)
 
     robot = commands.add_parser("robot", help="run one robot process")
@@ -34,7 +41,8 @@ def register(commands: argparse._SubParsersAction) -> None:
                        help="robot index 0..N-1 in counter-clockwise order; 0-7 or 0,2,4 runs several robots in "
                        "this process, each its own Zenoh participant")
     robot.add_argument("--reply-timeout", type=positive, metavar="S",
-                       help="realtime: wall seconds a poll waits for replies (default: wait, as lockstep)")
+                       help="wall seconds a poll waits for replies (spawn: a step period in realtime, half the "
+                       "--lockstep-wait in lockstep; default: wait)")
     robot.add_argument("--join", type=Path, metavar="RUN_FOLDER",
                        help="join the running team of a spawn run folder (scenario, run id, endpoints)")
     robot.set_defaults(handler=run_robot_role)
@@ -76,7 +84,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    add_scenario_arguments(parser, steps_help="steps to run (default: control.max_steps)")
+    add_scenario_arguments(parser, steps_help="run exactly this many steps (default: the world ends the run at "
+                           "convergence, at most control.max_steps)")
     parser.add_argument("--run", type=run_id, default=0, metavar="HEX", help="run id shared by the team (hex)")
     parser.add_argument("--mode", choices=["peer", "router", "client"], default="peer", help="Zenoh mode")
     parser.add_argument("--listen", action="append", metavar="ENDPOINT",
@@ -129,13 +138,15 @@ def run_world_role(args: argparse.Namespace) -> int:
     from ringtrack.world.process import WorldOptions, run_world
 
     scenario = scenario_from_arguments(args)
+    warn_if_threshold_loose(scenario)
     options = WorldOptions(
         steps=scenario.max_steps,
         clock=args.clock,
         rate=args.rate,
         expect_monitor=args.monitor,
         announce=args.announce,
-        until_converged=args.until_converged,
+        until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
+        lockstep_wait=args.lockstep_wait,
     )
     config = bus_config(args, [WORLD], scenario.robots, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))
@@ -223,6 +234,7 @@ def run_monitor_role(args: argparse.Namespace) -> int:
 
     from ringtrack.tools.dashboard import TeamModel
     from ringtrack.tools.monitor import run_monitor, startup_names
+    from ringtrack.tools.runlog import LogWriteError
     from ringtrack.tools.views import LiveView, print_outcome, print_report
 
     scenario = scenario_from_arguments(args)
@@ -230,13 +242,16 @@ def run_monitor_role(args: argparse.Namespace) -> int:
     model.expected, model.up = startup_names(scenario), {MONITOR}
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
-    with LiveView(console, model, dashboard) as view:
-        if args.connect_from is not None:
-            args.connect = [*(args.connect or []), *wait_for_endpoints(args.connect_from)]
-        code, report = asyncio.run(
-            run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots), args.log,
-                        scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent)
-        )
+    try:
+        with LiveView(console, model, dashboard) as view:
+            if args.connect_from is not None:
+                args.connect = [*(args.connect or []), *wait_for_endpoints(args.connect_from)]
+            code, report = asyncio.run(
+                run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots),
+                            args.log, scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent)
+            )
+    except LogWriteError as error:
+        log_write_failed(error)
     if report is not None:
         # The log is complete: a second signal (the supervisor's, halfway through its grace) must not
         # cut the report short.
@@ -277,6 +292,20 @@ def run_outcome(log_path: Path) -> dict | None:
 
     log = read_log(log_path)
     return summary(history_from_log(log)) if log.steps else None
+
+
+def log_write_failed(error: Exception) -> NoReturn:
+    """End a monitor whose run log could not be written with ``LogWriteError.exit_code``, whatever
+    becomes of its message: its standard error may be a file on the same full disk, and a failed
+    flush at interpreter exit would turn the code into 120."""
+    import contextlib
+    import os
+
+    from ringtrack.tools.runlog import LogWriteError
+
+    with contextlib.suppress(OSError):
+        err.print(f"monitor: {error}; stopping", highlight=False, markup=False)
+    os._exit(LogWriteError.exit_code)
 
 
 def finished(role: str, code: int) -> int:

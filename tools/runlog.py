@@ -21,7 +21,9 @@ team size, so that whatever reads a log may index its records without further ch
 
 from __future__ import annotations
 
+import contextlib
 import datetime
+import os
 import platform
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -33,6 +35,7 @@ import msgspec
 import numpy as np
 
 from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals, link_traffic
+from ringtrack.tools.console import OutputError
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario, parse_scenario, resolve
@@ -52,17 +55,51 @@ def versions() -> dict[str, str]:
     return found
 
 
+class LogWriteError(OutputError):
+    """The run log could not be written (a full disk, a file size limit); the message names the
+    file and how many complete step records it holds. Its exit code tells a supervisor why a
+    monitor stopped when the disk cannot hold the monitor's own message either."""
+
+    exit_code = 3
+
+
 class LogWriter:
-    """Appends records to a run log, flushing each line."""
+    """Appends records to a run log, each line written whole at once (unbuffered). A write that
+    fails (a full disk) cuts the file back to its last complete record, so the log stays readable,
+    and raises :class:`LogWriteError`; the writer then refuses further records."""
 
     def __init__(self, path: Path) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._file: IO[bytes] | None = path.open("wb", buffering=0)
+        except OSError as error:
+            raise LogWriteError(f"{path}: cannot write the run log ({error.strerror or error})") from None
         self.path = path
-        self._file: IO[bytes] = path.open("wb")
+        self.steps_written = 0
+        self._complete = 0  # bytes of complete records
 
     def write(self, record: dict[str, Any]) -> None:
-        self._file.write(_encoder.encode(record) + b"\n")
-        self._file.flush()
+        if self._file is None:
+            raise LogWriteError(f"{self.path}: the run log was closed after a failed write")
+        line = _encoder.encode(record) + b"\n"
+        unwritten = memoryview(line)
+        try:
+            while unwritten:
+                unwritten = unwritten[self._file.write(unwritten) or 0:]
+        except OSError as error:
+            self._fail(error)
+        self._complete += len(line)
+        self.steps_written += record.get("type") == "step"
+
+    def _fail(self, error: OSError) -> None:
+        assert self._file is not None
+        with contextlib.suppress(OSError):
+            os.ftruncate(self._file.fileno(), self._complete)
+        with contextlib.suppress(OSError):
+            self._file.close()
+        self._file = None
+        raise LogWriteError(f"{self.path}: cannot write the run log ({error.strerror or error}); it holds "
+                            f"{self.steps_written} complete steps") from None
 
     def header(self, scenario: Scenario, source: str, run: int, seed: int, clock: str, steps: int) -> None:
         self.write(
@@ -83,7 +120,9 @@ class LogWriter:
         )
 
     def close(self) -> None:
-        self._file.close()
+        if self._file is not None:
+            self._file.close()
+            self._file = None
 
     def __enter__(self) -> LogWriter:
         return self
@@ -230,6 +269,7 @@ class EndRecord(Record, tag="end"):
     senders: dict[str, list[TrafficRow]] = {}
     rejected: dict[str, int] = {}
     late: Count = 0
+    dropped_ahead: Count = 0  # messages for steps too far ahead of the run (forged), dropped by the monitor
     rss_kib: dict[str, int] = {}
     consistent: bool | None = None
     faults: dict[str, int] = {}

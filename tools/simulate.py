@@ -10,7 +10,13 @@ from rich.table import Table
 from ringtrack.agents import engine
 from ringtrack.tools.console import BUSIEST, SUMMARISED_ABOVE, out, write_json
 from ringtrack.tools.dashboard import messages_saved
-from ringtrack.tools.options import JSON_FILE, LOG_FILE, add_scenario_arguments, scenario_from_arguments
+from ringtrack.tools.options import (
+    JSON_FILE,
+    LOG_FILE,
+    add_scenario_arguments,
+    scenario_from_arguments,
+    warn_if_threshold_loose,
+)
 from ringtrack.tools.runlog import write_engine_log
 
 
@@ -31,6 +37,7 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
+    warn_if_threshold_loose(scenario)
     history = engine.run(scenario, until_converged=args.steps is None, record_positions=args.log is not None)
     result = engine.summary(history)
     out.print(summary_table(result, int(history.sent[:, 0].sum()), args.all_robots))

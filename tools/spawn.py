@@ -21,7 +21,7 @@ from pathlib import Path
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id, participants
-from ringtrack.tools.console import UsageError, err, out, write_json
+from ringtrack.tools.console import OutputError, UsageError, err, out, write_json
 from ringtrack.tools.options import (
     JSON_FILE,
     LOG_FILE,
@@ -29,12 +29,14 @@ from ringtrack.tools.options import (
     at_least,
     positive,
     scenario_from_arguments,
+    warn_if_threshold_loose,
 )
-from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.tools.runlog import LogWriteError, history_from_log, read_log
 from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
 from ringtrack.world.scenario import Scenario
 
 STALL_TIMEOUT_S = 60.0
+LOCKSTEP_WAIT_S = 10.0  # the liveliness lease: a frozen robot is seen gone after about as long
 ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
@@ -55,6 +57,9 @@ def register(commands: argparse._SubParsersAction) -> None:
                         help="lockstep: each step waits for every robot (deterministic, equals the engine); "
                         "realtime: a step every dt / rate wall seconds (default lockstep)")
     parser.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
+    parser.add_argument("--lockstep-wait", type=positive, default=LOCKSTEP_WAIT_S, metavar="S",
+                        help="lockstep: a robot silent this many seconds in one step is treated as gone, and a poll "
+                        f"gives up on a reply after half of it (default {LOCKSTEP_WAIT_S:g})")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
@@ -89,6 +94,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         robots_per_process=args.robots_per_process,
         secure=args.secure,
         all_robots=args.all_robots,
+        lockstep_wait=args.lockstep_wait,
     )
     if args.json:
         write_json(args.json, result)
@@ -97,9 +103,16 @@ def run_spawn(args: argparse.Namespace) -> int:
 
 
 def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
+    """Make ``runs/<UTC time>-<name>-<run id>/``; a ``runs`` that cannot hold it (a file, a read-only
+    file system, no permission) is a :class:`UsageError` naming ``--runs``, before any process starts."""
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
     folder = runs / f"{stamp}-{scenario.name}-{run:08x}"
-    folder.mkdir(parents=True, exist_ok=False)
+    try:
+        folder.mkdir(parents=True, exist_ok=False)
+    except OSError as error:
+        problem = "it is not a folder" if isinstance(error, NotADirectoryError) else error.strerror
+        raise UsageError(f"--runs {runs}: cannot make a run folder there ({problem}); give a writable folder "
+                         "with --runs DIR") from None
     return folder
 
 
@@ -116,6 +129,7 @@ def spawn_team(
     robots_per_process: int = 1,
     secure: Path | None = None,
     all_robots: bool = False,
+    lockstep_wait: float = LOCKSTEP_WAIT_S,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -126,7 +140,8 @@ def spawn_team(
     ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
     still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
     mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
-    robot in the monitor's report."""
+    robot in the monitor's report. In lockstep the world treats a robot silent for ``lockstep_wait``
+    seconds in one step as gone, and a robot's poll gives up on a reply after half of that."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -137,6 +152,7 @@ def spawn_team(
             f"{math.ceil(scenario.robots / budget)}"
         )
     listen = LOOPBACK_ANY_PORT if secure is None else secured(secure, scenario)
+    warn_if_threshold_loose(scenario)
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
     scenario_path = folder / "scenario.toml"
@@ -159,10 +175,11 @@ def spawn_team(
     with Supervisor(folder) as supervisor:
         try:
             with terminate_as_exception():
-                stop_rule = ["--until-converged"] if until_converged else []
+                stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", listen,
-                                           "--announce", str(announce), *stop_rule])
+                                           "--announce", str(announce), "--lockstep-wait", str(lockstep_wait),
+                                           *stop_rule])
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
                 monitor_flags += ["--all-robots"] if all_robots else []
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
@@ -175,11 +192,11 @@ def spawn_team(
                     err.print(f"spawn: the world listens on {', '.join(endpoints)} after "
                               f"{time.perf_counter() - started:.1f} s; starting the others", highlight=False)
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
-                reply_timeout = [] if clock == "lockstep" else ["--reply-timeout", str(scenario.control.dt / rate)]
+                reply_wait = lockstep_wait / 2 if clock == "lockstep" else scenario.control.dt / rate
+                reply_timeout = ["--reply-timeout", str(reply_wait)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "secure": None if secure is None else str(secure.resolve()),
-                                                 "reply_timeout": None if clock == "lockstep" else
-                                                 scenario.control.dt / rate})
+                                                 "reply_timeout": reply_wait})
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 for first in range(0, scenario.robots, robots_per_process):
@@ -188,30 +205,36 @@ def spawn_team(
                     supervisor.start(f"r{ids}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
                                                  "--id", ids])
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
-                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step)
+                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
+                                started=lambda: first_step.after is not None)
         except KeyboardInterrupt:
             interrupted, stop_signal = "interrupted by the user (Ctrl-C)", signal.SIGINT  # the children say so too
         except Terminated:
             interrupted = "terminated (SIGTERM)"
         except TimeoutError as error:
-            interrupted = f"stalled: {error}"
+            interrupted = f"stalled: {error} {stalled_at(log_path, folder)}"
         finally:
             supervisor.stop(stop_signal=stop_signal)
-    failures = {child.name: child.process.returncode for child in supervisor.children if child.process.returncode}
-    for child in supervisor.children:
-        if child.process.returncode not in (0, None, -15, -2, 130) and not interrupted:
-            detail = child.stderr_tail()
-            err.print(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""),
-                      highlight=False)
+    failures = {child.name: child.process.returncode for child in supervisor.crashed()}
+    if not interrupted:
+        for line in _failure_lines(supervisor, log_path):
+            err.print(line, highlight=False, markup=False)
     result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started)
     result["topology"] = topology
     result["startup_s"] = first_step.after
     result["failures"] = failures
     result["stopped"] = interrupted or None
     result["exit_code"] = 130 if interrupted.startswith(("interrupted", "terminated")) else int(bool(failures or interrupted))
-    write_json(folder / "summary.json", result)
+    try:
+        write_json(folder / "summary.json", result)
+    except OutputError as error:
+        err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
+        result["exit_code"] = result["exit_code"] or 1
     if interrupted:
         err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
+    if result.get("id_collisions"):
+        err.print("ringtrack: warning: two processes ran as the same robot (an id collision; see the robots' stderr)",
+                  highlight=False)
     if result.get("monitor_equals_senders") is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
@@ -226,6 +249,32 @@ def secured(directory: Path, scenario: Scenario) -> str:
     names = [WORLD, MONITOR, *([FUSION] if scenario.estimation.mode == "centralized" else [])]
     check_team(directory, [*names, *(robot_name(robot) for robot in range(scenario.robots))], scenario.robots)
     return SECURE_LOOPBACK_ANY_PORT
+def stalled_at(log_path: Path, folder: Path) -> str:
+    """What a stalled run waited for: the step after the last one logged, and, from the world's
+    standard error, the robot its lockstep wait last named."""
+    steps = len(read_log(log_path).steps) if log_path.is_file() else 0
+    waiting = ""
+    world_stderr = folder / "world.stderr"
+    if world_stderr.is_file():
+        named = [line for line in world_stderr.read_text(errors="replace").splitlines() if "waits for" in line]
+        waiting = f"; {named[-1].removeprefix('ringtrack.world: ')}" if named else ""
+    return f"after step {steps} (waiting for step {steps + 1}{waiting})"
+
+
+def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:
+    """One line per child that crashed on its own, with the tail of its standard error; a monitor
+    that stopped because the run log could not be written (a full disk, whose stderr file cannot
+    hold its message either) says which file and how many complete steps it holds."""
+    lines = []
+    for child in supervisor.crashed():
+        if child.name == "monitor" and child.process.returncode == LogWriteError.exit_code:
+            steps = len(read_log(log_path).steps) if log_path.is_file() else 0
+            lines.append(f"ringtrack: error: {log_path}: the run log could not be written (disk full or not "
+                         f"writable) after {steps} complete steps; the team was stopped")
+            continue
+        detail = child.stderr_tail()
+        lines.append(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""))
+    return lines
 
 
 def process_budget() -> int:
@@ -265,15 +314,21 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
     if log.steps:
         result.update(engine.summary(history_from_log(log)))
     end = log.end or {}
-    traffic = [tuple(row) for row in end.get("traffic", [])]
+    senders = supervisor.senders_counts()
+    if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it
+        traffic = [tuple(row) for counts in senders.values() for row in counts["sent"]]
+        result["monitor_lost"] = True
+    else:
+        traffic = [tuple(row) for row in end.get("traffic", [])]
     result["messages"] = {category: entry["messages"] for category, entry in totals_by_category(traffic).items()}
     result["bytes"] = {category: entry["bytes"] for category, entry in totals_by_category(traffic).items()}
     result["by_kind"] = totals_by_kind(traffic)
     result["monitor_equals_senders"] = end.get("consistent")
     result["faults"] = end.get("faults", {})
     result["rejected"] = end.get("rejected", {})
-    result["rss_kib"] = end.get("rss_kib", {})
+    result["rss_kib"] = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
     result["end_reason"] = end.get("reason")
+    result["id_collisions"] = end.get("notes", {}).get("id_collisions", 0)
     if end.get("wall_s") and end.get("steps"):
         result["steps_per_s"] = end["steps"] / end["wall_s"]
     return result
@@ -284,4 +339,9 @@ def _summary_line(result: dict) -> str:
     if "ctime" not in result:
         return f"spawn: run folder {result['folder']}"
     speed = f" at {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
-    return f"spawn: {result['steps']} steps{speed}\nrun folder: {result['folder']}"
+    line = f"spawn: {result['steps']} steps{speed}"
+    if result.get("monitor_lost"):  # no monitor's report above: say what the senders counted
+        converged = f"converged at step {result['ctime']}" if result.get("converged") else "did not converge"
+        robot = result.get("messages", {}).get("robot", 0)
+        line += f"; {converged}; robot-to-robot messages {robot} (the senders' counts: the monitor was lost)"
+    return f"{line}\nrun folder: {result['folder']}"

@@ -9,6 +9,8 @@ supervisor dies, even by SIGKILL, the pipe closes and the child stops itself (``
 from __future__ import annotations
 
 import contextlib
+import json
+import os
 import signal
 import subprocess
 import threading
@@ -20,6 +22,7 @@ from types import TracebackType
 from typing import IO
 
 from ringtrack.bus.config import announced_endpoints
+from ringtrack.bus.runtime import COUNTS_FOLDER_ENV
 from ringtrack.tools.console import UsageError
 
 ANNOUNCE_TIMEOUT_S = 20.0
@@ -50,12 +53,14 @@ class Supervisor:
     def __init__(self, folder: Path) -> None:
         self.folder = folder
         self.children: list[Child] = []
+        self.ended: set[str] = set()  # children still running when stop() signalled them: not crashes
 
     def start(self, name: str, argv: Sequence[str], stdout: int | IO[bytes] | None = subprocess.DEVNULL) -> Child:
         stderr_path = self.folder / f"{name}.stderr"
         with stderr_path.open("wb") as stderr:
             process = subprocess.Popen(
-                list(argv), stdin=subprocess.PIPE, stdout=stdout, stderr=stderr, start_new_session=True
+                list(argv), stdin=subprocess.PIPE, stdout=stdout, stderr=stderr, start_new_session=True,
+                env={**os.environ, COUNTS_FOLDER_ENV: str(self.folder)},
             )
         child = Child(name, process, stderr_path)
         self.children.append(child)
@@ -64,13 +69,31 @@ class Supervisor:
     def running(self) -> list[Child]:
         return [child for child in self.children if child.process.poll() is None]
 
+    def senders_counts(self) -> dict[str, dict]:
+        """What each child's participants said they sent as they left (``<name>.sent.json``, see
+        :func:`bus.runtime.write_final_counts`), by participant name."""
+        found = {}
+        for path in sorted(self.folder.glob("*.sent.json")):
+            with contextlib.suppress(OSError, ValueError):
+                counts = json.loads(path.read_text())
+                found[counts["name"]] = counts
+        return found
+
     def failed(self) -> list[Child]:
         return [child for child in self.children if child.process.poll() not in (None, 0)]
 
+    def crashed(self) -> list[Child]:
+        """Children that failed on their own (a non-zero exit other than a stop they were asked
+        for): not those ``stop()`` ended, nor those that obeyed a SIGTERM or Ctrl-C."""
+        return [child for child in self.children if child.name not in self.ended
+                and child.process.returncode not in (0, None, -15, -2, 130)]
+
     def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
-             watched: Path | None = None, on_poll: Callable[[], None] | None = None) -> None:
+             watched: Path | None = None, on_poll: Callable[[], None] | None = None,
+             started: Callable[[], bool] | None = None) -> None:
         """Wait until every child has exited; return early when a ``critical`` child fails, and raise
-        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run);
+        TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run) once
+        ``started()`` says the run is under way (start-up, however long, is not a stall);
         ``on_poll()`` runs at every poll."""
         last_size, last_change = -1, time.monotonic()
         while self.running():
@@ -80,10 +103,10 @@ class Supervisor:
                 return
             if stall_s is not None and watched is not None:
                 size = watched.stat().st_size if watched.exists() else 0
-                if size != last_size:
+                if size != last_size or (started is not None and not started()):
                     last_size, last_change = size, time.monotonic()
                 elif time.monotonic() - last_change > stall_s:
-                    raise TimeoutError(f"no progress for {stall_s:.0f} s")
+                    raise TimeoutError(f"{watched} did not grow for {stall_s:g} s")
             time.sleep(poll_s)
 
     def endpoints(self, path: Path, name: str, timeout_s: float = ANNOUNCE_TIMEOUT_S) -> list[str]:
@@ -108,6 +131,7 @@ class Supervisor:
         for phase_end, group in ((started + grace_s / 2, self.children[:1]), (deadline, self.children)):
             for child in group:
                 if child.process.poll() is None:
+                    self.ended.add(child.name)
                     with contextlib.suppress(ProcessLookupError):
                         child.process.send_signal(stop_signal)
             while self.running() and time.monotonic() < phase_end:

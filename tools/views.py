@@ -227,6 +227,8 @@ def print_report(console: Console, report: MonitorReport, outcome: dict | None =
     verdict = "equal on every link" if report.consistent() else "DIFFERENT"
     rejected = ", ".join(f"{reason} {count}" for reason, count in report.rejected.items()) or "none"
     ending = f"{ending_text(report.end.reason)} after {report.end.step} steps" if report.end else "no end record"
+    if report.end is not None and report.end.reason == "converged":
+        ending += f" (Ctime = {report.end.step} steps)"
     console.print(f"run: {ending}; rejected: {rejected}; late: {report.late}", highlight=False)
     console.print(f"monitor vs senders: {verdict}", highlight=False)
     if outcome is not None:

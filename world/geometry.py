@@ -28,6 +28,15 @@ class RegionError(ValueError):
     """A region or a point in it is unusable; the message is one line naming the problem and the fix."""
 
 
+def dot_rows(vectors: ArrayLike, rows: FloatArray) -> FloatArray:
+    """``vectors . rows_k``: 2-D vectors (shape ``(..., 2)``) against each row of ``rows`` (shape
+    ``(K, 2)``), shape ``(..., K)``. Written out as ``x x_k + y y_k`` rather than ``@`` or ``einsum``,
+    whose rounding depends on the shapes they are given (a matrix product picks its kernel by
+    shape): one robot's process and the engine's batched team then compute the same bits."""
+    vectors = np.asarray(vectors, dtype=float)
+    return vectors[..., None, 0] * rows[:, 0] + vectors[..., None, 1] * rows[:, 1]
+
+
 def angle_of(point: ArrayLike, centre: ArrayLike) -> FloatArray:
     """``phi_centre(point)``: the angle (radians, CCW, in (-pi, pi]) of ``point`` seen from ``centre``."""
     delta = np.asarray(point, dtype=float) - np.asarray(centre, dtype=float)
@@ -128,7 +137,7 @@ class ConvexRegion:
     def heights(self, centre: ArrayLike) -> FloatArray:
         """``h_k(centre)``: signed distances (metres, shape ``(..., M)``) from ``centre`` to each edge line;
         all positive exactly when ``centre`` is interior."""
-        return self.offsets - np.asarray(centre, dtype=float) @ self.normals.T
+        return self.offsets - dot_rows(centre, self.normals)
 
     def on_boundary(self, point: ArrayLike, tolerance: float) -> NDArray[np.bool_]:
         """Whether ``point`` lies on the boundary within ``tolerance`` metres: inside every edge line
@@ -158,8 +167,8 @@ class ConvexRegion:
         if margin >= radius:
             raise RegionError(f"clamp margin {margin} m exceeds the inscribed radius {radius:.6g} m")
         outward = point - centre
-        reach = outward @ self.normals.T
-        room = self.offsets - margin - self.normals @ centre
+        reach = dot_rows(outward, self.normals)
+        room = self.offsets - margin - dot_rows(centre, self.normals)
         with np.errstate(divide="ignore", invalid="ignore"):
             limits = np.where(reach > 0, room / reach, np.inf)
         fraction = np.minimum(limits.min(axis=-1), 1.0)
@@ -175,7 +184,7 @@ class ConvexRegion:
         """
         theta = np.asarray(theta, dtype=float)
         direction = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
-        approach = direction @ self.normals.T
+        approach = dot_rows(direction, self.normals)
         heights = self.heights(centre)
         with np.errstate(divide="ignore", over="ignore"):
             reach = np.where(approach > 0, heights / approach, np.inf)
@@ -185,7 +194,8 @@ class ConvexRegion:
         """Arc length ``s`` (metres, CCW from vertex 0, in ``[0, L)``) of a boundary point."""
         point = np.asarray(point, dtype=float)
         relative = point[..., None, :] - self.vertices
-        along = np.clip(np.einsum("...kd,kd->...k", relative, self.directions), 0.0, self.edge_lengths)
+        along_edge = relative[..., 0] * self.directions[:, 0] + relative[..., 1] * self.directions[:, 1]
+        along = np.clip(along_edge, 0.0, self.edge_lengths)
         foot = self.vertices + along[..., None] * self.directions
         gap = np.sum((point[..., None, :] - foot) ** 2, axis=-1)
         edge = np.argmin(gap, axis=-1)

@@ -16,6 +16,7 @@ placed midway between its live ring neighbours (:meth:`world.state.WorldState.re
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import time
 from dataclasses import dataclass
@@ -48,6 +49,10 @@ class WorldOptions:
     expect_monitor: bool = False
     announce: Path | None = None
     until_converged: bool = False
+    lockstep_wait: float = 10.0  # s; lockstep: a live robot silent this long in one step is treated as gone
+
+
+WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
 
 
 class RunStopped(Exception):
@@ -63,13 +68,15 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
     async def main(participant: Participant, roster: Roster, _held: list) -> int:
         world = WorldState(scenario, seed, run, options.steps)
         began = time.perf_counter()
-        step_once = _lockstep if options.clock == "lockstep" else _realtime
+        step_once = functools.partial(_lockstep, wait_s=options.lockstep_wait) if options.clock == "lockstep" \
+            else _realtime
         reason, code = "done", 0
         period = scenario.control.dt / options.rate
         start = asyncio.get_running_loop().time()
         try:
             for index in range(options.steps):
                 await step_once(participant, world, roster, start + (index + 1) * period)
+                refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
                 world.advance()
                 if converged:
@@ -99,6 +106,13 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         linger_for=lambda code: team,
     )
     return await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
+
+
+def refuse_empty_ring(world: WorldState) -> None:
+    """Raise :class:`RunStopped` once no robot is left in the ring (they all crashed, or all quit on
+    a forged End): such a run ends as failed, never as done or converged."""
+    if not world.live and not world.rejoining:
+        raise RunStopped(f"every robot left the ring by step {world.step}")
 
 
 def _publish(participant: Participant, world: WorldState) -> None:
@@ -133,11 +147,33 @@ def _handle(event: object, world: WorldState, roster: Roster, participant: Parti
             log.info("robot %s rejoins at step %d, placed between its ring neighbours", event.name, world.step + 1)
 
 
-async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
-    """Publish the step and wait for every live robot's command for it (no deadline)."""
+async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float,
+                    wait_s: float = 10.0) -> None:
+    """Publish the step and wait for every live robot's command for it: after ``WAIT_NOTICE_S`` the
+    world says which robots it waits for, and after ``wait_s`` (wall seconds) it treats those still
+    silent as gone (a frozen process whose liveliness lease has not run out yet), so one robot
+    cannot hang the team."""
+    loop = asyncio.get_running_loop()
+    started, noticed = loop.time(), False
     _publish(participant, world)
     while not world.commanded.issuperset(world.live):
-        for event in await participant.events():
+        waited = loop.time() - started
+        if waited >= wait_s:
+            for robot in sorted(world.live - world.commanded):
+                world.leave(robot)
+                log.warning("robot r%d sent no command for step %d in %.0f s: treated as gone; %d robots go on",
+                            robot, world.step, wait_s, len(world.live))
+            return
+        if waited >= WAIT_NOTICE_S and not noticed:
+            noticed = True
+            log.warning("lockstep step %d waits for %s", world.step,
+                        ", ".join(f"r{robot}" for robot in sorted(world.live - world.commanded)))
+        next_check = wait_s if noticed else min(wait_s, WAIT_NOTICE_S)
+        try:
+            events = await asyncio.wait_for(participant.events(), max(0.01, next_check - waited))
+        except TimeoutError:
+            continue
+        for event in events:
             _handle(event, world, roster, participant)
 
 

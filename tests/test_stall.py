@@ -1,0 +1,36 @@
+"""The stall guard counts from the first step, never start-up, and says what the run waited for."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ringtrack.tools.spawn import stalled_at
+from ringtrack.tools.supervisor import Supervisor
+
+
+def test_a_long_start_up_is_not_a_stall(tmp_path: Path) -> None:
+    with Supervisor(tmp_path) as supervisor:
+        supervisor.start("slow", [sys.executable, "-c", "import time; time.sleep(1.5)"])
+        started = time.monotonic()
+        supervisor.wait(stall_s=0.3, watched=tmp_path / "log.jsonl", started=lambda: False)
+        assert time.monotonic() - started > 1.0  # waited for the child, raised nothing
+
+
+def test_a_run_that_stops_growing_after_its_first_step_is_a_stall(tmp_path: Path) -> None:
+    log = tmp_path / "log.jsonl"
+    log.write_text("{}\n")
+    with Supervisor(tmp_path) as supervisor:
+        supervisor.start("hung", [sys.executable, "-c", "import time; time.sleep(30)"])
+        with pytest.raises(TimeoutError) as raised:
+            supervisor.wait(stall_s=0.3, watched=log, started=lambda: True)
+    assert str(raised.value) == f"{log} did not grow for 0.3 s"
+
+
+def test_a_stall_says_which_step_and_which_robot_it_waited_for(tmp_path: Path) -> None:
+    (tmp_path / "world.stderr").write_text("ringtrack.world: lockstep step 7 waits for r3\n")
+    expected = "after step 0 (waiting for step 1; lockstep step 7 waits for r3)"
+    assert stalled_at(tmp_path / "log.jsonl", tmp_path) == expected
