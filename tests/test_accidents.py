@@ -15,7 +15,7 @@ import pytest
 
 from ringtrack.tools.console import OutputError, write_json
 from ringtrack.tools.runlog import LogWriteError, LogWriter, read_log
-from tests.emulation import RINGTRACK, processes_mentioning
+from tests.helpers import RINGTRACK, processes_mentioning
 
 
 def ringtrack(*arguments: str, cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess[str]:
@@ -47,6 +47,7 @@ def mounted_tmpfs(folder: Path, options: str) -> Iterator[Path]:
         subprocess.run(["umount", "-l", str(folder)], check=False)
 
 
+@pytest.mark.processes
 def test_spawn_into_a_file_says_so_in_one_line(tmp_path: Path) -> None:
     afile = tmp_path / "afile"
     afile.write_text("")
@@ -56,6 +57,7 @@ def test_spawn_into_a_file_says_so_in_one_line(tmp_path: Path) -> None:
                                       "a folder); give a writable folder with --runs DIR")
 
 
+@pytest.mark.processes
 def test_spawn_on_a_read_only_file_system_says_so_before_starting(tmp_path: Path) -> None:
     with mounted_tmpfs(tmp_path / "ro", "ro,size=64k") as readonly:
         explicit = ringtrack("spawn", "--runs", str(readonly / "runs"), "--no-dashboard")
@@ -66,6 +68,7 @@ def test_spawn_on_a_read_only_file_system_says_so_before_starting(tmp_path: Path
                                           "(Read-only file system); give a writable folder with --runs DIR")
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize("command", ["simulate", "spawn"])
 def test_a_log_path_that_cannot_be_written_is_refused_before_any_work(command: str, tmp_path: Path) -> None:
     result = ringtrack(command, "--log", "/proc/run.jsonl", "--runs", str(tmp_path / "runs"), *(
@@ -78,6 +81,7 @@ def test_a_log_path_that_cannot_be_written_is_refused_before_any_work(command: s
     assert not (tmp_path / "runs").exists()  # no run folder, no process started
 
 
+@pytest.mark.processes
 def test_simulate_log_on_a_full_disk_is_one_line(tmp_path: Path) -> None:
     full = tmp_path / "full.jsonl"
     full.symlink_to("/dev/full")
@@ -87,6 +91,7 @@ def test_simulate_log_on_a_full_disk_is_one_line(tmp_path: Path) -> None:
                                       "device); it holds 0 complete steps")
 
 
+@pytest.mark.processes
 def test_a_full_disk_cuts_the_log_back_to_its_last_complete_record(tmp_path: Path) -> None:
     with mounted_tmpfs(tmp_path / "small", "size=16k") as small:
         path = small / "log.jsonl"
@@ -106,6 +111,7 @@ def test_a_full_disk_cuts_the_log_back_to_its_last_complete_record(tmp_path: Pat
         writer.close()
 
 
+@pytest.mark.processes
 def test_summary_json_is_written_whole_or_not_at_all(tmp_path: Path) -> None:
     with mounted_tmpfs(tmp_path / "small", "size=8k") as small:
         target = small / "summary.json"
@@ -117,6 +123,7 @@ def test_summary_json_is_written_whole_or_not_at_all(tmp_path: Path) -> None:
         assert json.loads(target.read_text()) == {"small": 1}
 
 
+@pytest.mark.processes
 def test_a_disk_that_fills_during_a_spawn_stops_the_team_in_one_line(tmp_path: Path) -> None:
     with mounted_tmpfs(tmp_path / "small", "size=96k") as small:
         result = ringtrack("spawn", "--runs", str(small), "--no-dashboard", timeout=180)

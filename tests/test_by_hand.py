@@ -15,7 +15,7 @@ import pytest
 from ringtrack.agents import engine
 from ringtrack.tools.runlog import read_log
 from ringtrack.world.scenario import load_scenario
-from tests.emulation import RINGTRACK
+from tests.helpers import RINGTRACK
 
 
 class Team:
@@ -68,6 +68,7 @@ def by_hand(team: Team, *steps: str) -> tuple[list[int], str, Path]:
     return codes, monitor.communicate()[0], log
 
 
+@pytest.mark.processes
 def test_a_team_by_hand_stops_at_convergence_and_the_monitor_reports_ctime(team: Team) -> None:
     ctime = engine.summary(engine.run(load_scenario("paper-stationary"), until_converged=True))["ctime"]
     codes, said, log = by_hand(team)
@@ -76,6 +77,7 @@ def test_a_team_by_hand_stops_at_convergence_and_the_monitor_reports_ctime(team:
     assert f"run: converged after {ctime} steps (Ctime = {ctime} steps)" in " ".join(said.split())
 
 
+@pytest.mark.processes
 def test_a_team_by_hand_with_steps_runs_exactly_that_many(team: Team) -> None:
     codes, said, log = by_hand(team, "--steps", "40")
     assert codes == [0, 0, 0]

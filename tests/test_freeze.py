@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.runlog import read_log
-from tests.emulation import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
+from tests.helpers import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
 from tests.test_centre import _robot_pid
 
 
@@ -34,6 +34,7 @@ def freeze(runs: Path, seconds: float, *arguments: str) -> tuple[Path, int, str]
     return folder, spawn.returncode, (folder / "world.stderr").read_text()
 
 
+@pytest.mark.processes
 @pytest.mark.timeout(200)
 def test_a_freeze_below_the_lease_is_waited_out_and_the_run_equals_the_engine(tmp_path: Path) -> None:
     folder, code, world = freeze(tmp_path / "runs", 3.0)
@@ -44,6 +45,7 @@ def test_a_freeze_below_the_lease_is_waited_out_and_the_run_equals_the_engine(tm
     assert_equals_engine(log)
 
 
+@pytest.mark.processes
 @pytest.mark.timeout(200)
 def test_a_freeze_above_the_lease_does_not_hang_the_lockstep_team(tmp_path: Path) -> None:
     started = time.monotonic()

@@ -16,7 +16,7 @@ from ringtrack.bus.messages import SCHEMA, End, Rejected, Reply, Request, decode
 from ringtrack.bus.participant import Delivery
 from ringtrack.tools.monitor import AHEAD_STEPS, PENDING_LIMIT, Recorder
 from ringtrack.tools.runlog import LogWriter
-from tests.emulation import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
+from tests.helpers import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
 from tests.test_node import RUN, make_node
 
 REPLY_ROUTE = Route("r1", "r0", "reply")
@@ -63,6 +63,7 @@ def test_a_flood_of_requests_draws_a_bounded_number_of_answers() -> None:
     assert len(other) == 1
 
 
+@pytest.mark.processes
 def test_a_forged_end_that_empties_the_ring_ends_the_run_as_failed(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     spawn = start_spawn(runs, "--steps", "3000")

@@ -14,9 +14,10 @@ from ringtrack.bus.config import BusConfig, listening_locators, open_session
 from ringtrack.bus.identity import IdClaim
 from ringtrack.bus.keys import Keys
 from ringtrack.bus.participant import Participant
-from tests.emulation import RINGTRACK, start_spawn, stop_all, wait_for_steps
+from tests.helpers import RINGTRACK, start_spawn, stop_all, wait_for_steps
 
 
+@pytest.mark.processes
 def test_joining_as_a_live_robot_is_refused_in_one_line(tmp_path: Path) -> None:
     runs = tmp_path / "runs"
     spawn = start_spawn(runs, "--steps", "3000")

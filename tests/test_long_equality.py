@@ -42,10 +42,12 @@ def lockstep_equals_engine_exactly(tmp_path: Path, steps: int, name: str, estima
 
 @pytest.mark.parametrize(("name", "estimation"), [("paper-stationary", "known"), ("authors-moving", "centralized"),
                                                    ("authors-moving", "decentralized")])
+@pytest.mark.processes
 def test_a_lockstep_run_equals_the_engine_bit_for_bit(tmp_path: Path, name: str, estimation: str) -> None:
     lockstep_equals_engine_exactly(tmp_path, 300, name, estimation)
 
 
+@pytest.mark.processes
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_a_lockstep_decentralized_run_of_20000_steps_equals_the_engine_bit_for_bit(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ringtrack.bus.counting import totals_by_category
 from ringtrack.tools.spawn import spawn_team
-from tests.emulation import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
+from tests.helpers import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
 
 
 def role_pid(folder: Path, role: str) -> int:
@@ -25,6 +25,7 @@ def role_pid(folder: Path, role: str) -> int:
     raise AssertionError(f"no {role} process for {folder}")
 
 
+@pytest.mark.processes
 def test_a_monitor_ended_after_the_world_died_is_no_crash_and_the_summary_counts_what_senders_sent(
         tmp_path: Path) -> None:
     runs = tmp_path / "runs"
@@ -52,6 +53,7 @@ def test_a_monitor_ended_after_the_world_died_is_no_crash_and_the_summary_counts
     assert processes_mentioning(str(folder)) == []
 
 
+@pytest.mark.processes
 def test_the_summary_memory_figure_includes_the_monitor(tmp_path: Path) -> None:
     result = spawn_team(scenario(max_steps=20), runs=tmp_path, dashboard=False, quiet=True)
     assert result["exit_code"] == 0

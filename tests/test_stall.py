@@ -12,6 +12,7 @@ from ringtrack.tools.spawn import stalled_at
 from ringtrack.tools.supervisor import Supervisor
 
 
+@pytest.mark.processes
 def test_a_long_start_up_is_not_a_stall(tmp_path: Path) -> None:
     with Supervisor(tmp_path) as supervisor:
         supervisor.start("slow", [sys.executable, "-c", "import time; time.sleep(1.5)"])
@@ -20,6 +21,7 @@ def test_a_long_start_up_is_not_a_stall(tmp_path: Path) -> None:
         assert time.monotonic() - started > 1.0  # waited for the child, raised nothing
 
 
+@pytest.mark.processes
 def test_a_run_that_stops_growing_after_its_first_step_is_a_stall(tmp_path: Path) -> None:
     log = tmp_path / "log.jsonl"
     log.write_text("{}\n")

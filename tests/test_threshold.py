@@ -7,7 +7,7 @@ import subprocess
 import pytest
 
 from ringtrack.world.threshold import LOOSE_SHARE, loose_threshold
-from tests.emulation import RINGTRACK
+from tests.helpers import RINGTRACK
 
 
 @pytest.mark.parametrize(("robots", "loose"), [(6, False), (64, False), (180, False), (181, True), (1000, True)])
@@ -17,6 +17,7 @@ def test_the_default_threshold_is_loose_beyond_180_robots(robots: int, loose: bo
     assert (0.1 * robots / 360 > LOOSE_SHARE) == loose
 
 
+@pytest.mark.processes
 def test_simulate_a_thousand_robots_warns_in_one_line() -> None:
     result = subprocess.run([*RINGTRACK, "simulate", "--robots", "1000", "--steps", "2"], capture_output=True,
                             text=True, timeout=120)
