@@ -10,6 +10,8 @@ import subprocess
 import time
 from pathlib import Path
 
+import pytest
+
 from ringtrack.bus.config import BusConfig, listening_locators, open_session
 from ringtrack.bus.identity import IdClaim
 from ringtrack.bus.keys import Keys

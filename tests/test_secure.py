@@ -101,7 +101,7 @@ def test_the_policy_is_generated_from_the_key_scheme() -> None:
     # robot 3 may send exactly what its own keys name: a data key whose source is r3
     assert rules["r3-sends"]["key_exprs"] == ["ringtrack/*/*/r3/*"]
     assert keys.data("r4", "r3", "reply").split("/")[2:] == ["r4", "r3", "reply"]
-    assert rules["r3-tokens"]["key_exprs"] == ["ringtrack/*/alive/r3", "ringtrack/*/ready/r3"]
+    assert rules["r3-tokens"]["key_exprs"] == ["ringtrack/*/alive/r3", "ringtrack/*/ready/r3", "ringtrack/*/claim/r3/*"]
     assert rules["monitor-subscribes"]["key_exprs"] == ["ringtrack/*/**"]
     assert rules["r3-subscribes"]["key_exprs"] == ["ringtrack/*/r3/**", "ringtrack/*/all/**"]
     assert all(rule["flows"] == ["ingress"] for name, rule in rules.items() if name != "send-to-team")
