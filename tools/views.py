@@ -111,6 +111,7 @@ class LiveView:
         live.start()
         try:
             while (snapshot := self.mailbox.take()) is not None:
+                assert isinstance(snapshot, TeamModel)  # a dashboard's mailbox holds models only
                 live.update(Dashboard(snapshot), refresh=True)
         finally:
             live.stop()  # draws the last snapshot once more, in full
@@ -148,26 +149,30 @@ def per_robot_table(rows: list, all_robots: bool = False) -> Table:
     """Robot-to-robot messages and bytes each robot sent and received, and its world traffic; above
     ``SUMMARISED_ABOVE`` robots only min/median/max and the busiest, unless ``all_robots``."""
     robots = sorted({name for _, source, destination, _, _ in rows for name in (source, destination)
-                     if robot_index(name) is not None}, key=robot_index)
+                     if robot_index(name) is not None}, key=lambda name: robot_index(name) or 0)
     table = Table(title="per robot (messages/bytes)", caption="robot-to-robot sent and received; world: "
                   "measurements from it, commands to it", caption_justify="left")
     for column in ("robot", "sent", "received", "from world", "to world"):
         table.add_column(column, justify="right")
-    counted = [(name, [
-        _sum(rows, lambda kind, source, _, name=name: category_of(kind) == "robot" and source == name),
-        _sum(rows, lambda kind, _, destination, name=name: category_of(kind) == "robot" and destination == name),
-        _sum(rows, lambda _, source, destination, name=name: source == "world" and destination == name),
-        _sum(rows, lambda _, source, destination, name=name: source == name and destination == "world"),
-    ]) for name in robots]
+    counted = [(name, robot_counts(rows, name)) for name in robots]
     for label, counts, style in summarised(counted, all_robots, lambda counts: counts[0][0] + counts[1][0]):
         table.add_row(label, *(f"{messages}/{size}" for messages, size in counts), style=style)
     return table
 
 
-def _sum(rows: list, match: Callable[[str, str, str], bool]) -> tuple[int, int]:
-    """``(messages, bytes)`` over the traffic rows whose (kind, source, destination) match."""
-    selected = [(count, size) for kind, source, destination, count, size in rows if match(kind, source, destination)]
-    return sum(count for count, _ in selected), sum(size for _, size in selected)
+def robot_counts(rows: list, name: str) -> Counts:
+    """``(messages, bytes)`` of robot ``name``: robot-to-robot sent and received, from the world and
+    to the world, summed over traffic rows ``(kind, source, destination, messages, bytes)``."""
+    totals = [[0, 0] for _ in range(4)]
+    for kind, source, destination, count, size in rows:
+        robot = category_of(kind) == "robot"
+        for column, hit in enumerate((robot and source == name, robot and destination == name,
+                                      source == "world" and destination == name,
+                                      source == name and destination == "world")):
+            if hit:
+                totals[column][0] += count
+                totals[column][1] += size
+    return [(messages, size) for messages, size in totals]
 
 
 def per_link_table(report: MonitorReport, all_robots: bool = False) -> Table:
