@@ -38,7 +38,13 @@ def current_step(log: Path) -> int:
             tail = file.read().decode(errors="replace")
     except OSError:
         return 1
-    steps = [json.loads(line).get("step", 0) for line in tail.splitlines()[1:] if '"type":"step"' in line]
+    steps = []
+    for line in tail.splitlines()[1:]:  # the first may be cut by the seek
+        if '"type":"step"' in line:
+            try:
+                steps.append(json.loads(line).get("step", 0))
+            except json.JSONDecodeError:
+                pass  # the line the monitor is writing now
     return max(steps, default=0) + 1
 
 
