@@ -16,9 +16,12 @@ from numpy.typing import NDArray
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
-from ringtrack.bus.faults import FAULT_COUNTERS, Fate, FaultPlan
+from ringtrack.bus.faults import FAULT_COUNTERS, FaultPlan
+from ringtrack.bus.messages import robot_message_bytes
+from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import convergence_error, convergence_step, mean_communication_rate, true_offsets
+from ringtrack.world.ranges import link_distance
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
 
@@ -34,7 +37,8 @@ class History:
     :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
     over robots of the distance from the estimate each steered by to the target); ``estimates`` those
     estimates (or ``None`` when not recorded); robot-to-robot traffic (``sent``, ``received``), the
-    fault layer's counts (``faults``) and ``probes`` of unreachable neighbours (see :func:`exchange`).
+    fault layer's counts (``faults``), ``probes`` of unreachable neighbours, the bytes each robot
+    published and the radio energy of each robot's traffic (see :func:`exchange`).
     """
 
     scenario: Scenario
@@ -52,6 +56,8 @@ class History:
     received: NDArray[np.int64]  # (K, T, N) ... addressed to each robot
     faults: NDArray[np.int64]  # (K, T, 5) FAULT_COLUMNS: sent, delivered, dropped, duplicated, delayed
     probes: NDArray[np.int64]  # (K, T) requests to unreachable neighbours
+    sent_bytes: NDArray[np.int64] | None = None  # (K, T, N) bytes of the robot-to-robot messages each published
+    energy: FloatArray | None = None  # (K, T, N, 2) radio energy, J: transmit, receive (None: not known)
 
     @property
     def steps(self) -> int:
@@ -154,8 +160,9 @@ def fault_totals(history: History, trial: int = 0) -> dict[str, int]:
 @dataclass
 class Exchange:
     """What the polls and probes of one step achieved, for a batch of teams: which sides came back
-    fresh, robot-to-robot messages published per robot (sent, received), the fault counts per trial
-    (:data:`FAULT_COLUMNS`) and the probes of unreachable neighbours per trial."""
+    fresh, robot-to-robot messages published per robot (sent, received) and the bytes it published,
+    the fault counts per trial (:data:`FAULT_COLUMNS`), the probes of unreachable neighbours per
+    trial and each robot's radio energy (joules, transmit and receive, last axis)."""
 
     fresh_minus: NDArray[np.bool_]
     fresh_plus: NDArray[np.bool_]
@@ -163,55 +170,74 @@ class Exchange:
     received: NDArray[np.int64]
     faults: NDArray[np.int64]
     probes: NDArray[np.int64]
+    sent_bytes: NDArray[np.int64]
+    energy: FloatArray
+
+
+def _to_neighbours(per_side: NDArray) -> NDArray:
+    """Values of each robot's (predecessor, successor) sides, shape (T, N, 2), summed onto the
+    neighbour at the other end of each link, shape (T, N)."""
+    return np.roll(per_side[..., 0], -1, axis=1) + np.roll(per_side[..., 1], 1, axis=1)
 
 
 def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
-             reach_plus: NDArray[np.bool_]) -> Exchange:
-    """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`):
-    a polling robot requests both neighbours; a robot also probes each unreachable neighbour once
-    (its poll request serving as the probe); a request to an unreachable neighbour is dropped, every
-    delivered copy of a request is answered, and each reply meets its own fate."""
+             reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
+             distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
+             belief: bool = False) -> Exchange:
+    """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`),
+    for every robot of every trial at once: a polling robot requests both neighbours; a robot also
+    probes each unreachable neighbour once (its poll request serving as the probe); a request to an
+    unreachable neighbour is dropped, every delivered copy of a request is answered, and each reply
+    meets its own fate. Links are ``distance_minus``/``distance_plus`` metres long (to the
+    predecessor, successor; default 0), trial t draws its fates with plan seed ``seeds[t]``
+    (default the plan's) and replies carry a belief when ``belief``. Energy: every copy put on the
+    air costs its sender transmission (a request lost on the way out once), every copy delivered
+    costs its receiver reception (:mod:`bus.radio`), with the exact encoded size of each message."""
     trials, robots = polled.shape
-    if not plan.active and reach_minus.all() and reach_plus.all():
-        traffic = robot_to_robot_sent(polled)
-        faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
-        faults[:, 0] = faults[:, 1] = traffic.sum(axis=1)
-        return Exchange(polled, polled, traffic, traffic, faults, np.zeros(trials, dtype=np.int64))
-    fresh = {-1: np.zeros_like(polled), 1: np.zeros_like(polled)}
-    sent = np.zeros(polled.shape, dtype=np.int64)
-    received = np.zeros(polled.shape, dtype=np.int64)
-    faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
-    probes = np.zeros(trials, dtype=np.int64)
-    count = {name: index for index, name in enumerate(FAULT_COLUMNS)}
-    for trial, robot in zip(*np.nonzero(polled | ~reach_minus | ~reach_plus), strict=True):
-        for side, reachable in ((-1, reach_minus[trial, robot]), (1, reach_plus[trial, robot])):
-            if reachable and not polled[trial, robot]:
-                continue
-            neighbour = (robot + side) % robots
-            probes[trial] += not reachable
-            faults[trial, count["sent"]] += 1
-            fate = plan.fate("request", robot, neighbour, step) if reachable else Fate(dropped=True, reason="range")
-            if fate.dropped:
-                faults[trial, count["dropped"]] += 1
-                continue
-            copies = fate.copies
-            faults[trial, count["delayed"]] += fate.delay_s > 0
-            faults[trial, count["duplicated"]] += copies - 1
-            faults[trial, count["delivered"]] += copies
-            sent[trial, robot] += copies
-            received[trial, neighbour] += copies
-            answer = plan.fate("reply", neighbour, robot, step)
-            faults[trial, count["sent"]] += copies
-            sent[trial, neighbour] += copies
-            received[trial, robot] += copies
-            if answer.dropped:
-                faults[trial, count["dropped"]] += copies
-                continue
-            faults[trial, count["delayed"]] += copies * (answer.delay_s > 0)
-            faults[trial, count["delivered"]] += copies * answer.copies
-            faults[trial, count["duplicated"]] += copies * (answer.copies - 1)
-            fresh[side][trial, robot] = True
-    return Exchange(fresh[-1], fresh[1], sent, received, faults, probes)
+    reach = np.stack([reach_minus, reach_plus], axis=-1)
+    distance = np.zeros(reach.shape) if distance_minus is None else np.stack([distance_minus, distance_plus], axis=-1)
+    robot = np.arange(robots)[None, :, None]
+    neighbour = (robot + np.array([-1, 1])) % robots
+    seed = None if seeds is None else np.asarray(seeds)[:, None, None]
+    requested = polled[..., None] | ~reach
+    request = plan.decide("request", robot, neighbour, step, distance, seed)
+    reply = plan.decide("reply", neighbour, robot, step, distance, seed)
+    lost = ~reach | request.dropped
+    answered = np.where(requested & ~lost, request.copies, 0)  # request copies delivered, each answered once
+    replies_kept = np.where(reply.dropped, 0, reply.copies)
+    per_trial = (1, 2)
+    faults = np.stack([
+        requested.sum(axis=per_trial) + answered.sum(axis=per_trial),
+        answered.sum(axis=per_trial) + (answered * replies_kept).sum(axis=per_trial),
+        (requested & lost).sum(axis=per_trial) + (answered * reply.dropped).sum(axis=per_trial),
+        (answered - (answered > 0)).sum(axis=per_trial)
+        + (answered * np.maximum(replies_kept - 1, 0)).sum(axis=per_trial),
+        ((answered > 0) & (request.delay_s > 0)).sum(axis=per_trial)
+        + (answered * (replies_kept > 0) * (reply.delay_s > 0)).sum(axis=per_trial),
+    ], axis=-1).astype(np.int64)
+    fresh = (answered > 0) & ~reply.dropped
+    sent = answered.sum(axis=-1) + _to_neighbours(answered)
+    request_bytes = robot_message_bytes("request", step, robot, neighbour)
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief)
+    sent_bytes = (answered * request_bytes).sum(axis=-1) + _to_neighbours(answered * reply_bytes)
+    radio = plan.radio
+    request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
+    on_air = np.where(requested, np.where(lost, 1, request.copies), 0)
+    energy = np.stack([
+        (on_air * transmit_energy(radio, request_bits, distance)).sum(axis=-1)
+        + _to_neighbours(answered * transmit_energy(radio, reply_bits, distance)),
+        _to_neighbours(answered * receive_energy(radio, request_bits))
+        + (answered * replies_kept * receive_energy(radio, reply_bits)).sum(axis=-1),
+    ], axis=-1)
+    return Exchange(fresh[..., 0], fresh[..., 1], sent, sent, faults, (~reach).sum(axis=per_trial), sent_bytes,
+                    energy)
+
+
+def fault_seeds(scenario: Scenario, seeds: Sequence[int]) -> NDArray[np.int64]:
+    """The fault plan's seed of each trial: ``[faults] seed`` when the scenario sets it, else the
+    trial's seed (what ``--seed`` gives a single run), so trial t equals a run with seed t."""
+    fixed = scenario.spec.faults.seed
+    return np.array([fixed if fixed is not None else seed for seed in seeds], dtype=np.int64)
 
 
 def run(
@@ -248,6 +274,10 @@ def run(
     received = np.empty((steps, trials, robots), dtype=np.int64)
     faults = np.empty((steps, trials, len(FAULT_COLUMNS)), dtype=np.int64)
     probes = np.empty((steps, trials), dtype=np.int64)
+    sent_bytes = np.empty((steps, trials, robots), dtype=np.int64)
+    energy = np.empty((steps, trials, robots, 2))
+    plan_seeds = fault_seeds(scenario, seeds)
+    belief = scenario.estimation.mode == "decentralized"
     limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
@@ -262,18 +292,20 @@ def run(
         cerr_true[row] = convergence_error(true_offsets(positions, targets))
         centres = team.measure(positions, targets)
         neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
-        reach = tuple(np.linalg.norm(neighbour - positions, axis=-1) <= (limit or np.inf) for neighbour in neighbours)
+        lengths = tuple(link_distance(positions, neighbour) for neighbour in neighbours)
+        reach = tuple(length <= (limit or np.inf) for length in lengths)
         reasons = controller.observe(k, positions, centres, reach)
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
-        outcome = exchange(scenario.faults, k, polled, *reach)
+        outcome = exchange(scenario.faults, k, polled, *reach, *lengths, plan_seeds, belief)
         controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
         goal = controller.goal(reach if limit else None, limit)
         sent[row], received[row], faults[row], probes[row] = outcome.sent, outcome.received, outcome.faults, outcome.probes
+        sent_bytes[row], energy[row] = outcome.sent_bytes, outcome.energy
         offsets[row] = controller.guaranteed_offset
         terr[row] = np.linalg.norm(centres - targets[:, None, :], axis=-1).mean(axis=-1)
         if estimates is not None:
@@ -303,6 +335,8 @@ def run(
         received=received[:steps],
         faults=faults[:steps],
         probes=probes[:steps],
+        sent_bytes=sent_bytes[:steps],
+        energy=energy[:steps],
     )
 
 
@@ -332,4 +366,6 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "terr_mean": float(history.terr[:, trial].mean()),
         "terr_final": float(history.terr[-1, trial]),
         "faults": fault_totals(history, trial),
+        **({} if history.energy is None else {"robot_bytes": int(history.sent_bytes[:, trial].sum()),
+                                              "energy": energy_report(*history.energy[:, trial].sum(axis=0).T)}),
     }

@@ -72,7 +72,8 @@ async def run_robot(
         code = await _serve(link, roster, events)
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests}
-        participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes))
+        participant.send(MONITOR, participant.stats(final=True, faults=link.shim.counter.table(), notes=notes,
+                                                    energy_j=tuple(link.shim.energy_j)))
         if expect_monitor and code != 130:
             await linger(participant, roster, {MONITOR})
         return code
@@ -104,7 +105,8 @@ class RobotLink:
         self.participant = participant
         self.node = node
         self.reply_timeout = reply_timeout
-        self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable)
+        self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable, node.distance,
+                             realtime=reply_timeout is not None)
 
     def send(self, outgoing: Outgoing) -> None:
         pending = list(outgoing)

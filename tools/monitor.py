@@ -198,6 +198,7 @@ class MonitorReport:
     faults: Counter[str] = field(default_factory=Counter)  # robots' fault layers, summed
     notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
     rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
+    energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
 
     def sender_rows(self) -> list[Traffic]:
         """Every traffic row of every sender's final statistics."""
@@ -267,6 +268,7 @@ async def run_monitor(
                                                                       "delayed")},
                     "notes": dict(report.notes),
                     "rejected_by": report.rejected_by,
+                    "energy_j": report.energy_j,
                 }
             )
         if model is not None:
@@ -339,6 +341,7 @@ async def _watch(
         faults=sum((Counter(stats.faults) for stats in finals.values()), Counter()),
         notes=sum((Counter(stats.notes) for stats in finals.values()), Counter()),
         rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
+        energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
     )
     return code, report
 

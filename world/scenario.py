@@ -38,6 +38,7 @@ A scenario file looks like::
     delay_ms = 0.0             # wall delay, with +- jitter_ms
     [[faults.links]]           # per-link override: between = [0, 1], drop = 0.5, ...
     [[faults.outages]]         # links down: links = [[2, 3], [5, 0]], from_step = 100, to_step = 300
+    [radio]                    # loss with distance, energy, realtime latency: see world/radio.py
 
 Every problem is reported as one :class:`ScenarioError` line naming the key and the fix.
 """
@@ -57,6 +58,7 @@ import numpy as np
 from ringtrack.bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
 from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
 from ringtrack.world.params import ControlParams, EstimationParams
+from ringtrack.world.radio import RadioSpec, with_radio
 from ringtrack.world.ring import ring_gaps
 from ringtrack.world.schema import COORDINATE_LIMIT, Coordinate, Finite, NonNegative, Point, Positive, Probability, Spec
 from ringtrack.world.target import Stationary, TargetSpec
@@ -149,6 +151,7 @@ class ScenarioSpec(Spec, kw_only=True):
     estimation: EstimationSpec = EstimationSpec()
     limits: LimitsSpec = LimitsSpec()
     faults: FaultsSpec = FaultsSpec()
+    radio: RadioSpec = RadioSpec()
 
 
 DEFAULT_OMEGA_MAX_DEG = 1.0
@@ -400,7 +403,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,
-        faults=_fault_plan(spec, label),
+        faults=with_radio(_fault_plan(spec, label), spec.radio, spec.limits.communication_range, label),
         communication_range=spec.limits.communication_range,
     )
 
