@@ -10,13 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
-from ringtrack.bus.faults import FAULT_COUNTERS, FaultPlan
+from ringtrack.bus.faults import FAULT_COUNTERS, FaultPlan, Fates
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
@@ -62,6 +63,17 @@ class History:
     @property
     def steps(self) -> int:
         return self.angles.shape[0]
+
+    def select(self, trials: slice, scenario: Scenario | None = None) -> History:
+        """The history of some of the trials (as if run alone, for the steps this batch ran),
+        labelled with ``scenario`` (default this one's)."""
+        arrays = {}
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            arrays[name] = value[:, trials] if isinstance(value, np.ndarray) else value
+        arrays["scenario"] = scenario or self.scenario
+        arrays["seeds"] = self.seeds[trials]
+        return History(**arrays)
 
     @property
     def cerr_memory(self) -> FloatArray:
@@ -175,9 +187,9 @@ class Exchange:
 
 
 def _to_neighbours(per_side: NDArray) -> NDArray:
-    """Values of each robot's (predecessor, successor) sides, shape (T, N, 2), summed onto the
-    neighbour at the other end of each link, shape (T, N)."""
-    return np.roll(per_side[..., 0], -1, axis=1) + np.roll(per_side[..., 1], 1, axis=1)
+    """Values of each robot's (predecessor, successor) sides, shape (..., T, N, 2), summed onto the
+    neighbour at the other end of each link, shape (..., T, N)."""
+    return np.roll(per_side[..., 0], -1, axis=-1) + np.roll(per_side[..., 1], 1, axis=-1)
 
 
 def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
@@ -196,41 +208,79 @@ def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus:
     trials, robots = polled.shape
     reach = np.stack([reach_minus, reach_plus], axis=-1)
     distance = np.zeros(reach.shape) if distance_minus is None else np.stack([distance_minus, distance_plus], axis=-1)
-    robot = np.arange(robots)[None, :, None]
-    neighbour = (robot + np.array([-1, 1])) % robots
+    robot, neighbour = _ring_sides(robots)
     seed = None if seeds is None else np.asarray(seeds)[:, None, None]
     requested = polled[..., None] | ~reach
-    request = plan.decide("request", robot, neighbour, step, distance, seed)
-    reply = plan.decide("reply", neighbour, robot, step, distance, seed)
+    if plan.active:
+        request = plan.decide("request", robot, neighbour, step, distance, seed)
+        reply = plan.decide("reply", neighbour, robot, step, distance, seed)
+    else:
+        request = reply = Fates(np.zeros(reach.shape, np.int8), np.ones(reach.shape, np.int64), np.zeros(reach.shape))
     lost = ~reach | request.dropped
     answered = np.where(requested & ~lost, request.copies, 0)  # request copies delivered, each answered once
     replies_kept = np.where(reply.dropped, 0, reply.copies)
+    fresh = (answered > 0) & ~reply.dropped
+    radio = plan.radio
+    request_bytes = robot_message_bytes("request", step, robot, neighbour)
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief)
+    request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
+    on_air = np.where(requested, np.where(lost, 1, request.copies), 0)
+    received_replies = answered * replies_kept
+    # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
+    own = np.stack([answered, answered * request_bytes, on_air * transmit_energy(radio, request_bits, distance),
+                    received_replies * receive_energy(radio, reply_bits)])
+    other = np.stack([answered, answered * reply_bytes, answered * transmit_energy(radio, reply_bits, distance),
+                      answered * receive_energy(radio, request_bits)])
+    totals = own.sum(axis=-1) + _to_neighbours(other)
+    sent = totals[0].astype(np.int64)
     per_trial = (1, 2)
     faults = np.stack([
         requested.sum(axis=per_trial) + answered.sum(axis=per_trial),
-        answered.sum(axis=per_trial) + (answered * replies_kept).sum(axis=per_trial),
+        answered.sum(axis=per_trial) + received_replies.sum(axis=per_trial),
         (requested & lost).sum(axis=per_trial) + (answered * reply.dropped).sum(axis=per_trial),
         (answered - (answered > 0)).sum(axis=per_trial)
         + (answered * np.maximum(replies_kept - 1, 0)).sum(axis=per_trial),
         ((answered > 0) & (request.delay_s > 0)).sum(axis=per_trial)
         + (answered * (replies_kept > 0) * (reply.delay_s > 0)).sum(axis=per_trial),
     ], axis=-1).astype(np.int64)
-    fresh = (answered > 0) & ~reply.dropped
-    sent = answered.sum(axis=-1) + _to_neighbours(answered)
-    request_bytes = robot_message_bytes("request", step, robot, neighbour)
-    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief)
-    sent_bytes = (answered * request_bytes).sum(axis=-1) + _to_neighbours(answered * reply_bytes)
-    radio = plan.radio
-    request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
-    on_air = np.where(requested, np.where(lost, 1, request.copies), 0)
-    energy = np.stack([
-        (on_air * transmit_energy(radio, request_bits, distance)).sum(axis=-1)
-        + _to_neighbours(answered * transmit_energy(radio, reply_bits, distance)),
-        _to_neighbours(answered * receive_energy(radio, request_bits))
-        + (answered * replies_kept * receive_energy(radio, reply_bits)).sum(axis=-1),
-    ], axis=-1)
-    return Exchange(fresh[..., 0], fresh[..., 1], sent, sent, faults, (~reach).sum(axis=per_trial), sent_bytes,
-                    energy)
+    return Exchange(fresh[..., 0], fresh[..., 1], sent, sent, faults, (~reach).sum(axis=per_trial),
+                    totals[1].astype(np.int64), np.stack([totals[2], totals[3]], axis=-1))
+
+
+@lru_cache(maxsize=8)
+def _ring_sides(robots: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Each robot's id and its (predecessor, successor) ids, shapes (1, N, 1) and (1, N, 2)."""
+    robot = np.arange(robots)[None, :, None]
+    return robot, (robot + np.array([-1, 1])) % robots
+
+
+def _plan_groups(plans: list[FaultPlan], trials: int) -> list[tuple[FaultPlan, NDArray[np.int64]]]:
+    """The distinct plans (by identity) and the trials of each."""
+    if len(plans) != trials:
+        raise ValueError(f"{len(plans)} fault plans for {trials} trials; give one per trial")
+    first: dict[int, int] = {}
+    for trial, plan in enumerate(plans):
+        first.setdefault(id(plan), trial)
+    return [(plans[trial], np.array([t for t, plan in enumerate(plans) if id(plan) == id(plans[trial])]))
+            for trial in first.values()]
+
+
+def _exchange_groups(groups: list[tuple[FaultPlan, NDArray[np.int64]]], step: int, polled: NDArray[np.bool_],
+                     reach: tuple[NDArray[np.bool_], NDArray[np.bool_]], lengths: tuple[FloatArray, FloatArray],
+                     seeds: NDArray[np.int64], belief: bool) -> Exchange:
+    """:func:`exchange` of each group of trials with its own plan, reassembled in trial order."""
+    if len(groups) == 1:
+        return exchange(groups[0][0], step, polled, *reach, *lengths, seeds, belief)
+    parts = [(trials, exchange(plan, step, polled[trials], reach[0][trials], reach[1][trials], lengths[0][trials],
+                               lengths[1][trials], seeds[trials], belief)) for plan, trials in groups]
+    fields = {}
+    for name in Exchange.__dataclass_fields__:
+        sample = getattr(parts[0][1], name)
+        merged = np.empty((len(polled), *sample.shape[1:]), dtype=sample.dtype)
+        for trials, part in parts:
+            merged[trials] = getattr(part, name)
+        fields[name] = merged
+    return Exchange(**fields)
 
 
 def fault_seeds(scenario: Scenario, seeds: Sequence[int]) -> NDArray[np.int64]:
@@ -247,11 +297,14 @@ def run(
     until_converged: bool = False,
     record_positions: bool = True,
     on_step: StepObserver | None = None,
+    plans: Sequence[FaultPlan] | None = None,
 ) -> History:
     """Run ``scenario`` for each seed (default: the scenario's own) as one vectorised batch.
 
     ``steps`` defaults to ``scenario.max_steps``; with ``until_converged`` the batch stops at the
     first step by which every trial has converged. ``on_step(k)`` is called after each step (progress).
+    ``plans`` gives each trial its own fault plan (default: the scenario's for all), so that runs
+    that differ only in their faults share one batch (:meth:`History.select` splits it again).
     """
     seeds = [scenario.seed] if seeds is None else [seeds] if isinstance(seeds, int) else list(seeds)
     steps = scenario.max_steps if steps is None else steps
@@ -277,6 +330,7 @@ def run(
     sent_bytes = np.empty((steps, trials, robots), dtype=np.int64)
     energy = np.empty((steps, trials, robots, 2))
     plan_seeds = fault_seeds(scenario, seeds)
+    groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)
     belief = scenario.estimation.mode == "decentralized"
     limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
@@ -298,7 +352,7 @@ def run(
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
-        outcome = exchange(scenario.faults, k, polled, *reach, *lengths, plan_seeds, belief)
+        outcome = _exchange_groups(groups, k, polled, reach, lengths, plan_seeds, belief)
         controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)

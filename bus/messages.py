@@ -285,8 +285,8 @@ NONCE_BASE = 2**31  # nonces and run ids are drawn from [2^31, 2^32): always 5 b
 
 def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
     """Bytes msgpack takes for non-negative integers below 2^32 (1, 2, 3 or 5)."""
-    value = np.asarray(value)
-    return np.select([value < 128, value < 256, value < 65536], [1, 2, 3], 5).astype(np.int64)
+    value = np.asarray(value, dtype=np.int64)
+    return 1 + (value >= 128) + (value >= 256) + 2 * (value >= 65536)
 
 
 @lru_cache(maxsize=None)

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.bus.messages import poll_bytes
+from ringtrack.tools import robustness
 from ringtrack.tools.console import UsageError, err, out, write_json
 from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
@@ -61,6 +62,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
     moving.set_defaults(handler=run_moving)
+    robustness.register(kinds)
 
 
 def robot_list(text: str) -> list[int]:
