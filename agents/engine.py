@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
-from ringtrack.bus.faults import FAULT_COUNTERS, FaultPlan, Fates
+from ringtrack.bus.faults import FAULT_COUNTERS, Fates, FaultPlan
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
@@ -358,8 +358,8 @@ def run(
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
         goal = controller.goal(reach if limit else None, limit)
-        sent[row], received[row], faults[row], probes[row] = outcome.sent, outcome.received, outcome.faults, outcome.probes
-        sent_bytes[row], energy[row] = outcome.sent_bytes, outcome.energy
+        sent[row], received[row], sent_bytes[row] = outcome.sent, outcome.received, outcome.sent_bytes
+        faults[row], probes[row], energy[row] = outcome.faults, outcome.probes, outcome.energy
         offsets[row] = controller.guaranteed_offset
         terr[row] = np.linalg.norm(centres - targets[:, None, :], axis=-1).mean(axis=-1)
         if estimates is not None:

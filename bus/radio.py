@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 RadioModel = Literal["ideal", "disk", "log-distance"]
-QUADRATURE_NODES = 64  # Gauss-Hermite nodes of the expected loss over shadowing
+QUADRATURE_NODES = 200  # Gauss-Hermite nodes of the expected loss over shadowing (w = 1 dB, sd = 3 dB: to 1e-11)
 
 
 @dataclass(frozen=True)

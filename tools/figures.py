@@ -112,6 +112,7 @@ def moving_velocities(result: dict, path: Path) -> None:
 SWEPT_LABELS = {"drop": "drop probability", "outage_steps": "partition outage (steps)",
                 "communication_range": "communication range r_c (m)"}
 VARIANT_STYLES = {"centralized": "-", "decentralized": "--"}
+MARKERS = "os^Dv"  # one per value of a second swept quantity
 
 
 def robustness_curves(result: dict, path: Path) -> None:
@@ -135,14 +136,16 @@ def robustness_curves(result: dict, path: Path) -> None:
     for entry in result["summary"]:
         key = (entry["strategy"], entry["estimation"], *(entry[name] for name in others))
         lines.setdefault(key, []).append(entry)
+    secondary = sorted({tuple(key[2:]) for key in lines}, key=str)
     spread = 0.006 * (max(map(position, [c[axis_key] for c in result["cells"]])) or 1.0)
     for number, (key, entries) in enumerate(sorted(lines.items(), key=lambda item: str(item[0]))):
         strategy, mode, *rest = key
         entries.sort(key=lambda entry: position(entry[axis_key]))
         label = STRATEGY_LABELS[strategy] + (f", {mode}" if result["moving"] else "")
         label += "".join(f", {name} {value}" for name, value in zip(others, rest, strict=True))
-        style = {"color": STRATEGY_COLOURS[strategy], "linestyle": VARIANT_STYLES.get(mode, "-"), "marker": "o",
-                 "markersize": 4, "capsize": 3, "label": label, "alpha": 1.0 if not rest else 0.55 + 0.45 / (1 + number)}
+        marker = MARKERS[secondary.index(tuple(rest)) % len(MARKERS)]
+        style = {"color": STRATEGY_COLOURS[strategy], "linestyle": VARIANT_STYLES.get(mode, "-"), "marker": marker,
+                 "markersize": 4, "capsize": 3, "label": label}
         dodge = spread * (number - (len(lines) - 1) / 2)
         xs = [position(entry[axis_key]) + dodge for entry in entries]
         for axis, (metric, name, unit) in zip(axes.flat, metrics, strict=False):
@@ -150,7 +153,7 @@ def robustness_curves(result: dict, path: Path) -> None:
             sds = [0.0 if entry[f"{metric}_sd"] is None else entry[f"{metric}_sd"] for entry in entries]
             axis.errorbar(xs, means, yerr=sds, **style)
             axis.set_title(name, fontsize=10)
-            axis.set_ylabel(unit or "fraction", fontsize=8)
+            axis.set_ylabel(unit, fontsize=8)
     for axis in axes.flat[len(metrics):]:
         axis.set_visible(False)
     for axis in axes.flat[:len(metrics)]:

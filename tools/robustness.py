@@ -50,9 +50,9 @@ CSV_FILE = output_path((".csv",))
 # Per-trial quantities summarised as mean and sd: (key, label, unit) in figure order.
 METRICS = (
     ("ctime", "Ctime", "steps"),
-    ("converged", "share converged", ""),
+    ("converged", "share converged", "fraction"),
     ("com_bar", "Com-bar", "polls per robot per step"),
-    ("messages", "robot-to-robot messages", ""),
+    ("messages", "robot-to-robot messages", "messages"),
     ("bytes", "robot-to-robot bytes", "B"),
     ("energy_per_robot", "radio energy per robot", "J"),
 )
@@ -238,7 +238,8 @@ def faults_experiment(
     for group in _batches(cells):
         for strategy, mode in variants(probe):
             scenarios = [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group]
-            name = _run_label(cells[group[0]], strategy, mode) + (f" and {len(group) - 1} more" if len(group) > 1 else "")
+            more = f" and {len(group) - 1} more cells" if len(group) > 1 else ""
+            name = _run_label(cells[group[0]], strategy, mode) + more
             report = None if on_step is None else (lambda k, text=name: on_step(text, k))
             batch = engine.run(scenarios[0], seeds * len(group), until_converged=not scenarios[0].moving,
                                record_positions=False, on_step=report,
