@@ -229,7 +229,7 @@ def with_team(line: str) -> str:
     [
         pytest.param(
             BASE.replace('name = "test"', 'name = "test"\nfoo = 1'),
-            "x.toml: unknown key 'foo' in top level; allowed keys: region, target, name, seed, team, control, sensing, estimation, limits, faults",
+            "x.toml: unknown key 'foo' in top level; allowed keys: region, target, name, seed, team, control, sensing, estimation, limits, faults, radio",
             id="unknown-top-level-key",
         ),
         pytest.param(

@@ -100,10 +100,13 @@ class TeamModel:
         self.started = time.monotonic()
         self.first_step_at: float | None = None
         self.status = "running"
+        self.energy_j: dict[str, list[float]] = {}  # robot -> [transmit, receive] J, from the end record
 
     def add(self, record: dict) -> None:
-        """Fold in one ``step`` or ``event`` record of the run log (other records change nothing)."""
-        if record["type"] == "step":
+        """Fold in one ``step``, ``event`` or ``end`` record of the run log (others change nothing)."""
+        if record["type"] == "end":
+            self.energy_j = dict(record.get("energy_j") or {})
+        elif record["type"] == "step":
             self._add_step(record)
         elif record["type"] == "event" and record["event"] in LINK_EVENTS:
             name = record["reason"] if record["event"] == "dropped" else FAULT_NAMES[record["event"]]
@@ -197,6 +200,13 @@ class TeamModel:
 
 
 # ---------------------------------------------------------------------------- rendering
+def energy_text(energy_j: dict[str, list[float]]) -> Text:
+    """The team's radio energy (known once the robots have reported it, at the end of a run)."""
+    per_robot = [transmit + receive for transmit, receive in energy_j.values()]
+    return Text.assemble(("radio energy: ", "bold"), f"team {1e3 * sum(per_robot):.2f} mJ, per robot "
+                         f"{1e3 * min(per_robot):.2f}-{1e3 * max(per_robot):.2f} mJ")
+
+
 def sparkline(values: list[float], width: int) -> Text:
     """``values`` (most recent last) as block characters, scaled between their min and max."""
     values = [value for value in values if not math.isnan(value)][-width:]
@@ -368,6 +378,7 @@ class Dashboard:
                 [Text.assemble(("Terr ", "bold"), sparkline(list(model.terr), 40), f" {model.terr[-1]:.3f} m")]
                 if scenario.estimation.mode != "known" and model.terr else []
             ),
+            *([energy_text(model.energy_j)] if model.energy_j else []),
             Text("map: digits robots (magenta: polled this step), x target, + estimates", "grey50"),
         )
         if width >= WIDE:

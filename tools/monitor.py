@@ -252,26 +252,26 @@ async def run_monitor(
             code, report = await _watch(participant, recorder, roster, held, refresh)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
-            writer.write(
-                {
-                    "type": "end",
-                    "steps": report.end.step if report.end else recorder.next_step - 1,
-                    "reason": report.end.reason if report.end else "monitor stopped",
-                    "wall_s": report.end.wall_s if report.end else None,
-                    "traffic": [list(row) for row in report.received],
-                    "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
-                    "rejected": report.rejected,
-                    "late": recorder.late,
-                    "rss_kib": report.rss_kib,
-                    "consistent": report.consistent(),
-                    "faults": {name: report.faults[name] for name in ("sent", "delivered", "dropped", "duplicated",
-                                                                      "delayed")},
-                    "notes": dict(report.notes),
-                    "rejected_by": report.rejected_by,
-                    "energy_j": report.energy_j,
-                }
-            )
+            end = {
+                "type": "end",
+                "steps": report.end.step if report.end else recorder.next_step - 1,
+                "reason": report.end.reason if report.end else "monitor stopped",
+                "wall_s": report.end.wall_s if report.end else None,
+                "traffic": [list(row) for row in report.received],
+                "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
+                "rejected": report.rejected,
+                "late": recorder.late,
+                "rss_kib": report.rss_kib,
+                "consistent": report.consistent(),
+                "faults": {name: report.faults[name] for name in ("sent", "delivered", "dropped", "duplicated",
+                                                                  "delayed")},
+                "notes": dict(report.notes),
+                "rejected_by": report.rejected_by,
+                "energy_j": report.energy_j,
+            }
+            writer.write(end)
         if model is not None:
+            model.add(end)
             model.status = report.end.reason if report.end else "stopped" if code == 130 else "world lost"
         if refresh is not None:
             refresh(True)
