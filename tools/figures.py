@@ -137,7 +137,7 @@ def robustness_curves(result: dict, path: Path) -> None:
         key = (entry["strategy"], entry["estimation"], *(entry[name] for name in others))
         lines.setdefault(key, []).append(entry)
     secondary = sorted({tuple(key[2:]) for key in lines}, key=str)
-    spread = 0.006 * (max(map(position, [c[axis_key] for c in result["cells"]])) or 1.0)
+    spread = 0.012 * (max(map(position, [c[axis_key] for c in result["cells"]])) or 1.0)
     for number, (key, entries) in enumerate(sorted(lines.items(), key=lambda item: str(item[0]))):
         strategy, mode, *rest = key
         entries.sort(key=lambda entry: position(entry[axis_key]))
@@ -154,6 +154,8 @@ def robustness_curves(result: dict, path: Path) -> None:
             axis.errorbar(xs, means, yerr=sds, **style)
             axis.set_title(name, fontsize=10)
             axis.set_ylabel(unit, fontsize=8)
+            if metric == "converged":
+                axis.set_ylim(-0.05, 1.05)
     for axis in axes.flat[len(metrics):]:
         axis.set_visible(False)
     for axis in axes.flat[:len(metrics)]:
