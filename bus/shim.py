@@ -25,7 +25,8 @@ class LinkShim:
     ``energy_j`` is the radio energy of the robot's robot-to-robot traffic (:mod:`bus.radio`),
     transmit and receive: every copy it puts on the air costs transmission over the link's length
     (a request lost on the way out was still sent once), every copy handed to the robot reception.
-    In ``realtime`` each copy also takes its airtime (``latency + 8 bytes / bandwidth``) to arrive.
+    In ``realtime``, with a radio model other than the ideal one, each copy also takes its airtime
+    (``latency + 8 bytes / bandwidth``) to arrive.
     """
 
     def __init__(self, participant: Participant, plan: FaultPlan, robot: int,
@@ -49,11 +50,11 @@ class LinkShim:
 
     def _transmit(self, message: Request | Reply, size: int, copies: int) -> float:
         """Spend the energy of ``copies`` transmissions of ``message``; returns the airtime of one
-        (realtime; 0 in lockstep)."""
+        (realtime with a disk or log-distance radio; else 0)."""
         radio = self.plan.radio
         bits = message_bits(radio, size)
         self.energy_j[0] += copies * float(transmit_energy(radio, bits, self.distance(message.receiver, message.step)))
-        return airtime_s(radio, size) if self.realtime else 0.0
+        return airtime_s(radio, size) if self.realtime and radio.model != "ideal" else 0.0
 
     def _receive(self, size: int, copies: int) -> None:
         self.energy_j[1] += copies * float(receive_energy(self.plan.radio, message_bits(self.plan.radio, size)))

@@ -11,7 +11,7 @@ import pytest
 from ringtrack.agents import engine
 from ringtrack.bus.faults import FaultPlan, LinkRates, Outage, link
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode, robot_message_bytes
-from ringtrack.bus.radio import Radio, loss_probability, message_bits, receive_energy, transmit_energy
+from ringtrack.bus.radio import Radio, airtime_s, loss_probability, message_bits, receive_energy, transmit_energy
 from ringtrack.world.ranges import link_distance
 from ringtrack.world.scenario import ScenarioError, load_scenario
 
@@ -148,6 +148,8 @@ def test_energy_formula_and_overhead() -> None:
     assert bits == 280
     assert transmit_energy(radio, bits, 8.0) == pytest.approx(280 * 50e-9 + 280 * 100e-12 * 64.0, rel=1e-15)
     assert receive_energy(radio, bits) == pytest.approx(280 * 50e-9, rel=1e-15)
+    timed = Radio(model="log-distance", latency_s=0.002, bandwidth_bps=250e3, overhead_bytes=10)
+    assert airtime_s(timed, 25) == pytest.approx(0.002 + 280 / 250e3, rel=1e-15)
 
 
 def test_radio_section_is_validated(tmp_path: Path) -> None:

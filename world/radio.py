@@ -14,8 +14,8 @@
     e_elec_nj_per_bit = 50.0   # first-order radio: electronics, nJ/bit (transmit and receive)
     eps_amp_pj_per_bit_m2 = 100.0  # amplifier, pJ/bit/m^2 (transmit)
     overhead_bytes = 0         # per message, added to its encoded size (headers of the link layer)
-    latency_ms = 0.0           # realtime: base latency of every message
-    bandwidth_kbps = 250.0     # realtime: adds 8 bytes / bandwidth
+    latency_ms = 0.0           # realtime, disk or log-distance: base latency of every message
+    bandwidth_kbps = 250.0     # realtime, disk or log-distance: adds 8 bytes / bandwidth
 
 The formulas are in :mod:`bus.radio`.
 """
