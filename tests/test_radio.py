@@ -163,3 +163,37 @@ def test_radio_section_is_validated(tmp_path: Path) -> None:
     path.write_text((SCENARIOS / "paper-stationary.toml").read_text() + '\n[radio]\nexponent = -1\n')
     with pytest.raises(ScenarioError, match=r"radio.exponent: expected a finite number > 0"):
         load_scenario(str(path))
+
+
+def test_check_prints_each_ring_link_loss_probability(tmp_path: Path) -> None:
+    import subprocess
+
+    from ringtrack.world.ranges import link_lengths, uniform_link_requirement, uniform_ring
+    from tests.emulation import RINGTRACK
+
+    path = lossy_scenario(tmp_path)
+    completed = subprocess.run([*RINGTRACK, "check", str(path)], capture_output=True, text=True, timeout=120,
+                               env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"})
+    assert completed.returncode == 0, completed.stderr
+    team = load_scenario(str(path))
+    rotation = uniform_link_requirement(team.region, team.target, team.robots)[1]
+    lengths = link_lengths(uniform_ring(team.region, team.target, team.robots, rotation))
+    rows = {line.split()[0]: line.split() for line in completed.stdout.splitlines()
+            if line.strip() and line.split()[0].count("-") == 1 and line.split()[0][0].isdigit()}
+    assert len(rows) == team.robots
+    for robot, length in enumerate(lengths):
+        row = rows[f"{robot}-{(robot + 1) % team.robots}"]
+        assert float(row[1]) == pytest.approx(length, abs=1e-4)
+        assert float(row[2]) == pytest.approx(float(loss_probability(team.faults.radio, length)), rel=1e-3)
+
+
+def test_dashboard_shows_the_team_energy_from_the_end_record() -> None:
+    from rich.console import Console
+
+    from ringtrack.tools.dashboard import Dashboard, TeamModel
+
+    model = TeamModel(load_scenario("paper-stationary"), "lockstep")
+    model.add({"type": "end", "energy_j": {"r0": [0.001, 0.002], "r1": [0.004, 0.0]}})
+    console = Console(width=160, record=True)
+    console.print(Dashboard(model))
+    assert "radio energy: team 7.00 mJ, per robot 3.00-4.00 mJ" in console.export_text()
