@@ -9,7 +9,7 @@ whose ``reason`` is counted by the receiver.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from typing import Annotated, ClassVar
 
 import msgspec
@@ -289,7 +289,7 @@ def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
     return 1 + (value >= 128) + (value >= 256) + 2 * (value >= 65536)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _robot_message_base(kind: str, belief: bool) -> int:
     """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0."""
     if kind == "request":

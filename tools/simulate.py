@@ -56,9 +56,8 @@ def summary_table(result: dict) -> Table:
         rows.append(("Terr", f"mean {result['terr_mean']:.3f} m, final {result['terr_final']:.3f} m "
                              f"({result['estimation']} estimation)"))
     if "energy" in result:
-        energy = result["energy"]
-        rows.append(("radio energy", f"team {1e3 * energy['team_j']:.3f} mJ, per robot "
-                                     f"{min(energy['per_robot_j']) * 1e3:.3f}-{max(energy['per_robot_j']) * 1e3:.3f} mJ"))
+        team, per_robot = 1e3 * result["energy"]["team_j"], [1e3 * j for j in result["energy"]["per_robot_j"]]
+        rows.append(("radio energy", f"team {team:.3f} mJ, per robot {min(per_robot):.3f}-{max(per_robot):.3f} mJ"))
     for name, value in rows:
         table.add_row(name, value)
     return table
