@@ -98,7 +98,9 @@ def plot_run(log: RunLog) -> Figure:
             sizes = links.twinx()
             sizes.bar(spots + 0.2, counts[:, 1], width=0.4, color="tab:orange", label="bytes")
             sizes.set_ylabel("bytes", color="tab:orange")
+    energy = (log.end or {}).get("energy_j") or {}
     links.set_title(PANELS[3])
     figure.suptitle(f"{scenario.name}: {scenario.robots} robots, {scenario.control.strategy} strategy, "
-                    f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})")
+                    f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})"
+                    + (f"; team radio energy {1e3 * sum(map(sum, energy.values())):.2f} mJ" if energy else ""))
     return figure
