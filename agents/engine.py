@@ -192,7 +192,10 @@ def _to_neighbours(per_side: NDArray) -> NDArray:
     return np.roll(per_side[..., 0], -1, axis=-1) + np.roll(per_side[..., 1], 1, axis=-1)
 
 
-def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
+PlanGroups = list[tuple[FaultPlan, NDArray[np.int64]]]  # distinct fault plans and the trials of each
+
+
+def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
              reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
              belief: bool = False) -> Exchange:
@@ -202,7 +205,8 @@ def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus:
     unreachable neighbour is dropped, every delivered copy of a request is answered, and each reply
     meets its own fate. Links are ``distance_minus``/``distance_plus`` metres long (to the
     predecessor, successor; default 0), trial t draws its fates with plan seed ``seeds[t]``
-    (default the plan's) and replies carry a belief when ``belief``. Energy: every copy put on the
+    (default the plan's) and replies carry a belief when ``belief``. ``plan`` may also give groups
+    of trials their own plans (one radio for all). Energy: every copy put on the
     air costs its sender transmission (a request lost on the way out once), every copy delivered
     costs its receiver reception (:mod:`bus.radio`), with the exact encoded size of each message."""
     trials, robots = polled.shape
@@ -211,16 +215,14 @@ def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus:
     robot, neighbour = _ring_sides(robots)
     seed = None if seeds is None else np.asarray(seeds)[:, None, None]
     requested = polled[..., None] | ~reach
-    if plan.active:
-        request = plan.decide("request", robot, neighbour, step, distance, seed)
-        reply = plan.decide("reply", neighbour, robot, step, distance, seed)
-    else:
-        request = reply = Fates(np.zeros(reach.shape, np.int8), np.ones(reach.shape, np.int64), np.zeros(reach.shape))
+    groups = [(plan, np.arange(trials))] if isinstance(plan, FaultPlan) else plan
+    request = _group_fates(groups, "request", robot, neighbour, step, distance, seed, reach.shape)
+    reply = _group_fates(groups, "reply", neighbour, robot, step, distance, seed, reach.shape)
     lost = ~reach | request.dropped
     answered = np.where(requested & ~lost, request.copies, 0)  # request copies delivered, each answered once
     replies_kept = np.where(reply.dropped, 0, reply.copies)
     fresh = (answered > 0) & ~reply.dropped
-    radio = plan.radio
+    radio = groups[0][0].radio
     request_bytes = robot_message_bytes("request", step, robot, neighbour)
     reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief)
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
@@ -254,33 +256,33 @@ def _ring_sides(robots: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     return robot, (robot + np.array([-1, 1])) % robots
 
 
-def _plan_groups(plans: list[FaultPlan], trials: int) -> list[tuple[FaultPlan, NDArray[np.int64]]]:
-    """The distinct plans (by identity) and the trials of each."""
+def _group_fates(groups: PlanGroups, kind: str, sender: NDArray[np.int64], receiver: NDArray[np.int64], step: int,
+                 distance: FloatArray, seed: NDArray[np.int64] | None, shape: tuple[int, ...]) -> Fates:
+    """The fates of a step's ``kind`` messages of every trial, each group of trials by its plan."""
+    if len(groups) == 1 and len(groups[0][1]) == shape[0]:
+        plan = groups[0][0]
+        if not plan.active:
+            return Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
+        return plan.decide(kind, sender, receiver, step, distance, seed)
+    fates = Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
+    for plan, trials in groups:
+        if plan.active:
+            part = plan.decide(kind, sender, receiver, step, distance[trials], None if seed is None else seed[trials])
+            fates.reason[trials], fates.copies[trials], fates.delay_s[trials] = part.reason, part.copies, part.delay_s
+    return fates
+
+
+def _plan_groups(plans: list[FaultPlan], trials: int) -> PlanGroups:
+    """The distinct plans (by identity) and the trials of each; they must share one radio."""
     if len(plans) != trials:
         raise ValueError(f"{len(plans)} fault plans for {trials} trials; give one per trial")
+    if len({plan.radio for plan in plans}) > 1:
+        raise ValueError("the trials' fault plans have different radios; run them apart")
     first: dict[int, int] = {}
     for trial, plan in enumerate(plans):
         first.setdefault(id(plan), trial)
     return [(plans[trial], np.array([t for t, plan in enumerate(plans) if id(plan) == id(plans[trial])]))
             for trial in first.values()]
-
-
-def _exchange_groups(groups: list[tuple[FaultPlan, NDArray[np.int64]]], step: int, polled: NDArray[np.bool_],
-                     reach: tuple[NDArray[np.bool_], NDArray[np.bool_]], lengths: tuple[FloatArray, FloatArray],
-                     seeds: NDArray[np.int64], belief: bool) -> Exchange:
-    """:func:`exchange` of each group of trials with its own plan, reassembled in trial order."""
-    if len(groups) == 1:
-        return exchange(groups[0][0], step, polled, *reach, *lengths, seeds, belief)
-    parts = [(trials, exchange(plan, step, polled[trials], reach[0][trials], reach[1][trials], lengths[0][trials],
-                               lengths[1][trials], seeds[trials], belief)) for plan, trials in groups]
-    fields = {}
-    for name in Exchange.__dataclass_fields__:
-        sample = getattr(parts[0][1], name)
-        merged = np.empty((len(polled), *sample.shape[1:]), dtype=sample.dtype)
-        for trials, part in parts:
-            merged[trials] = getattr(part, name)
-        fields[name] = merged
-    return Exchange(**fields)
 
 
 def fault_seeds(scenario: Scenario, seeds: Sequence[int]) -> NDArray[np.int64]:
@@ -352,7 +354,7 @@ def run(
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
-        outcome = _exchange_groups(groups, k, polled, reach, lengths, plan_seeds, belief)
+        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief)
         controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
