@@ -152,7 +152,7 @@ class Stats(Message, tag=7):
 
 
 class FaultNotice(Message, tag=10):
-    """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone),
+    """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone, radio),
     ``duplicated`` or ``delayed`` (by ``delay_s``) the ``subject`` message ``sender -> receiver``."""
 
     step: Step

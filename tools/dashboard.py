@@ -156,7 +156,7 @@ class TeamModel:
     # ------------------------------------------------------------------ derived figures
     def link_state(self, robot: int, neighbour: int) -> str:
         """The link between two ring neighbours: "gone" when ``neighbour`` is not live, else the last
-        fault seen on it within ``LINK_MEMORY_STEPS`` steps (drop, outage, range, gone, dup, delay),
+        fault seen on it within ``LINK_MEMORY_STEPS`` steps (drop, outage, range, gone, radio, dup, delay),
         else "ok"."""
         if not self.robots[neighbour].alive:
             return "gone"
