@@ -125,9 +125,6 @@ class FaultPlan:
         lossy = self.radio.lossy or bool(self.outages)
         return lossy or any(r.drop or r.duplicate or r.delay_s or r.jitter_s for r in rates)
 
-    def rates(self, a: int, b: int) -> LinkRates:
-        return self.links.get(link(a, b), self.default)
-
     def fate(self, kind: str, sender: int, receiver: int, step: int, distance: float | None = None) -> Fate:
         """The fate of the ``kind`` message ``sender -> receiver`` of ``step`` over a link of
         ``distance`` metres at the step's start (needed by a lossy radio only)."""
