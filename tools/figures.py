@@ -111,6 +111,7 @@ def moving_velocities(result: dict, path: Path) -> None:
 
 SWEPT_LABELS = {"drop": "drop probability", "outage_steps": "partition outage (steps)",
                 "communication_range": "communication range r_c (m)"}
+SWEPT_SHORT = {"drop": "drop", "outage_steps": "outage (steps)", "communication_range": "r_c (m)"}
 VARIANT_STYLES = {"centralized": "-", "decentralized": "--"}
 MARKERS = "os^Dv"  # one per value of a second swept quantity
 
@@ -142,7 +143,8 @@ def robustness_curves(result: dict, path: Path) -> None:
         strategy, mode, *rest = key
         entries.sort(key=lambda entry: position(entry[axis_key]))
         label = STRATEGY_LABELS[strategy] + (f", {mode}" if result["moving"] else "")
-        label += "".join(f", {name} {value}" for name, value in zip(others, rest, strict=True))
+        label += "".join(f", {SWEPT_SHORT[name]} {'unlimited' if value is None else f'{value:g}'}"
+                         for name, value in zip(others, rest, strict=True))
         marker = MARKERS[secondary.index(tuple(rest)) % len(MARKERS)]
         style = {"color": STRATEGY_COLOURS[strategy], "linestyle": VARIANT_STYLES.get(mode, "-"), "marker": marker,
                  "markersize": 4, "capsize": 3, "label": label}
