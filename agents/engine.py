@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -83,7 +84,7 @@ class History:
     def select(self, trials: slice, scenario: Scenario | None = None) -> History:
         """The history of some of the trials (as if run alone, for the steps this batch ran),
         labelled with ``scenario`` (default this one's)."""
-        arrays = {}
+        arrays: dict[str, Any] = {}
         for name in self.__dataclass_fields__:
             value = getattr(self, name)
             arrays[name] = value[:, trials] if isinstance(value, np.ndarray) else value
@@ -253,7 +254,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     receiver reception (:mod:`bus.radio`), with the exact encoded size of each message."""
     trials, robots = polled.shape
     reach = np.stack([reach_minus, reach_plus], axis=-1)
-    distance = np.zeros(reach.shape) if distance_minus is None else np.stack([distance_minus, distance_plus], axis=-1)
+    distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
+                else np.stack([distance_minus, distance_plus], axis=-1))
     robot, neighbour = _ring_sides(robots)
     seed = None if seeds is None else np.asarray(seeds)[:, None, None]
     requested = polled[..., None] | ~reach
@@ -265,7 +267,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     of_requests = fate_counts(lost, request.copies, request.delay_s, requested)
     of_replies = reply.counts(requests)
     counts = {name: of_requests[name] + of_replies[name] for name in (*FAULTS, "delivered")}
-    counts["sent"] = requested + requests
+    counts["sent"] = requested.astype(np.int64) + requests
     counts["published"] = ring_traffic(requests)
     faults = np.stack([counts[name].reshape(trials, -1).sum(axis=1) for name in FAULT_COLUMNS], axis=-1)
     fresh = (requests > 0) & ~reply.dropped
@@ -381,8 +383,8 @@ def run(
         cerr_true[row] = true_cerr(positions, targets)
         centres = team.measure(positions, targets)
         neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
-        lengths = tuple(link_distance(positions, neighbour) for neighbour in neighbours)
-        reach = tuple(length <= (limit or np.inf) for length in lengths)
+        lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
+        reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
         reasons = controller.observe(k, positions, centres, reach)
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age

@@ -321,9 +321,8 @@ def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver:
 
 def poll_bytes(with_belief: bool) -> int:
     """Payload bytes of one poll that meets no fault (:data:`bus.faults.POLL_MESSAGES`: a request
-    and a reply per neighbour) with typical field sizes (a step in the thousands, a 32-bit nonce;
-    floats are always 9 bytes), for counts the engine only infers."""
-    request = Request(SCHEMA, 2**31, 1000, 1, 2, 2**31)
-    belief = ((0.0, 0.0), (0.0, 0.0, 0.0)) if with_belief else (None, None)
-    reply = Reply(SCHEMA, 2**31, 1000, 2, 1, 2**31, (0.0, 0.0), *belief)
-    return POLL_MESSAGES // 2 * (len(encode(request)) + len(encode(reply)))
+    and a reply per neighbour) with typical field sizes (a step in the thousands, robots 1 and 2),
+    for counts the engine only infers (:func:`robot_message_bytes`)."""
+    request = int(robot_message_bytes("request", 1000, 1, 2))
+    reply = int(robot_message_bytes("reply", 1000, 2, 1, with_belief))
+    return POLL_MESSAGES // 2 * (request + reply)

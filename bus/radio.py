@@ -61,8 +61,8 @@ IDEAL = Radio()
 
 def path_loss_db(radio: Radio, distance: ArrayLike, shadow_db: ArrayLike = 0.0) -> NDArray[np.float64]:
     """``PL(d0) + 10 n log10(d / d0) + shadow`` (dB); distances below ``d0`` count as ``d0``."""
-    distance = np.maximum(np.asarray(distance, dtype=float), radio.d0_m)
-    return radio.path_loss_d0_db + 10.0 * radio.exponent * np.log10(distance / radio.d0_m) + np.asarray(shadow_db)
+    metres = np.maximum(np.asarray(distance, dtype=float), radio.d0_m)
+    return radio.path_loss_d0_db + 10.0 * radio.exponent * np.log10(metres / radio.d0_m) + np.asarray(shadow_db)
 
 
 def packet_error_rate(radio: Radio, received_dbm: ArrayLike) -> NDArray[np.float64]:

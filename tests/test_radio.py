@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ringtrack.agents import engine
-from ringtrack.bus.faults import FaultPlan, LinkRates, Outage, link
+from ringtrack.bus.faults import FAULT_COUNTERS, Fate, FaultCounter, FaultPlan, LinkRates, Outage, link, request_traffic
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode, robot_message_bytes
 from ringtrack.bus.radio import Radio, airtime_s, loss_probability, message_bits, receive_energy, transmit_energy
 from ringtrack.world.ranges import link_distance
@@ -79,6 +79,43 @@ def test_batch_fates_equal_the_one_message_fates() -> None:
             one = plan.fate("reply", int(sender), int(receiver), step, float(distances[index]))
             assert one.dropped == bool(batch.dropped[index]) and (one.dropped or one.copies == batch.copies[index])
             assert one.dropped or one.delay_s == batch.delay_s[index]
+
+
+def test_the_batch_exchange_counts_every_message_as_a_robot_fault_layer_does() -> None:
+    """engine.exchange (a step of every trial at once) against FaultCounter and request_traffic
+    applied one message at a time, as a robot's fault layer does, with drops, copies, delays, a
+    lossy radio and unreachable neighbours."""
+    plan = FaultPlan(seed=4, default=LinkRates(drop=0.3, duplicate=0.3, delay_s=0.01, jitter_s=0.01), radio=LOSSY)
+    rng = np.random.default_rng(1)
+    trials, robots = 4, 7
+    for step in range(1, 25):
+        polled = rng.random((trials, robots)) < 0.5
+        reach_minus = rng.random((trials, robots)) < 0.8  # the link to the predecessor, both ways
+        distance_minus = rng.uniform(2.0, 14.0, (trials, robots))
+        reach_plus, distance_plus = np.roll(reach_minus, -1, axis=1), np.roll(distance_minus, -1, axis=1)
+        outcome = engine.exchange(plan, step, polled, reach_minus, reach_plus, distance_minus, distance_plus)
+        for trial in range(trials):
+            counter, published = FaultCounter(), 0
+            for robot in range(robots):
+                for side, reach, distance in ((-1, reach_minus, distance_minus), (1, reach_plus, distance_plus)):
+                    reachable = bool(reach[trial, robot])
+                    if reachable and not polled[trial, robot]:
+                        continue
+                    neighbour, metres = (robot + side) % robots, float(distance[trial, robot])
+                    fate = plan.fate("request", robot, neighbour, step, metres) if reachable else \
+                        Fate(dropped=True, reason="range")
+                    copies = 0 if fate.dropped else fate.copies
+                    counter.count_sent(copies)
+                    counter.count_fate(fate)
+                    counter.count_delivered(copies)
+                    published += request_traffic(fate)
+                    answer = plan.fate("reply", neighbour, robot, step, metres)
+                    for _ in range(copies):
+                        counter.count_sent(1)
+                        counter.count_fate(answer)
+                        counter.count_delivered(0 if answer.dropped else answer.copies)
+            assert outcome.faults[trial].tolist() == [counter.counts[name] for name in FAULT_COUNTERS]
+            assert counter.counts["published"] == published == int(engine.ring_traffic(outcome.requests[trial]).sum())
 
 
 @pytest.mark.parametrize("step", [1, 127, 128, 255, 256, 65535, 65536])
@@ -192,7 +229,6 @@ def test_dashboard_shows_the_team_energy_from_the_end_record() -> None:
     from rich.console import Console
 
     from ringtrack.tools.dashboard import Dashboard, TeamModel
-
     from tests.test_dashboard import prepared_records
 
     model = TeamModel(load_scenario("paper-stationary", robots=4), "lockstep")

@@ -201,7 +201,7 @@ def summarise(rows: list[dict[str, object]], keys: list[str]) -> dict[str, float
     converged as a fraction."""
     summary: dict[str, float | None] = {}
     for key in keys:
-        values = np.array([float(row[key]) for row in rows if row[key] is not None])
+        values = np.array([row[key] for row in rows if row[key] is not None], dtype=float)
         summary[f"{key}_mean"] = float(values.mean()) if len(values) else None
         summary[f"{key}_sd"] = float(values.std()) if len(values) else None
     return summary
