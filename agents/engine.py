@@ -10,13 +10,17 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
-from ringtrack.bus.faults import FAULT_COUNTERS, POLL_MESSAGES, Fate, FaultCounter, FaultPlan
+from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
+from ringtrack.bus.messages import robot_message_bytes
+from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import (
     converged,
@@ -27,6 +31,7 @@ from ringtrack.world.metrics import (
     target_error,
     true_cerr,
 )
+from ringtrack.world.ranges import link_distance
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
 from ringtrack.world.state import motion_step
@@ -47,7 +52,9 @@ class History:
     estimates (or ``None`` when not recorded); the request copies each robot published to its
     predecessor and successor (``requests``, None when read from a log), the robot-to-robot traffic
     that follows from them per robot (``sent``, ``received``: :func:`ring_traffic`), the fault
-    layer's counts (``faults``) and ``probes`` of unreachable neighbours (see :func:`exchange`).
+    layer's counts (``faults``), ``probes`` of unreachable neighbours, the bytes of the
+    robot-to-robot messages each robot published and the radio energy of each robot's traffic
+    (see :func:`exchange`).
     """
 
     scenario: Scenario
@@ -67,10 +74,23 @@ class History:
     requests: NDArray[np.int64] | None  # (K, T, N, 2) request copies to predecessor, successor (None: a log)
     faults: NDArray[np.int64]  # (K, T, 6) FAULT_COLUMNS
     probes: NDArray[np.int64]  # (K, T) requests to unreachable neighbours
+    sent_bytes: NDArray[np.int64] | None = None  # (K, T, N) bytes of the robot-to-robot messages each published
+    energy: FloatArray | None = None  # (K, T, N, 2) radio energy, J: transmit, receive (None: not known)
 
     @property
     def steps(self) -> int:
         return self.angles.shape[0]
+
+    def select(self, trials: slice, scenario: Scenario | None = None) -> History:
+        """The history of some of the trials (as if run alone, for the steps this batch ran),
+        labelled with ``scenario`` (default this one's)."""
+        arrays: dict[str, Any] = {}
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            arrays[name] = value[:, trials] if isinstance(value, np.ndarray) else value
+        arrays["scenario"] = scenario or self.scenario
+        arrays["seeds"] = self.seeds[trials]
+        return History(**arrays)
 
     @property
     def cerr_memory(self) -> FloatArray:
@@ -158,8 +178,13 @@ def ring_traffic(requests: NDArray[np.int64]) -> NDArray[np.int64]:
     its requests, and one reply to each request copy its neighbours sent it
     (:func:`bus.faults.request_traffic`). By symmetry each robot also receives exactly as many."""
     requests = requests.astype(np.int64)
-    replies = np.roll(requests[..., 1], 1, axis=-1) + np.roll(requests[..., 0], -1, axis=-1)
-    return requests.sum(axis=-1) + replies
+    return requests.sum(axis=-1) + _to_neighbours(requests)
+
+
+def _to_neighbours(per_side: NDArray) -> NDArray:
+    """Values of each robot's (predecessor, successor) sides, shape (..., T, N, 2), summed onto the
+    neighbour at the other end of each link, shape (..., T, N)."""
+    return np.roll(per_side[..., 0], -1, axis=-1) + np.roll(per_side[..., 1], 1, axis=-1)
 
 
 def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
@@ -195,58 +220,113 @@ def link_traffic(history: History, trial: int = 0) -> list[tuple[str, str, str, 
 class Exchange:
     """What the polls and probes of one step achieved, for a batch of teams: which sides came back
     fresh, the request copies each robot published per side (predecessor, successor; each answered
-    by one reply), the fault counts per trial (:data:`FAULT_COLUMNS`) and the probes of unreachable
-    neighbours per trial."""
+    by one reply), the fault counts per trial (:data:`FAULT_COLUMNS`), the probes of unreachable
+    neighbours per trial, the bytes of the robot-to-robot messages each robot published and each
+    robot's radio energy (joules, transmit and receive, last axis)."""
 
     fresh_minus: NDArray[np.bool_]
     fresh_plus: NDArray[np.bool_]
     requests: NDArray[np.int64]
     faults: NDArray[np.int64]
     probes: NDArray[np.int64]
+    sent_bytes: NDArray[np.int64]
+    energy: FloatArray
 
 
-def exchange(plan: FaultPlan, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
-             reach_plus: NDArray[np.bool_]) -> Exchange:
+PlanGroups = list[tuple[FaultPlan, NDArray[np.int64]]]  # distinct fault plans and the trials of each
+
+
+def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
+             reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
+             distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
+             belief: bool = False) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
-    :class:`bus.shim.LinkShim`, counted by the same :class:`~bus.faults.FaultCounter`): a polling
-    robot requests both neighbours; a robot also probes each unreachable neighbour once (its poll
-    request serving as the probe); a request to an unreachable neighbour is dropped, every
-    delivered copy of a request is answered, and each reply meets its own fate on arrival."""
+    :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
+    robot of every trial at once: a polling robot requests both neighbours; a robot also probes
+    each unreachable neighbour once (its poll request serving as the probe); a request to an
+    unreachable neighbour is dropped, every published copy of a request is answered
+    (:func:`bus.faults.published_copies`), and each reply meets its own fate on arrival. Links are
+    ``distance_minus``/``distance_plus`` metres long (to the predecessor, successor; default 0),
+    trial t draws its fates with plan seed ``seeds[t]`` (default the plan's) and replies carry a
+    belief when ``belief``. ``plan`` may also give groups of trials their own plans (one radio for
+    all). Energy, from the same fates: every copy put on the bus costs its sender transmission (a
+    request dropped before publishing was still sent once), every copy delivered costs its
+    receiver reception (:mod:`bus.radio`), with the exact encoded size of each message."""
     trials, robots = polled.shape
-    requests = np.zeros((trials, robots, 2), dtype=np.int64)
-    if not plan.active and reach_minus.all() and reach_plus.all():
-        requests[...] = polled[..., None]
-        faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
-        messages = POLL_MESSAGES * polled.sum(axis=1)
-        for name in ("sent", "delivered", "published"):
-            faults[:, FAULT_COLUMNS.index(name)] = messages
-        return Exchange(polled, polled, requests, faults, np.zeros(trials, dtype=np.int64))
-    fresh = {-1: np.zeros_like(polled), 1: np.zeros_like(polled)}
-    counters = [FaultCounter() for _ in range(trials)]
-    probes = np.zeros(trials, dtype=np.int64)
-    for trial, robot in zip(*np.nonzero(polled | ~reach_minus | ~reach_plus), strict=True):
-        counter = counters[trial]
-        for index, (side, reachable) in enumerate(((-1, reach_minus[trial, robot]), (1, reach_plus[trial, robot]))):
-            if reachable and not polled[trial, robot]:
-                continue
-            neighbour = (robot + side) % robots
-            probes[trial] += not reachable
-            fate = plan.fate("request", robot, neighbour, step) if reachable else Fate(dropped=True, reason="range")
-            copies = 0 if fate.dropped else fate.copies
-            counter.count_sent(copies)
-            counter.count_fate(fate)
-            requests[trial, robot, index] = copies
-            if fate.dropped:
-                continue
-            counter.count_delivered(copies)
-            answer = plan.fate("reply", neighbour, robot, step)
-            for _ in range(copies):  # every delivered copy is answered; each answer meets the same fate
-                counter.count_sent(1)
-                counter.count_fate(answer)
-                counter.count_delivered(0 if answer.dropped else answer.copies)
-            fresh[side][trial, robot] = not answer.dropped
-    faults = np.array([[counter.counts[name] for name in FAULT_COLUMNS] for counter in counters], dtype=np.int64)
-    return Exchange(fresh[-1], fresh[1], requests, faults, probes)
+    reach = np.stack([reach_minus, reach_plus], axis=-1)
+    distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
+                else np.stack([distance_minus, distance_plus], axis=-1))
+    robot, neighbour = _ring_sides(robots)
+    seed = None if seeds is None else np.asarray(seeds)[:, None, None]
+    requested = polled[..., None] | ~reach
+    groups = [(plan, np.arange(trials))] if isinstance(plan, FaultPlan) else plan
+    request = _group_fates(groups, "request", robot, neighbour, step, distance, seed, reach.shape)
+    reply = _group_fates(groups, "reply", neighbour, robot, step, distance, seed, reach.shape)
+    lost = ~reach | request.dropped  # out of range: dropped before sending, as the fault layer does
+    requests = np.where(requested, published_copies(lost, request.copies), 0)  # each answered by one reply
+    of_requests = fate_counts(lost, request.copies, request.delay_s, requested)
+    of_replies = reply.counts(requests)
+    counts = {name: of_requests[name] + of_replies[name] for name in (*FAULTS, "delivered")}
+    counts["sent"] = requested.astype(np.int64) + requests
+    counts["published"] = ring_traffic(requests)
+    faults = np.stack([counts[name].reshape(trials, -1).sum(axis=1) for name in FAULT_COLUMNS], axis=-1)
+    fresh = (requests > 0) & ~reply.dropped
+    radio = groups[0][0].radio
+    request_bytes = robot_message_bytes("request", step, robot, neighbour)
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief)
+    request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
+    on_air = np.where(requested, np.maximum(requests, 1), 0)
+    # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
+    own = np.stack([requests * request_bytes, on_air * transmit_energy(radio, request_bits, distance),
+                    of_replies["delivered"] * receive_energy(radio, reply_bits)])
+    other = np.stack([requests * reply_bytes, requests * transmit_energy(radio, reply_bits, distance),
+                      requests * receive_energy(radio, request_bits)])
+    totals = own.sum(axis=-1) + _to_neighbours(other)
+    return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
+                    totals[0].astype(np.int64), np.stack([totals[1], totals[2]], axis=-1))
+
+
+@lru_cache(maxsize=8)
+def _ring_sides(robots: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Each robot's id and its (predecessor, successor) ids, shapes (1, N, 1) and (1, N, 2)."""
+    robot = np.arange(robots)[None, :, None]
+    return robot, (robot + np.array([-1, 1])) % robots
+
+
+def _group_fates(groups: PlanGroups, kind: str, sender: NDArray[np.int64], receiver: NDArray[np.int64], step: int,
+                 distance: FloatArray, seed: NDArray[np.int64] | None, shape: tuple[int, ...]) -> Fates:
+    """The fates of a step's ``kind`` messages of every trial, each group of trials by its plan."""
+    if len(groups) == 1 and len(groups[0][1]) == shape[0]:
+        plan = groups[0][0]
+        if not plan.active:
+            return Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
+        return plan.decide(kind, sender, receiver, step, distance, seed)
+    fates = Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
+    for plan, trials in groups:
+        if plan.active:
+            part = plan.decide(kind, sender, receiver, step, distance[trials], None if seed is None else seed[trials])
+            fates.reason[trials], fates.copies[trials], fates.delay_s[trials] = part.reason, part.copies, part.delay_s
+    return fates
+
+
+def _plan_groups(plans: list[FaultPlan], trials: int) -> PlanGroups:
+    """The distinct plans (by identity) and the trials of each; they must share one radio."""
+    if len(plans) != trials:
+        raise ValueError(f"{len(plans)} fault plans for {trials} trials; give one per trial")
+    if len({plan.radio for plan in plans}) > 1:
+        raise ValueError("the trials' fault plans have different radios; run them apart")
+    first: dict[int, int] = {}
+    for trial, plan in enumerate(plans):
+        first.setdefault(id(plan), trial)
+    return [(plans[trial], np.array([t for t, plan in enumerate(plans) if id(plan) == id(plans[trial])]))
+            for trial in first.values()]
+
+
+def fault_seeds(scenario: Scenario, seeds: Sequence[int]) -> NDArray[np.int64]:
+    """The fault plan's seed of each trial: ``[faults] seed`` when the scenario sets it, else the
+    trial's seed (what ``--seed`` gives a single run), so trial t equals a run with seed t."""
+    fixed = scenario.spec.faults.seed
+    return np.array([fixed if fixed is not None else seed for seed in seeds], dtype=np.int64)
 
 
 def run(
@@ -256,11 +336,14 @@ def run(
     until_converged: bool = False,
     record_positions: bool = True,
     on_step: StepObserver | None = None,
+    plans: Sequence[FaultPlan] | None = None,
 ) -> History:
     """Run ``scenario`` for each seed (default: the scenario's own) as one vectorised batch.
 
     ``steps`` defaults to ``scenario.max_steps``; with ``until_converged`` the batch stops at the
     first step by which every trial has converged. ``on_step(k)`` is called after each step (progress).
+    ``plans`` gives each trial its own fault plan (default: the scenario's for all), so that runs
+    that differ only in their faults share one batch (:meth:`History.select` splits it again).
     """
     seeds = [scenario.seed] if seeds is None else [seeds] if isinstance(seeds, int) else list(seeds)
     steps = scenario.max_steps if steps is None else steps
@@ -281,6 +364,11 @@ def run(
     requests = np.empty((steps, trials, robots, 2), dtype=np.int64)
     faults = np.empty((steps, trials, len(FAULT_COLUMNS)), dtype=np.int64)
     probes = np.empty((steps, trials), dtype=np.int64)
+    sent_bytes = np.empty((steps, trials, robots), dtype=np.int64)
+    energy = np.empty((steps, trials, robots, 2))
+    plan_seeds = fault_seeds(scenario, seeds)
+    groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)
+    belief = scenario.estimation.mode == "decentralized"
     limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
@@ -295,18 +383,20 @@ def run(
         cerr_true[row] = true_cerr(positions, targets)
         centres = team.measure(positions, targets)
         neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
-        reach = tuple(np.linalg.norm(neighbour - positions, axis=-1) <= (limit or np.inf) for neighbour in neighbours)
+        lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
+        reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
         reasons = controller.observe(k, positions, centres, reach)
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
-        outcome = exchange(scenario.faults, k, polled, *reach)
+        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief)
         controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
         goal = controller.goal(reach if limit else None, limit)
         requests[row], faults[row], probes[row] = outcome.requests, outcome.faults, outcome.probes
+        sent_bytes[row], energy[row] = outcome.sent_bytes, outcome.energy
         offsets[row] = np.where(controller.offset_known, controller.guaranteed_offset, np.nan)
         terr[row] = target_error(centres, targets)
         if estimates is not None:
@@ -337,6 +427,8 @@ def run(
         requests=requests[:steps],
         faults=faults[:steps],
         probes=probes[:steps],
+        sent_bytes=sent_bytes[:steps],
+        energy=energy[:steps],
     )
 
 
@@ -366,7 +458,17 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "terr_mean": float(history.terr[:, trial].mean()),
         "terr_final": float(history.terr[-1, trial]),
         "faults": fault_totals(history, trial),
+        **_radio_summary(history, trial),
     }
+
+
+def _radio_summary(history: History, trial: int) -> dict[str, object]:
+    """The bytes the robots published and their radio energy (:func:`bus.radio.energy_report`),
+    when the history knows them."""
+    if history.energy is None or history.sent_bytes is None:
+        return {}
+    return {"robot_bytes": int(history.sent_bytes[:, trial].sum()),
+            "energy": energy_report(*history.energy[:, trial].sum(axis=0).T)}
 
 
 def _known(value: float) -> float | None:

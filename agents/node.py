@@ -30,6 +30,7 @@ from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator, prior_belief
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
+    NONCE_BASE,
     SCHEMA,
     Command,
     Covariance,
@@ -87,7 +88,7 @@ class RobotNode:
         self.mode = scenario.estimation.mode
         self.predecessor = (robot - 1) % scenario.robots
         self.successor = (robot + 1) % scenario.robots
-        self._nonce = nonce or (lambda: secrets.randbits(32))
+        self._nonce = nonce or (lambda: NONCE_BASE + secrets.randbits(31))  # always 5 bytes on the wire
         self.controller: MidpointController | None = None
         self.estimator = (
             Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
@@ -104,6 +105,7 @@ class RobotNode:
         self.trigger = 0
         self.ages = (0, 0)  # memory ages (steps) when the robot last decided
         self.positions: dict[int, Point] = {}
+        self.distances: dict[int, dict[int, float]] = {}  # step -> neighbour -> metres at its start
         self.beliefs: dict[int, Belief] = {}
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
@@ -143,6 +145,8 @@ class RobotNode:
         self.position = np.asarray(measurement.position, dtype=float)
         self.positions[self.step] = measurement.position
         self.positions.pop(self.step - KEPT_STEPS, None)
+        self.distances[self.step] = dict(measurement.distances)
+        self.distances.pop(self.step - KEPT_STEPS, None)
         measured = np.nan if measurement.range is None else measurement.range
         if self.estimator is not None:
             self.estimator.measure(self.position[None, :], [measured])
@@ -285,6 +289,16 @@ class RobotNode:
 
     def _request(self, neighbour: int) -> tuple[str, Request]:
         return robot_name(neighbour), Request(SCHEMA, self.run, self.step, self.robot, neighbour, self._nonce())
+
+    def distance(self, robot: int, step: int) -> float:
+        """Metres to ``robot`` at the start of ``step`` as the world measured them; for a robot
+        the world did not name as a ring neighbour that step (the ring was changing), the latest
+        distance known, else 0."""
+        known = self.distances.get(step, {})
+        if robot in known:
+            return known[robot]
+        latest = [seen[robot] for _, seen in sorted(self.distances.items()) if robot in seen]
+        return latest[-1] if latest else 0.0
 
     def reachable(self, robot: int) -> bool:
         """Whether ``robot`` is within communication range this step (always, without a range)."""

@@ -81,7 +81,8 @@ async def run_robot(
         notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,
                  "id_collisions": len(claim.rivals)}
-        return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes)
+        return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes,
+                                 energy_j=(link.shim.energy_j[0], link.shim.energy_j[1]))
 
     role = Role(
         name=node.name,
@@ -122,7 +123,8 @@ class RobotLink:
         self.participant = participant
         self.node = node
         self.reply_timeout = reply_timeout
-        self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable)
+        self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable, node.distance,
+                             realtime=reply_timeout is not None)
 
     def send(self, outgoing: Outgoing) -> None:
         pending = list(outgoing)

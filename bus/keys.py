@@ -25,8 +25,8 @@ ROBOT_NAME = re.compile(r"^r(0|[1-9][0-9]{0,5})$")
 
 
 def new_run_id() -> int:
-    """A random 32-bit run id."""
-    return secrets.randbits(32)
+    """A random 32-bit run id in [2^31, 2^32) (always the same size on the wire)."""
+    return 2**31 + secrets.randbits(31)
 
 
 def robot_name(robot: int) -> str:

@@ -9,9 +9,12 @@ whose ``reason`` is counted by the receiver.
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Annotated, ClassVar
 
 import msgspec
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.bus.faults import POLL_MESSAGES
 from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Route, robot_name
@@ -42,7 +45,9 @@ class Measurement(Message, tag=1, frozen=True):
     """World -> robot: the robot's exact position and a noisy range to the target (None: beyond
     r_s), with a limited communication range the live robots it can reach this step, and ``live``,
     the robots in the ring from this step on, when that changed (a robot came back) or is news to
-    this robot (its first step after a restart); None otherwise."""
+    this robot (its first step after a restart); None otherwise. ``distances`` gives the length
+    (metres) of its links to its live ring neighbours at the start of the step, as ``(robot,
+    metres)`` pairs: what its radio's losses and energy depend on (:mod:`bus.radio`)."""
 
     step: Step
     time: NonNegativeReal
@@ -51,6 +56,7 @@ class Measurement(Message, tag=1, frozen=True):
     range: NonNegativeReal | None
     in_range: list[int] | None = None
     live: list[int] | None = None
+    distances: list[tuple[int, NonNegativeReal]] = []
     kind: ClassVar[str] = "measurement"
     category: ClassVar[str] = "world"
 
@@ -131,7 +137,8 @@ Traffic = tuple[str, str, str, int, int]  # (kind, source, destination, messages
 class Stats(Message, tag=7, frozen=True):
     """Any process -> monitor: what it has sent and received so far, by kind and link, payloads it
     rejected by reason, what the fault layer did to its robot-to-robot messages, and protocol
-    counters (``notes``: e.g. replies ignored for a wrong nonce, probes of unreachable neighbours)."""
+    counters (``notes``: e.g. replies ignored for a wrong nonce, probes of unreachable neighbours);
+    a robot also reports the radio energy of its robot-to-robot traffic (joules)."""
 
     name: str
     final: bool
@@ -141,12 +148,13 @@ class Stats(Message, tag=7, frozen=True):
     rss_kib: Count
     faults: dict[str, int] = {}
     notes: dict[str, int] = {}
+    energy_j: tuple[NonNegativeReal, NonNegativeReal] | None = None  # robots: radio energy (transmit, receive)
     kind: ClassVar[str] = "stats"
     category: ClassVar[str] = "monitoring"
 
 
 class FaultNotice(Message, tag=10, frozen=True):
-    """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone),
+    """Robot -> monitor: the fault layer ``dropped`` (``reason``: drop, outage, range, gone, radio),
     ``duplicated`` or ``delayed`` (by ``delay_s``) the ``subject`` message ``sender -> receiver``."""
 
     step: Step
@@ -267,7 +275,8 @@ def robot_ids(message: Message) -> list[int]:
     if isinstance(message, (Request, Reply, FaultNotice)):
         return [message.sender, message.receiver]
     if isinstance(message, Measurement):
-        return [message.robot, *(message.in_range or ()), *(message.live or ())]
+        return [message.robot, *(message.in_range or ()), *(message.live or ()),
+                *(robot for robot, _ in message.distances)]
     if isinstance(message, Command):
         return [message.robot]
     if isinstance(message, RangeReport):
@@ -296,11 +305,38 @@ def endpoints(message: Message) -> tuple[str, str | None]:
     return WORLD, None
 
 
+NONCE_BASE = 2**31  # nonces and run ids are drawn from [2^31, 2^32): always 5 bytes on the wire
+
+
+def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
+    """Bytes msgpack takes for non-negative integers below 2^32 (1, 2, 3 or 5)."""
+    value = np.asarray(value, dtype=np.int64)
+    return 1 + (value >= 128) + (value >= 256) + 2 * (value >= 65536)
+
+
+@cache
+def _robot_message_base(kind: str, belief: bool) -> int:
+    """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0."""
+    if kind == "request":
+        return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
+    extra = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
+    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra)))
+
+
+def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
+                        belief: bool = False) -> NDArray[np.int64]:
+    """The exact encoded size of requests or replies (``kind``; a reply with a ``belief`` carries a
+    mean and covariance) of ``step`` from ``sender`` to ``receiver``, broadcast over arrays: the
+    size of the step-1, robot-0 message plus the extra bytes the larger integers take (floats are
+    always 9 bytes, nonces and run ids 5)."""
+    extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
+    return _robot_message_base(kind, belief) + extra
+
+
 def poll_bytes(with_belief: bool) -> int:
     """Payload bytes of one poll that meets no fault (:data:`bus.faults.POLL_MESSAGES`: a request
-    and a reply per neighbour) with typical field sizes (a step in the thousands, a 32-bit nonce;
-    floats are always 9 bytes), for counts the engine only infers."""
-    request = Request(SCHEMA, 2**31, 1000, 1, 2, 2**31)
-    belief = ((0.0, 0.0), (0.0, 0.0, 0.0)) if with_belief else (None, None)
-    reply = Reply(SCHEMA, 2**31, 1000, 2, 1, 2**31, (0.0, 0.0), *belief)
-    return POLL_MESSAGES // 2 * (len(encode(request)) + len(encode(reply)))
+    and a reply per neighbour) with typical field sizes (a step in the thousands, robots 1 and 2),
+    for counts the engine only infers (:func:`robot_message_bytes`)."""
+    request = int(robot_message_bytes("request", 1000, 1, 2))
+    reply = int(robot_message_bytes("reply", 1000, 2, 1, with_belief))
+    return POLL_MESSAGES // 2 * (request + reply)

@@ -191,9 +191,10 @@ class Participant:
         self.counter.count_sent((message.kind, self.name, destination), len(payload))
         return len(payload)
 
-    def stats(self, final: bool, faults: dict[str, int] | None = None, notes: dict[str, int] | None = None) -> Stats:
+    def stats(self, final: bool, faults: dict[str, int] | None = None, notes: dict[str, int] | None = None,
+              energy_j: tuple[float, float] | None = None) -> Stats:
         """What this participant has sent, received and rejected so far, what its fault layer did
-        (``faults``) and protocol counters (``notes``)."""
+        (``faults``), protocol counters (``notes``) and a robot's radio energy (transmit, receive; J)."""
         return Stats(
             SCHEMA,
             self.keys.run,
@@ -205,6 +206,7 @@ class Participant:
             rss_kib=peak_rss_kib(),
             faults=faults or {},
             notes=notes or {},
+            energy_j=energy_j,
         )
 
     def close(self) -> None:

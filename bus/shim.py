@@ -5,10 +5,11 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from ringtrack.bus.faults import DELIVERED, Fate, FaultCounter, FaultPlan
+from ringtrack.bus.faults import DELIVERED, Fate, FaultCounter, FaultPlan, published_copies
 from ringtrack.bus.keys import MONITOR
-from ringtrack.bus.messages import SCHEMA, FaultNotice, Message, Reply, Request
+from ringtrack.bus.messages import SCHEMA, FaultNotice, Message, Reply, Request, encode
 from ringtrack.bus.participant import Delivery, Participant
+from ringtrack.bus.radio import airtime_s, message_bits, receive_energy, transmit_energy
 
 
 class LinkShim:
@@ -18,21 +19,45 @@ class LinkShim:
     ``receive`` settles the fate of replies to it (``lost``: dropped) and counts deliveries of
     requests. Delayed messages are published, or handed back to the robot, after their delay. Every
     dropped, duplicated or delayed message is reported to the monitor in a ``FaultNotice``;
-    ``reachable(robot)`` says whether a neighbour is within communication range this step.
+    ``reachable(robot)`` says whether a neighbour is within communication range this step and
+    ``distance(robot, step)`` how far it was at the start of ``step`` (metres).
+
+    ``energy_j`` is the radio energy of the robot's robot-to-robot traffic (:mod:`bus.radio`),
+    transmit and receive: every copy it puts on the air costs transmission over the link's length
+    (a request lost on the way out was still sent once), every copy handed to the robot reception.
+    In ``realtime``, with a radio model other than the ideal one, each copy also takes its airtime
+    (``latency + 8 bytes / bandwidth``) to arrive.
     """
 
     def __init__(self, participant: Participant, plan: FaultPlan, robot: int,
-                 reachable: Callable[[int], bool]) -> None:
+                 reachable: Callable[[int], bool], distance: Callable[[int, int], float],
+                 realtime: bool = False) -> None:
         self.participant = participant
         self.plan = plan
         self.robot = robot
         self.reachable = reachable
+        self.distance = distance
+        self.realtime = realtime
         self.counter = FaultCounter()
+        self.energy_j = [0.0, 0.0]
 
     def _fate(self, message: Request | Reply) -> Fate:
         if isinstance(message, Request) and not self.reachable(message.receiver):
             return Fate(dropped=True, reason="range")
-        return self.plan.fate(message.kind, message.sender, message.receiver, message.step)
+        other = message.receiver if message.sender == self.robot else message.sender
+        return self.plan.fate(message.kind, message.sender, message.receiver, message.step,
+                              self.distance(other, message.step))
+
+    def _transmit(self, message: Request | Reply, size: int, copies: int) -> float:
+        """Spend the energy of ``copies`` transmissions of ``message``; returns the airtime of one
+        (realtime with a disk or log-distance radio; else 0)."""
+        radio = self.plan.radio
+        bits = message_bits(radio, size)
+        self.energy_j[0] += copies * float(transmit_energy(radio, bits, self.distance(message.receiver, message.step)))
+        return airtime_s(radio, size) if self.realtime and radio.model != "ideal" else 0.0
+
+    def _receive(self, size: int, copies: int) -> None:
+        self.energy_j[1] += copies * float(receive_energy(self.plan.radio, message_bits(self.plan.radio, size)))
 
     def send(self, destination: str, message: Message) -> bool:
         """Publish ``message``; for a request, its fate applies. Returns False if it was dropped."""
@@ -40,14 +65,17 @@ class LinkShim:
             self.participant.send(destination, message)
             return True
         fate = self._fate(message) if isinstance(message, Request) else DELIVERED
-        self.counter.count_sent(0 if fate.dropped else fate.copies)
+        published = int(published_copies(fate.dropped, fate.copies))
+        self.counter.count_sent(published)
         self._settle(message, fate)
+        # every copy on the bus is on the air; a message dropped before publishing was still sent once
+        airtime = self._transmit(message, len(encode(message)), max(published, 1))
         if fate.dropped:
             return False
         for _ in range(fate.copies):
-            if fate.delay_s:
+            if fate.delay_s or airtime:
                 loop = asyncio.get_running_loop()
-                loop.call_later(fate.delay_s, self.participant.send, destination, message)
+                loop.call_later(fate.delay_s + airtime, self.participant.send, destination, message)
             else:
                 self.participant.send(destination, message)
         return True
@@ -58,6 +86,7 @@ class LinkShim:
         if not isinstance(message, (Request, Reply)) or delivery.released:
             if isinstance(message, (Request, Reply)):
                 self.counter.count_delivered(1)
+                self._receive(delivery.size, 1)
             return [delivery], False
         fate = self._fate(message) if isinstance(message, Reply) else DELIVERED
         self._settle(message, fate)
@@ -70,6 +99,7 @@ class LinkShim:
                 loop.call_later(fate.delay_s, self.participant.inbox.push, copy)
             return [], False
         self.counter.count_delivered(len(copies))
+        self._receive(delivery.size, len(copies))
         return copies, False
 
     def _settle(self, message: Request | Reply, fate: Fate) -> None:

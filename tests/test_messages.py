@@ -86,6 +86,8 @@ BAD_VALUES = [
     (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (-1, 0), (0.0, 0.0)), "malformed"),
     (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), -1.0), "malformed"),  # a negative range
     (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), 1.0, [0, 9]), "sender"),  # in range of a robot 9
+    (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), 1.0, None, None, [(9, 2.0)]), "sender"),  # a link to robot 9
+    (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), 1.0, None, None, [(2, -2.0)]), "malformed"),  # negative length
     (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 5, (0.0, 0.0), [0, 1, 2]), "malformed"),  # 5 positions for 6
     (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0, -1]), "sender"),
     (End(SCHEMA, RUN, -1, "done", 1.0), "malformed"),

@@ -66,7 +66,7 @@ def with_estimation(key: str, value: str) -> str:
         pytest.param(
             BASE.replace('name = "test"', 'name = "test"\nfoo = 1'),
             "x.toml: unknown key 'foo' in top level; allowed keys: region, target, name, seed, team, control, sensing, "
-            "estimation, limits, faults",
+            "estimation, limits, faults, radio",
             id="unknown-top-level-key",
         ),
         pytest.param(

@@ -3,8 +3,11 @@
 Prints the perimeter L, D_in, D_out, the necessary bounds (Thm 1: r_c >= D_in sin(pi / N),
 r_s >= D_in / 2), the paper's r_c >= L / N (not sufficient: docs/algorithms.md section 11), and safe
 sufficient bounds for this team and target (r_c: the longest link of the best angle-uniform
-configuration, over the target's path; r_s >= D_out). Exit code 1 when the scenario's ranges break
-a necessary bound, 0 otherwise (warnings go to standard error).
+configuration, over the target's path; r_s >= D_out), and each ring link of that configuration
+(about the target at step 1) with its length, its loss probability under the scenario's radio
+(:func:`bus.radio.loss_probability`; with a range, 1 beyond it) and the energy of one poll over it.
+Exit code 1 when the scenario's ranges break a necessary bound, 0 otherwise (warnings go to
+standard error).
 """
 
 from __future__ import annotations
@@ -15,9 +18,11 @@ import numpy as np
 from rich import box
 from rich.table import Table
 
+from ringtrack.bus.messages import robot_message_bytes
+from ringtrack.bus.radio import loss_probability, message_bits, receive_energy, transmit_energy
 from ringtrack.tools.console import err, out
 from ringtrack.tools.options import add_scenario_arguments, scenario_from_arguments
-from ringtrack.world.ranges import range_bounds, uniform_link_requirement
+from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
 from ringtrack.world.scenario import Scenario
 
 PATH_SAMPLES = 48  # target positions checked along a moving target's path
@@ -63,6 +68,7 @@ def run_check(args: argparse.Namespace) -> int:
     table.add_row("scenario r_c", "unlimited" if r_c is None else f"{r_c:.4f}", "limits.communication_range")
     table.add_row("scenario r_s", "unlimited" if r_s is None else f"{r_s:.4f}", "sensing.range")
     out.print(table)
+    out.print(link_table(scenario))
     broken = False
     if r_c is not None and r_c < bounds.necessary_communication:
         broken = True
@@ -78,3 +84,27 @@ def run_check(args: argparse.Namespace) -> int:
         err.print(f"warning: sensing.range {r_s:g} m is below D_out = {bounds.safe_sensing:.4f} m: "
                   "some robots may get no range")
     return 1 if broken else 0
+
+
+def link_table(scenario: Scenario) -> Table:
+    """Each ring link ``i -> i + 1`` of the best angle-uniform configuration about the target at
+    step 1: its length, its loss probability and the radio energy of one poll over it (request and
+    reply, sent and received, at step 1000)."""
+    radio, robots = scenario.faults.radio, scenario.robots
+    rotation = uniform_link_requirement(scenario.region, scenario.target, robots)[1]
+    lengths = link_lengths(uniform_ring(scenario.region, scenario.target, robots, rotation))
+    loss = loss_probability(radio, lengths)
+    if scenario.communication_range is not None:
+        loss = np.where(lengths > scenario.communication_range, 1.0, loss)
+    belief = scenario.estimation.mode == "decentralized"
+    bits = [message_bits(radio, robot_message_bytes(kind, 1000, 0, 1, belief)) for kind in ("request", "reply")]
+    model = radio.model + ("" if scenario.communication_range is None else
+                           f", r_c = {scenario.communication_range:g} m")
+    table = Table(title=f"ring links of the uniform configuration, radio {model}", box=box.SIMPLE_HEAD,
+                  title_justify="left")
+    for column in ("link", "metres", "loss probability", "poll energy (J)"):
+        table.add_column(column, justify="right")
+    for robot, (length, lost) in enumerate(zip(lengths, loss, strict=True)):
+        poll = sum(float(transmit_energy(radio, k, length) + receive_energy(radio, k)) for k in bits)
+        table.add_row(f"{robot}-{(robot + 1) % robots}", f"{length:.4f}", f"{lost:.4g}", f"{poll:.3e}")
+    return table

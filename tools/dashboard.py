@@ -117,10 +117,13 @@ class TeamModel:
         self.status = "running"
         self.expected: list[str] = []  # participants the run starts with (shown until the first step)
         self.up: set[str] = set()  # of those, the ones whose liveliness token has been seen
+        self.energy_j: dict[str, list[float]] = {}  # robot -> [transmit, receive] J, from the end record
 
     def add(self, record: dict) -> None:
-        """Fold in one ``step`` or ``event`` record of the run log (other records change nothing)."""
-        if record["type"] == "step":
+        """Fold in one ``step``, ``event`` or ``end`` record of the run log (others change nothing)."""
+        if record["type"] == "end":
+            self.energy_j = dict(record.get("energy_j") or {})
+        elif record["type"] == "step":
             self._add_step(record)
         elif record["type"] == "event" and record["event"] in LINK_EVENTS:
             name = record["reason"] if record["event"] == "dropped" else FAULT_NAMES[record["event"]]
@@ -171,7 +174,7 @@ class TeamModel:
     # ------------------------------------------------------------------ derived figures
     def link_state(self, robot: int, neighbour: int) -> str:
         """The link between two ring neighbours: "gone" when ``neighbour`` is not live, else the last
-        fault seen on it within ``LINK_MEMORY_STEPS`` steps (drop, outage, range, gone, dup, delay),
+        fault seen on it within ``LINK_MEMORY_STEPS`` steps (drop, outage, range, gone, radio, dup, delay),
         else "ok"."""
         if not self.robots[neighbour].alive:
             return "gone"
@@ -219,6 +222,13 @@ class TeamModel:
 
 
 # ---------------------------------------------------------------------------- rendering
+def energy_text(energy_j: dict[str, list[float]]) -> Text:
+    """The team's radio energy (known once the robots have reported it, at the end of a run)."""
+    per_robot = [transmit + receive for transmit, receive in energy_j.values()]
+    return Text.assemble(("radio energy: ", "bold"), f"team {1e3 * sum(per_robot):.2f} mJ, per robot "
+                         f"{1e3 * min(per_robot):.2f}-{1e3 * max(per_robot):.2f} mJ")
+
+
 CELL_ASPECT = 2.0  # a terminal cell is about twice as tall as it is wide
 MIN_MAP = 10  # map columns at least (narrower consoles drop robot columns first, then use the compact list)
 SIDE_WIDTH = 56  # columns the traffic table and the figures beside it need
@@ -518,4 +528,6 @@ class Dashboard:
         if model.scenario.estimation.mode != "known" and model.terr:
             lines.append(Text.assemble(("Terr ", "bold"), sparkline(list(model.terr), spark),
                                        f" {model.terr[-1]:.3f} m", no_wrap=True))
+        if model.energy_j:
+            lines.append(energy_text(model.energy_j))
         return lines

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.bus.messages import poll_bytes
+from ringtrack.tools import robustness
 from ringtrack.tools.console import UsageError, err, out, write_csv, write_json
 from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
@@ -70,6 +71,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
                         help="write one row per run (setting, strategy, estimation: means over the trials) as CSV")
     moving.set_defaults(handler=run_moving)
+    robustness.register(kinds)
 
 
 def robot_list(text: str) -> list[int]:

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -113,4 +114,70 @@ def moving_velocities(result: dict, path: Path) -> None:
     figure.suptitle(f"Cerr against target velocity and radius, mean of {result['trials']} trials")
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+SWEPT_LABELS = {"drop": "drop probability", "outage_steps": "partition outage (steps)",
+                "communication_range": "communication range r_c (m)"}
+SWEPT_SHORT = {"drop": "drop", "outage_steps": "outage (steps)", "communication_range": "r_c (m)"}
+VARIANT_STYLES = {"centralized": "-", "decentralized": "--"}
+MARKERS = "os^Dv"  # one per value of a second swept quantity
+
+
+def robustness_curves(result: dict, path: Path) -> None:
+    """Every quantity of ``experiment faults`` against the swept one: mean with +-1 sd error bars
+    over the trials, one line per strategy (and estimation mode, and value of any other swept
+    quantity). An unlimited communication range is drawn past the largest finite one."""
+    from ringtrack.tools.robustness import METRICS, MOVING_METRICS
+
+    metrics = METRICS + (MOVING_METRICS if result["moving"] else ())
+    swept = result["swept"] or ["drop"]
+    axis_key, others = swept[0], swept[1:]
+    finite = [cell[axis_key] for cell in result["cells"] if cell[axis_key] is not None]
+    unlimited = max(finite) * 1.25 if finite else 1.0
+
+    def position(value: float | None) -> float:
+        return unlimited if value is None else value
+
+    columns = 4 if len(metrics) > 6 else 3
+    figure, axes = plt.subplots(2, columns, figsize=(4.0 * columns, 6.6), constrained_layout=True)
+    lines: dict[tuple, list[dict]] = {}
+    for entry in result["summary"]:
+        key = (entry["strategy"], entry["estimation"], *(entry[name] for name in others))
+        lines.setdefault(key, []).append(entry)
+    secondary = sorted({tuple(key[2:]) for key in lines}, key=str)
+    spread = 0.012 * (max(map(position, [c[axis_key] for c in result["cells"]])) or 1.0)
+    for number, (key, entries) in enumerate(sorted(lines.items(), key=lambda item: str(item[0]))):
+        strategy, mode, *rest = key
+        entries.sort(key=lambda entry: position(entry[axis_key]))
+        label = STRATEGY_LABELS[strategy] + (f", {mode}" if result["moving"] else "")
+        label += "".join(f", {SWEPT_SHORT[name]} {'unlimited' if value is None else f'{value:g}'}"
+                         for name, value in zip(others, rest, strict=True))
+        marker = MARKERS[secondary.index(tuple(rest)) % len(MARKERS)]
+        style = {"color": STRATEGY_COLOURS[strategy], "linestyle": VARIANT_STYLES.get(mode, "-"), "marker": marker,
+                 "markersize": 4, "capsize": 3, "label": label}
+        dodge = spread * (number - (len(lines) - 1) / 2)
+        xs = [position(entry[axis_key]) + dodge for entry in entries]
+        for axis, (metric, name, unit) in zip(axes.flat, metrics, strict=False):
+            means = [np.nan if entry[f"{metric}_mean"] is None else entry[f"{metric}_mean"] for entry in entries]
+            sds = [0.0 if entry[f"{metric}_sd"] is None else entry[f"{metric}_sd"] for entry in entries]
+            axis.errorbar(xs, means, yerr=sds, **style)
+            axis.set_title(name, fontsize=10)
+            axis.set_ylabel(unit, fontsize=8)
+            if metric == "converged":
+                axis.set_ylim(-0.05, 1.05)
+    for axis in axes.flat[len(metrics):]:
+        axis.set_visible(False)
+    for axis in axes.flat[:len(metrics)]:
+        axis.set_xlabel(SWEPT_LABELS[axis_key], fontsize=8)
+        axis.grid(alpha=0.3)
+        if None in [cell[axis_key] for cell in result["cells"]]:
+            ticks = sorted(set(finite)) + [unlimited]
+            axis.set_xticks(ticks, [f"{tick:g}" for tick in ticks[:-1]] + ["none"])
+    axes.flat[0].legend(fontsize=7)
+    costs = "costs over each whole run" if result["moving"] else "costs to Ctime"
+    figure.suptitle(f"{result['scenario']}, N = {result['robots']}: mean ± 1 sd (error bars) over "
+                    f"{result['trials']} trials per point; {costs}", fontsize=11)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
     plt.close(figure)

@@ -227,6 +227,7 @@ class MonitorReport:
     faults: Counter[str] = field(default_factory=Counter)  # robots' fault layers, summed
     notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
     rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
+    energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
 
     def sender_rows(self) -> list[Traffic]:
         """Every traffic row of every sender's final statistics."""
@@ -281,26 +282,28 @@ async def run_monitor(
             code, report = await _watch(participant, recorder, roster, held, refresh)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
-            writer.write(
-                {
-                    "type": "end",
-                    "steps": report.end.step if report.end else recorder.next_step - 1,
-                    "reason": report.end.reason if report.end else "monitor stopped",
-                    "wall_s": report.end.wall_s if report.end else None,
-                    "traffic": [list(row) for row in report.received],
-                    "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
-                    "rejected": report.rejected,
-                    "late": recorder.late,
-                    "dropped_ahead": recorder.dropped_ahead,
-                    "rss_kib": report.rss_kib,
-                    "consistent": report.consistent(),
-                    "faults": {name: report.faults[name] for name in FAULT_COUNTERS},
-                    "notes": dict(report.notes),
-                    "rejected_by": report.rejected_by,
-                }
-            )
+            end = {
+                "type": "end",
+                "steps": report.end.step if report.end else recorder.next_step - 1,
+                "reason": report.end.reason if report.end else "monitor stopped",
+                "wall_s": report.end.wall_s if report.end else None,
+                "traffic": [list(row) for row in report.received],
+                "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
+                "rejected": report.rejected,
+                "late": recorder.late,
+                "dropped_ahead": recorder.dropped_ahead,
+                "rss_kib": report.rss_kib,
+                "consistent": report.consistent(),
+                "faults": {name: report.faults[name] for name in FAULT_COUNTERS},
+                "notes": dict(report.notes),
+                "rejected_by": report.rejected_by,
+                "energy_j": report.energy_j,
+            }
+            writer.write(end)
         if model is not None:
-            model.status = ending_text(report.end.reason) if report.end else "stopped" if code == STOPPED else "world lost"
+            model.add(end)
+            model.status = (ending_text(report.end.reason) if report.end
+                            else "stopped" if code == STOPPED else "world lost")
         if refresh is not None:
             refresh(True)
         return code
@@ -374,6 +377,7 @@ async def _watch(
         faults=sum((Counter(stats.faults) for stats in finals.values()), Counter()),
         notes=sum((Counter(stats.notes) for stats in finals.values()), Counter()),
         rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
+        energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
     )
     return code, report
 

@@ -119,7 +119,9 @@ def plot_run(log: RunLog) -> Figure:
             handles, labels = handles + more_handles, [*labels, "payload bytes (right axis)"]
         links.legend(handles, labels, fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 1.08), ncols=2,
                      borderaxespad=0.0)
+    energy = (log.end or {}).get("energy_j") or {}
     links.set_title(PANELS[3])
     figure.suptitle(f"{scenario.name}: {scenario.robots} robots, {scenario.control.strategy} strategy, "
-                    f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})")
+                    f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})"
+                    + (f"; team radio energy {1e3 * sum(map(sum, energy.values())):.2f} mJ" if energy else ""))
     return figure

@@ -39,6 +39,8 @@ def run_replay(args: argparse.Namespace) -> int:
         for record in log.records:
             model.add(record)
         model.status = ending(log)
+        if log.end:
+            model.add(log.end)
         model.replay_speed = None
         out.print(Dashboard(model))
         return 0
@@ -47,6 +49,8 @@ def run_replay(args: argparse.Namespace) -> int:
     with LiveView(console, model, dashboard) as view:
         replay(model, log.records, args.speed, view.refresh)
         model.status = ending(log)
+        if log.end:
+            model.add(log.end)
         view.refresh(True)
     return 0
 

@@ -12,7 +12,8 @@ Records, one per line:
   step (bytes are null for the engine, which sends nothing: its counts follow from the protocol);
 * ``event``: something that happened between steps (faults, crashes);
 * ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
-  says it sent, rejected payloads and late messages.
+  says it sent, rejected payloads, late messages and each robot's radio energy (``energy_j``:
+  robot name -> [transmit, receive] joules, :mod:`bus.radio`).
 
 A killed run leaves every complete line readable; :func:`read_log` ignores a torn last line and
 checks every other record against the structs below, and each step's per-robot lists against the
@@ -198,7 +199,15 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
             )
         writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
                       "traffic": [list(row) for row in link_traffic(history, trial)], "senders": {}, "rejected": {},
-                      "late": 0, "faults": fault_totals(history, trial)})
+                      "late": 0, "faults": fault_totals(history, trial), "energy_j": _engine_energy(history, trial)})
+
+
+def _engine_energy(history: History, trial: int) -> dict[str, list[float]]:
+    """Each robot's radio energy over the trial, [transmit, receive] joules, by robot name."""
+    if history.energy is None:
+        return {}
+    totals = history.energy[:, trial].sum(axis=0)
+    return {f"r{robot}": totals[robot].tolist() for robot in range(len(totals))}
 
 
 # ---------------------------------------------------------------------------- reading
@@ -252,7 +261,7 @@ class EventRecord(Record, tag="event"):
     subject: str | None = None
     sender: int | None = None
     receiver: int | None = None
-    reason: str | None = None  # of a drop: drop, outage, range, gone
+    reason: str | None = None  # of a drop: drop, outage, range, gone, radio
     delay_s: float | None = None
     robot: str | None = None
     wall: float | None = None
@@ -275,6 +284,7 @@ class EndRecord(Record, tag="end"):
     faults: dict[str, int] = {}
     notes: dict[str, int] = {}
     rejected_by: dict[str, dict[str, int]] = {}
+    energy_j: dict[str, tuple[float, float]] = {}
 
 
 AnyRecord = HeaderRecord | StepRecord | EventRecord | EndRecord

@@ -70,6 +70,9 @@ def summary_table(result: dict, robot_messages: int, all_robots: bool = False) -
     if result["estimation"] != "known":
         rows.append(("Terr", f"mean {result['terr_mean']:.3f} m, final {result['terr_final']:.3f} m "
                              f"({result['estimation']} estimation)"))
+    if "energy" in result:
+        team, per_robot = 1e3 * result["energy"]["team_j"], [1e3 * j for j in result["energy"]["per_robot_j"]]
+        rows.append(("radio energy", f"team {team:.3f} mJ, per robot {min(per_robot):.3f}-{max(per_robot):.3f} mJ"))
     for name, value in rows:
         table.add_row(name, value)
     return table

@@ -21,6 +21,7 @@ from pathlib import Path
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id, participants
+from ringtrack.bus.radio import energy_report
 from ringtrack.tools.console import OutputError, UsageError, err, out, write_json
 from ringtrack.tools.options import (
     JSON_FILE,
@@ -329,9 +330,19 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
     result["rss_kib"] = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
     result["end_reason"] = end.get("reason")
     result["id_collisions"] = end.get("notes", {}).get("id_collisions", 0)
+    result["energy"] = robot_energy(end.get("energy_j", {}), scenario.robots)
     if end.get("wall_s") and end.get("steps"):
         result["steps_per_s"] = end["steps"] / end["wall_s"]
     return result
+
+
+def robot_energy(by_name: dict[str, list[float]], robots: int) -> dict[str, object] | None:
+    """The summary's energy section from an end record's ``energy_j`` (None unless every robot
+    reported: a crashed robot's energy is unknown)."""
+    names = [f"r{robot}" for robot in range(robots)]
+    if not all(name in by_name for name in names):
+        return None
+    return energy_report([by_name[name][0] for name in names], [by_name[name][1] for name in names])
 
 
 def _summary_line(result: dict) -> str:

@@ -25,10 +25,17 @@ def uniform_ring(region: ConvexRegion, centre: ArrayLike, robots: int, rotation:
     return region.boundary_point(angles, centre)
 
 
+def link_distance(start: ArrayLike, end: ArrayLike) -> FloatArray:
+    """Distances (metres) between points (last axis x, y): the one computation of a link's length
+    that the world, the engine and the radio all use, so they agree to the last bit."""
+    difference = np.asarray(end, dtype=float) - np.asarray(start, dtype=float)
+    return np.sqrt(difference[..., 0] * difference[..., 0] + difference[..., 1] * difference[..., 1])
+
+
 def link_lengths(positions: ArrayLike) -> FloatArray:
     """Distances (metres) from each robot to its CCW successor along axis -2 of ``positions``."""
     positions = np.asarray(positions, dtype=float)
-    return np.linalg.norm(np.roll(positions, -1, axis=-2) - positions, axis=-1)
+    return link_distance(positions, np.roll(positions, -1, axis=-2))
 
 
 def uniform_link_requirement(

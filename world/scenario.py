@@ -17,6 +17,7 @@ import msgspec
 import numpy as np
 
 from ringtrack.bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
+from ringtrack.bus.radio import Radio
 from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
 from ringtrack.world.params import ControlParams, EstimationParams
 from ringtrack.world.ring import ring_gaps
@@ -267,13 +268,36 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,
-        faults=_fault_plan(spec, label),
+        faults=_fault_plan(spec, label, _radio(spec, label)),
         communication_range=spec.limits.communication_range,
     )
 
 
-def _fault_plan(spec: ScenarioSpec, label: str) -> FaultPlan:
-    """The ``[faults]`` section resolved: robot ids checked, outage windows in steps."""
+def _radio(spec: ScenarioSpec, label: str) -> Radio:
+    """The ``[radio]`` section in SI units; the disk model needs the range it is the disk of."""
+    section = spec.radio
+    if section.model == "disk" and spec.limits.communication_range is None:
+        raise ScenarioError(f"{label}: radio.model = 'disk' needs limits.communication_range (r_c, metres); set it")
+    return Radio(
+        model=section.model,
+        tx_power_dbm=section.tx_power_dbm,
+        path_loss_d0_db=section.path_loss_d0_db,
+        d0_m=section.d0_m,
+        exponent=section.exponent,
+        shadowing_db=section.shadowing_db,
+        sensitivity_dbm=section.sensitivity_dbm,
+        transition_db=section.transition_db,
+        e_elec=section.e_elec_nj_per_bit * 1e-9,
+        eps_amp=section.eps_amp_pj_per_bit_m2 * 1e-12,
+        overhead_bytes=section.overhead_bytes,
+        latency_s=section.latency_ms / 1000.0,
+        bandwidth_bps=section.bandwidth_kbps * 1000.0,
+    )
+
+
+def _fault_plan(spec: ScenarioSpec, label: str, radio: Radio) -> FaultPlan:
+    """The ``[faults]`` section resolved (robot ids checked, outage windows in steps) with the
+    links' ``radio``."""
     faults, robots, dt = spec.faults, spec.team.robots, spec.control.dt
 
     def pair(value: tuple[int, int], key: str) -> frozenset[int]:
@@ -309,4 +333,4 @@ def _fault_plan(spec: ScenarioSpec, label: str) -> FaultPlan:
     overrides = {pair(entry.between, f"faults.links[{index}].between"): rates(entry)
                  for index, entry in enumerate(faults.links)}
     seed = spec.seed if faults.seed is None else faults.seed
-    return FaultPlan(seed=seed, default=rates(), links=overrides, outages=tuple(outages))
+    return FaultPlan(seed=seed, default=rates(), links=overrides, outages=tuple(outages), radio=radio)

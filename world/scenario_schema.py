@@ -38,6 +38,22 @@ A scenario file looks like::
     delay_ms = 0.0             # wall delay, with +- jitter_ms
     [[faults.links]]           # per-link override: between = [0, 1], drop = 0.5, ...
     [[faults.outages]]         # links down: links = [[2, 3], [5, 0]], from_step = 100, to_step = 300
+    [radio]                    # robot-to-robot links' loss with distance, energy, realtime latency
+    model = "log-distance"     # "ideal" (default) | "disk" (limits.communication_range) | "log-distance"
+    tx_power_dbm = 0.0         # transmit power
+    path_loss_d0_db = 40.05    # PL(d0): free space at 1 m, 2.4 GHz
+    d0_m = 1.0                 # reference distance, m
+    exponent = 3.0             # path-loss exponent n
+    shadowing_db = 4.0         # sd of the shadowing X, dB, drawn per link and step
+    sensitivity_dbm = -85.0    # receiver sensitivity S: half the packets are lost at S
+    transition_db = 1.0        # width w of the logistic PER(P_r) = 1 / (1 + exp((P_r - S) / w))
+    e_elec_nj_per_bit = 50.0   # first-order radio: electronics, nJ/bit (transmit and receive)
+    eps_amp_pj_per_bit_m2 = 100.0  # amplifier, pJ/bit/m^2 (transmit)
+    overhead_bytes = 0         # per message, added to its encoded size (headers of the link layer)
+    latency_ms = 0.0           # realtime, disk or log-distance: base latency of every message
+    bandwidth_kbps = 250.0     # realtime, disk or log-distance: adds 8 bytes / bandwidth
+
+The radio's formulas are in :mod:`ringtrack.bus.radio`.
 
 A new section is a ``Spec`` struct here plus a field of :class:`ScenarioSpec`; what it means for a run
 is resolved in :func:`ringtrack.world.scenario.resolve`, and an invalid value is worded by
@@ -123,6 +139,22 @@ class FaultsSpec(Spec, frozen=True):
     outages: list[OutageSpec] = []
 
 
+class RadioSpec(Spec, frozen=True):
+    model: Literal["ideal", "disk", "log-distance"] = "ideal"
+    tx_power_dbm: Finite = 0.0
+    path_loss_d0_db: Finite = 40.05
+    d0_m: Positive = 1.0
+    exponent: Positive = 3.0
+    shadowing_db: NonNegative = 4.0
+    sensitivity_dbm: Finite = -85.0
+    transition_db: Positive = 1.0
+    e_elec_nj_per_bit: NonNegative = 50.0
+    eps_amp_pj_per_bit_m2: NonNegative = 100.0
+    overhead_bytes: Annotated[int, msgspec.Meta(ge=0, le=65536)] = 0
+    latency_ms: NonNegative = 0.0
+    bandwidth_kbps: Positive = 250.0
+
+
 class ScenarioSpec(Spec, kw_only=True, frozen=True):
     region: RegionSpec
     target: TargetSpec
@@ -134,3 +166,4 @@ class ScenarioSpec(Spec, kw_only=True, frozen=True):
     estimation: EstimationSpec = EstimationSpec()
     limits: LimitsSpec = LimitsSpec()
     faults: FaultsSpec = FaultsSpec()
+    radio: RadioSpec = RadioSpec()

@@ -11,6 +11,7 @@ import numpy as np
 from ringtrack.bus.messages import SCHEMA, Command, Measurement, Tick
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import converged, memory_cerr, strategy_cerr, true_cerr
+from ringtrack.world.ranges import link_distance
 from ringtrack.world.ring import ring_neighbours
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
@@ -58,8 +59,13 @@ class WorldState:
         return Measurement(
             SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
             None if np.isnan(measured) else float(measured), self.in_range(robot),
-            sorted(self.live) if self.returned else None,
+            sorted(self.live) if self.returned else None, self.neighbour_distances(robot),
         )
+
+    def neighbour_distances(self, robot: int) -> list[tuple[int, float]]:
+        """``(neighbour, metres)`` of the links from ``robot`` to its live ring neighbours."""
+        neighbours = sorted(set(ring_neighbours(robot, self.live | {robot})) - {robot})
+        return [(other, float(link_distance(self.positions[robot], self.positions[other]))) for other in neighbours]
 
     def rejoin(self, robot: int) -> None:
         """Bring a restarted robot back into the ring from the next step on (it has no measurement
@@ -88,7 +94,7 @@ class WorldState:
         limit = self.scenario.communication_range
         if limit is None:
             return None
-        distances = np.linalg.norm(self.positions - self.positions[robot], axis=1)
+        distances = link_distance(self.positions[robot], self.positions)
         return [other for other in sorted(self.live) if other != robot and distances[other] <= limit]
 
     def tick(self, live: list[int]) -> Tick:
