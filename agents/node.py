@@ -277,7 +277,7 @@ class RobotNode:
         # Every unreachable neighbour gets one request per step: the poll itself or a probe.
         probed = [n for n in neighbours if not self.reachable(n)] if not self.trigger else []
         self.probes += len(probed) + sum(1 for n in neighbours if self.trigger and not self.reachable(n))
-        outgoing = [self._request(neighbour) for neighbour in probed]
+        outgoing: Outgoing = [self._request(neighbour) for neighbour in probed]
         if not self.trigger:
             return [*outgoing, self._command()]
         self.polls += 1

@@ -21,7 +21,7 @@ from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
 from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request, Stats
-from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
 from ringtrack.bus.shim import LinkShim
 from ringtrack.world.scenario import Scenario
@@ -32,7 +32,7 @@ ESTIMATE_SHARE = 0.5
 
 
 @dataclass(frozen=True)
-class Deadline:
+class Deadline(Posted):
     """Realtime: what the robot waits for in ``step`` is due: the ``replies`` of its poll, or the
     fusion centre's ``estimate``."""
 
@@ -130,8 +130,9 @@ class RobotLink:
         pending = list(outgoing)
         while pending:
             destination, message = pending.pop(0)
-            if not self.shim.send(destination, message) and robot_index(destination) is not None:
-                pending += self.node.on_lost(robot_index(destination))
+            robot = robot_index(destination)
+            if not self.shim.send(destination, message) and robot is not None:
+                pending += self.node.on_lost(robot)
         if self.reply_timeout is None:
             return  # lockstep: every answer comes, or its loss is known at once
         sent = {type(message) for _, message in outgoing}

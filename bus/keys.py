@@ -1,8 +1,8 @@
 """Key expressions of one run. Every key lives under ``ringtrack/<run>`` so two runs never meet.
 
 Data keys read ``ringtrack/<run>/<destination>/<source>/<kind>`` with participants named ``world``,
-``monitor``, ``fusion`` (the centralized estimator), ``all`` (broadcast) and ``r<i>`` (robot i), so the monitor learns the link of every
-message from its key alone. Liveliness tokens live under ``ringtrack/<run>/alive/<name>`` (the
+``monitor``, ``fusion`` (the centralized estimator), ``all`` (broadcast) and ``r<i>`` (robot i), so
+the monitor learns the link of every message from its key alone. Liveliness tokens live under ``ringtrack/<run>/alive/<name>`` (the
 process is up) and ``ringtrack/<run>/ready/<name>`` (it has seen everyone it talks to).
 """
 

@@ -55,7 +55,13 @@ class Interrupt:
     reason: str
 
 
-Event = Delivery | Presence | Interrupt
+class Posted:
+    """Base of the events a process posts to its own inbox (a timer that fell due): they pass through
+    :meth:`Participant.accept` unchanged, between the bus's own events."""
+
+
+Event = Delivery | Presence | Interrupt | Posted
+Raw = tuple[str, bytes]  # a sample as a Zenoh callback hands it over: key expression, payload
 
 
 def peak_rss_kib() -> int:
@@ -92,7 +98,7 @@ class Participant:
         self.name = name
         self.robots = robots
         self.counter = TrafficCounter()
-        self.inbox: Inbox[tuple[str, bytes] | Presence | Interrupt] = Inbox(loop)
+        self.inbox: Inbox[Raw | Event] = Inbox(loop)
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._entities: list[object] = []
         self._channels: list[zenoh.Handler[zenoh.Sample]] = []
@@ -113,7 +119,7 @@ class Participant:
 
     def drain(self) -> list[Event]:
         """Take everything waiting in the channels of :meth:`collect` and in the inbox, validated."""
-        batch: list[tuple[str, bytes] | Presence | Interrupt] = []
+        batch: list[Raw | Event] = []
         for channel in self._channels:
             while (sample := channel.try_recv()) is not None:
                 batch.append((str(sample.key_expr), sample.payload.to_bytes()))
@@ -150,7 +156,7 @@ class Participant:
         batch = await self.inbox.batch()
         return self.accept(batch)
 
-    def accept(self, batch: list[tuple[str, bytes] | Presence | Interrupt]) -> list[Event]:
+    def accept(self, batch: list[Raw | Event]) -> list[Event]:
         """Decode, validate and count raw samples; rejected payloads are counted and dropped."""
         accepted: list[Event] = []
         for item in batch:

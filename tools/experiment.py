@@ -46,7 +46,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
     stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
-    stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the comparison figure")
+    stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
+                            help="draw the comparison figure")
     stationary.add_argument("--csv", type=CSV_FILE, metavar="PATH",
                             help="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
     stationary.set_defaults(handler=run_stationary)
@@ -63,7 +64,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--trials", type=at_least(1), default=5, help="random starts per run (default 5)")
     moving.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     moving.add_argument("--steps", type=at_least(1), help="steps per run (default: control.max_steps)")
-    moving.add_argument("--settle", type=at_least(0), default=300, help="means are taken from this step on (default 300)")
+    moving.add_argument("--settle", type=at_least(0), default=300,
+                        help="means are taken from this step on (default 300)")
     moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
     moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
     moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")

@@ -26,7 +26,8 @@ def stationary_comparison(result: dict, path: Path) -> None:
         if len(sizes) == 1:
             position = [0 if strategy == "constant" else 1]
             for axis, key in ((left, "ctime"), (right, "com_bar")):
-                axis.bar(position, [e[f"{key}_mean"] for e in entries], yerr=[e[f"{key}_std"] for e in entries], **style)
+                axis.bar(position, [e[f"{key}_mean"] for e in entries], yerr=[e[f"{key}_std"] for e in entries],
+                         **style)
         else:
             dodge = 0.012 * (max(sizes) - min(sizes)) * (-1 if strategy == "constant" else 1)
             robots = [entry["robots"] + dodge for entry in entries]

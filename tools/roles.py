@@ -107,7 +107,8 @@ def robot_ids(text: str) -> list[int]:
                 raise ValueError(part)
             ids += list(span)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--id {text!r}: give a robot index like 3, or ascending ones like 0-7 or 0,2,4") from None
+        raise argparse.ArgumentTypeError(
+            f"--id {text!r}: give a robot index like 3, or ascending ones like 0-7 or 0,2,4") from None
     if len(set(ids)) != len(ids):
         raise argparse.ArgumentTypeError(f"--id {text!r} names a robot twice; give each robot once")
     return ids

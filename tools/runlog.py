@@ -353,7 +353,8 @@ def _check_team_size(path: Path, number: int, step: dict[str, Any], robots: int)
     for name in PER_ROBOT:
         values = step[name]
         if values is not None and len(values) != robots:
-            raise _damaged(path, number, f"step record: `{name}` has {len(values)} entries for a team of {robots} robots")
+            raise _damaged(path, number,
+                           f"step record: `{name}` has {len(values)} entries for a team of {robots} robots")
 
 
 def _check_link_event(path: Path, number: int, event: EventRecord, robots: int) -> None:

@@ -225,7 +225,8 @@ def spawn_team(
     result["startup_s"] = first_step.after
     result["failures"] = failures
     result["stopped"] = interrupted or None
-    result["exit_code"] = 130 if interrupted.startswith(("interrupted", "terminated")) else int(bool(failures or interrupted))
+    stopped_by_signal = interrupted.startswith(("interrupted", "terminated"))
+    result["exit_code"] = 130 if stopped_by_signal else int(bool(failures or interrupted))
     try:
         write_json(folder / "summary.json", result)
     except OutputError as error:
