@@ -2,8 +2,9 @@
 
 Data keys read ``ringtrack/<run>/<destination>/<source>/<kind>`` with participants named ``world``,
 ``monitor``, ``fusion`` (the centralized estimator), ``all`` (broadcast) and ``r<i>`` (robot i), so
-the monitor learns the link of every message from its key alone. Liveliness tokens live under ``ringtrack/<run>/alive/<name>`` (the
-process is up) and ``ringtrack/<run>/ready/<name>`` (it has seen everyone it talks to).
+the monitor learns the link of every message from its key alone. Liveliness tokens live under
+``ringtrack/<run>/alive/<name>`` (the process is up), ``ringtrack/<run>/ready/<name>`` (it has seen
+everyone it talks to) and ``ringtrack/<run>/claim/<name>/<session>`` (one session's claim on a name).
 """
 
 from __future__ import annotations
