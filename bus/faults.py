@@ -240,8 +240,8 @@ class FaultCounter:
     (copies put on the bus: what the monitor sees); so that ``sent + duplicated == delivered +
     dropped`` once every message has arrived. A request dropped before sending is sent but never
     published, a reply duplicated on arrival published once: ``published`` is the sum of
-    :func:`request_traffic` over the requests. The engine counts with this class as the robots'
-    fault layers do."""
+    :func:`request_traffic` over the requests. Counted by :func:`fate_counts`, the rule the engine
+    applies to a whole step at once."""
 
     counts: Counter[str] = field(default_factory=Counter)
     reasons: Counter[str] = field(default_factory=Counter)

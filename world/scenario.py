@@ -1,5 +1,5 @@
 """Scenarios resolved into run parameters: :class:`Scenario` (SI units), :func:`resolve` (cross-field
-rules, the fault plan), :func:`apply_overrides` and :func:`load_scenario`, the entry point.
+rules, the fault plan and its radio), :func:`apply_overrides` and :func:`load_scenario`, the entry point.
 
 The file format is :mod:`ringtrack.world.scenario_schema`, reading files and shipped names
 :mod:`ringtrack.world.scenario_files`, the wording of invalid values
