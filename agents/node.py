@@ -172,8 +172,7 @@ class RobotNode:
         if estimate.step <= self.estimate_step or estimate.step > self.step:
             return []
         self.estimate_step = estimate.step
-        margin = self.scenario.estimation.margin
-        self.centre = self.scenario.region.clamp_interior(np.asarray(estimate.mean), margin)
+        self.centre = np.asarray(estimate.mean, dtype=float)  # the centre's estimator keeps it inside
         self.covariance = estimate.covariance
         if not self.waiting_for_estimate or estimate.step != self.step:
             return []
