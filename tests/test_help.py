@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ringtrack.tools.cli import COMMANDS, build_parser
+from ringtrack.tools.cli import COMMANDS, build_parser, modules_for
 
 
 def walk(parser: argparse.ArgumentParser, path: str = "ringtrack") -> list[tuple[str, argparse.Action]]:
@@ -33,3 +33,20 @@ def test_every_command_has_a_one_line_help() -> None:
     listed = {choice.dest: choice.help for choice in subcommands._choices_actions}
     assert set(listed) == set(subcommands.choices)
     assert all(help_text and help_text.strip() for help_text in listed.values()), listed
+
+
+def test_the_command_table_names_what_each_module_registers() -> None:
+    """``cli.COMMANDS`` picks the one module a command line needs: it must list exactly the commands
+    each module's ``register`` adds, or a command would be built without its module."""
+    for module, names in COMMANDS.items():
+        parser = build_parser([module])
+        subcommands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+        assert tuple(subcommands.choices) == names, module
+
+
+def test_a_command_line_builds_only_its_module() -> None:
+    assert modules_for(["spawn", "--steps", "5"], tuple(COMMANDS)) == ["spawn"]
+    assert modules_for(["hz", "RUN"], tuple(COMMANDS)) == ["introspect"]
+    assert modules_for(["--help"], tuple(COMMANDS)) == list(COMMANDS)
+    assert modules_for(["spwan"], tuple(COMMANDS)) == list(COMMANDS)  # the error lists every command
+    assert modules_for([], ("roles",)) == ["roles"]

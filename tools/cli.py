@@ -1,8 +1,10 @@
 """The ``ringtrack`` command: one sub-command per module, bad input answered in one line, exit 2.
 
-Command modules are imported by name when the parser is built, and ``python -m ringtrack.tools.roles`` builds
-one with the role commands only: a team of many processes does not pay for plotting and benchmark
-code at every start.
+Command modules are imported by name when the parser is built, and only the module of the command
+given (:data:`COMMANDS` says which module registers which command): ``ringtrack spawn`` does not
+import plotting, benchmark or introspection code before its first frame, and ``python -m
+ringtrack.tools.roles`` builds a parser with the role commands only. ``ringtrack --help`` and an
+unknown command build the whole parser.
 """
 
 from __future__ import annotations
@@ -14,8 +16,20 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-COMMANDS = ("simulate", "spawn", "roles", "replay", "plot", "check", "experiment", "bench", "certs", "introspect",
-            "export")
+# Module of tools/ -> the commands its register() adds (tests/test_help.py checks the two agree).
+COMMANDS: dict[str, tuple[str, ...]] = {
+    "simulate": ("simulate",),
+    "spawn": ("spawn",),
+    "roles": ("world", "robot", "router", "fusion", "monitor"),
+    "replay": ("replay",),
+    "plot": ("plot",),
+    "check": ("check",),
+    "experiment": ("experiment",),
+    "bench": ("bench",),
+    "certs": ("certs",),
+    "introspect": ("list", "echo", "hz"),
+    "export": ("export",),
+}
 
 # One-line errors of bad input: (module, class). A class whose module was never imported cannot
 # have been raised, so none is imported just to be caught.
@@ -37,7 +51,14 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"ringtrack: error: {message} (see '{self.prog} --help')\n")
 
 
-def build_parser(commands: Sequence[str] = COMMANDS) -> argparse.ArgumentParser:
+def modules_for(argv: Sequence[str], modules: Sequence[str]) -> list[str]:
+    """The one module of ``modules`` that registers the command ``argv`` starts with, or all of them
+    when it starts with none of theirs (``--help``, a typo, nothing)."""
+    named = [module for module in modules if argv and argv[0] in COMMANDS[module]]
+    return named or list(modules)
+
+
+def build_parser(commands: Sequence[str] = tuple(COMMANDS)) -> argparse.ArgumentParser:
     parser = Parser(
         prog="ringtrack",
         description="Self-triggered multi-robot target tracking: engine, emulator over Zenoh, experiments.",
@@ -48,9 +69,10 @@ def build_parser(commands: Sequence[str] = COMMANDS) -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None, commands: Sequence[str] = COMMANDS) -> int:
+def main(argv: Sequence[str] | None = None, commands: Sequence[str] = tuple(COMMANDS)) -> int:
     """Entry point of the console script; returns the process exit code."""
-    args = build_parser(commands).parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(modules_for(argv, commands)).parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     try:
         return int(args.handler(args) or 0)

@@ -23,8 +23,8 @@ from rich.table import Table
 from rich.text import Text
 
 from ringtrack.agents.laws import Trigger, uncertainty_bound
-from ringtrack.bus.faults import POLL_MESSAGES
-from ringtrack.tools.runlog import LINK_EVENTS
+from ringtrack.bus.faults import FAULTS, POLL_MESSAGES
+from ringtrack.bus.keys import FUSION, MONITOR, WORLD, participants, robot_index
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario
@@ -61,6 +61,14 @@ def ending_text(reason: str) -> str:
     return {"interrupted (SIGINT)": "interrupted by the user (Ctrl-C)",
             "interrupted (SIGTERM)": "terminated (SIGTERM)",
             "interrupted (parent exited)": "stopped (its parent process went away)"}.get(reason, reason)
+
+
+def startup_names(scenario: Scenario) -> list[str]:
+    """Everyone a run of ``scenario`` starts with, the monitor included, in the order the start-up
+    frame lists them: world, fusion centre, monitor, robots."""
+    order = {WORLD: -3, FUSION: -2, MONITOR: -1}
+    team = participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True)
+    return sorted(team, key=lambda name: order.get(name, robot_index(name) or 0))
 
 
 def reason_text(mask: int) -> str:
@@ -117,6 +125,7 @@ class TeamModel:
         self.status = "running"
         self.expected: list[str] = []  # participants the run starts with (shown until the first step)
         self.up: set[str] = set()  # of those, the ones whose liveliness token has been seen
+        self.note = ""  # what the start-up is doing (spawn's frame, before the monitor is up)
         self.energy_j: dict[str, list[float]] = {}  # robot -> [transmit, receive] J, from the end record
 
     def add(self, record: dict) -> None:
@@ -125,7 +134,7 @@ class TeamModel:
             self.energy_j = dict(record.get("energy_j") or {})
         elif record["type"] == "step":
             self._add_step(record)
-        elif record["type"] == "event" and record["event"] in LINK_EVENTS:
+        elif record["type"] == "event" and record["event"] in FAULTS:
             name = record["reason"] if record["event"] == "dropped" else FAULT_NAMES[record["event"]]
             self.link_faults[frozenset((record["sender"], record["receiver"]))] = (name, record["step"])
 
@@ -431,7 +440,7 @@ def legend_line(shown: set[str], width: int) -> Text:
 
 
 def startup_lines(model: TeamModel, width: int) -> list[Text]:
-    """Before the first step: which participants are up, which are awaited."""
+    """Before the first step: which participants are up, which are awaited, and what the start-up is doing."""
     waiting = [name for name in model.expected if name not in model.up]
     up = [name for name in model.expected if name in model.up]
     elapsed = time.monotonic() - model.started
@@ -441,6 +450,8 @@ def startup_lines(model: TeamModel, width: int) -> list[Text]:
         lines.append(fit_line([("up: " + " ".join(up), "green", 0)], width))
     if waiting:
         lines.append(fit_line([("waiting for: " + " ".join(waiting), "yellow", 0)], width))
+    if model.note:
+        lines.append(fit_line([(model.note, "", 0)], width))
     return lines
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
 from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic
-from ringtrack.bus.keys import FUSION, MONITOR, WORLD, Keys, participants, robot_index
+from ringtrack.bus.keys import MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import (
     Command,
     End,
@@ -35,7 +35,7 @@ from ringtrack.bus.messages import (
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, peak_rss_kib
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
-from ringtrack.tools.dashboard import TeamModel, ending_text
+from ringtrack.tools.dashboard import TeamModel, ending_text, startup_names
 from ringtrack.tools.runlog import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
@@ -205,13 +205,6 @@ class Recorder:
 def senders(scenario: Scenario) -> set[str]:
     """Everyone who sends in a run of ``scenario`` (the monitor only listens)."""
     return participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=False)
-
-
-def startup_names(scenario: Scenario) -> list[str]:
-    """Everyone a run of ``scenario`` starts with, the monitor included, in the order the dashboard's
-    start-up frame lists them: world, fusion centre, monitor, robots."""
-    order = {WORLD: -3, FUSION: -2, MONITOR: -1}
-    return sorted(senders(scenario) | {MONITOR}, key=lambda name: order.get(name, robot_index(name) or 0))
 
 
 @dataclass

@@ -77,6 +77,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     monitor.add_argument("--connect-from", type=Path, metavar="PATH",
                          help="wait for PATH (written by world --announce) and connect to the endpoints it lists; "
                          "the dashboard shows the start-up meanwhile")
+    monitor.add_argument("--display-handover", type=Path, metavar="PATH",
+                         help="spawn draws the start-up frame and wrote PATH: count from its time, write 'ready' "
+                         "there when ready to draw, and draw once spawn has removed PATH (or after 30 s)")
     monitor.add_argument("--all-robots", action="store_true",
                          help="list every robot and link in the end-of-run report (default: above 20, "
                          "min/median/max and the 5 busiest)")
@@ -233,18 +236,22 @@ def run_monitor_role(args: argparse.Namespace) -> int:
 
     from rich.console import Console
 
-    from ringtrack.tools.dashboard import TeamModel
-    from ringtrack.tools.monitor import run_monitor, startup_names
+    from ringtrack.tools.dashboard import TeamModel, startup_names
+    from ringtrack.tools.monitor import run_monitor
     from ringtrack.tools.runlog import LogWriteError
     from ringtrack.tools.views import LiveView, print_outcome, print_report
 
     scenario = scenario_from_arguments(args)
     model = TeamModel(scenario, args.clock)
     model.expected, model.up = startup_names(scenario), {MONITOR}
+    if args.display_handover is not None:
+        from ringtrack.tools.startup import started_at
+
+        model.started = started_at(args.display_handover) or model.started  # spawn's frame counted from then
     console = Console(force_terminal=True) if args.dashboard else out
     dashboard = args.dashboard or (console.is_terminal and not args.no_dashboard)
     try:
-        with LiveView(console, model, dashboard) as view:
+        with LiveView(console, model, dashboard, handover=args.display_handover) as view:
             if args.connect_from is not None:
                 args.connect = [*(args.connect or []), *wait_for_endpoints(args.connect_from)]
             code, report = asyncio.run(

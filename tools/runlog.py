@@ -36,6 +36,7 @@ import msgspec
 import numpy as np
 
 from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals, link_traffic
+from ringtrack.bus.faults import FAULTS
 from ringtrack.tools.console import OutputError
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import target_error, true_cerr
@@ -267,8 +268,6 @@ class EventRecord(Record, tag="event"):
     wall: float | None = None
 
 
-LINK_EVENTS = ("dropped", "duplicated", "delayed")
-
 
 class EndRecord(Record, tag="end"):
     steps: Count
@@ -339,7 +338,7 @@ def read_log(path: Path) -> RunLog:
             log.steps.append(record)
             log.records.append(record)
         elif isinstance(checked, EventRecord):
-            if checked.event in LINK_EVENTS:
+            if checked.event in FAULTS:
                 _check_link_event(path, number, checked, robots)
             log.events.append(record)
             log.records.append(record)

@@ -5,6 +5,10 @@ resolved scenario, ``run.json`` (run id, endpoints: what ``ringtrack robot --joi
 a crashed robot), the run log, each process's standard error and the summary JSON. The world
 listens on a free loopback port and announces it; the others connect to it and gossip links the
 rest. Completion, Ctrl-C and SIGTERM all end every process within 2 s.
+
+On a terminal, spawn draws the dashboard's start-up frame itself before it starts any process, and
+hands the terminal to the monitor once the monitor is ready to draw (:mod:`tools.startup`). What it
+needs only after that first frame (Zenoh, the supervisor, the run log reader) is imported then.
 """
 
 from __future__ import annotations
@@ -17,11 +21,9 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ringtrack.bus.config import LOOPBACK_ANY_PORT
-from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id, participants
-from ringtrack.bus.radio import energy_report
 from ringtrack.tools.console import OutputError, UsageError, err, out, write_json
 from ringtrack.tools.options import (
     JSON_FILE,
@@ -32,9 +34,11 @@ from ringtrack.tools.options import (
     scenario_from_arguments,
     warn_if_threshold_loose,
 )
-from ringtrack.tools.runlog import LogWriteError, history_from_log, read_log
-from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
 from ringtrack.world.scenario import Scenario
+
+if TYPE_CHECKING:
+    from ringtrack.tools.startup import StartupView
+    from ringtrack.tools.supervisor import Supervisor
 
 STALL_TIMEOUT_S = 60.0
 LOCKSTEP_WAIT_S = 10.0  # the liveliness lease: a frozen robot is seen gone after about as long
@@ -152,10 +156,19 @@ def spawn_team(
             f"this machine holds ({budget}); host several per process with --robots-per-process "
             f"{math.ceil(scenario.robots / budget)}"
         )
-    listen = LOOPBACK_ANY_PORT if secure is None else secured(secure, scenario)
+    secure_listen = None if secure is None else secured(secure, scenario)
     warn_if_threshold_loose(scenario)
     run = new_run_id()
     folder = run_folder(runs, scenario, run)
+    # The start-up frame before anything else: on a terminal only (a pipe nobody reads must not hold
+    # spawn up), and only where the monitor draws its dashboard.
+    handover = folder / "display.handover"
+    view = startup_view(scenario, clock, handover) if not quiet and dashboard is not False and out.is_terminal \
+        else None
+    from ringtrack.bus.config import LOOPBACK_ANY_PORT
+    from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
+
+    listen = secure_listen or LOOPBACK_ANY_PORT
     scenario_path = folder / "scenario.toml"
     scenario_path.write_bytes(scenario.to_toml())
     log_path = log_path or folder / "log.jsonl"
@@ -175,7 +188,7 @@ def spawn_team(
                   f"robots in {processes} processes", highlight=False)
     with Supervisor(folder) as supervisor:
         try:
-            with terminate_as_exception():
+            with terminate_as_exception(), view or contextlib.nullcontext():
                 stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
                 supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
                                            "--rate", str(rate), "--listen", listen,
@@ -183,6 +196,8 @@ def spawn_team(
                                            *stop_rule])
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
                 monitor_flags += ["--all-robots"] if all_robots else []
+                monitor_flags += [] if view is None else ["--display-handover", str(handover)]
+                say(view, "starting the world and the monitor")
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
                     # Started at once: it draws the start-up frame while the world comes up.
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
@@ -192,6 +207,7 @@ def spawn_team(
                 if not quiet:
                     err.print(f"spawn: the world listens on {', '.join(endpoints)} after "
                               f"{time.perf_counter() - started:.1f} s; starting the others", highlight=False)
+                say(view, f"the world listens on {', '.join(endpoints)}; starting {processes} robot processes")
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_wait = lockstep_wait / 2 if clock == "lockstep" else scenario.control.dt / rate
                 reply_timeout = ["--reply-timeout", str(reply_wait)]
@@ -205,6 +221,9 @@ def spawn_team(
                     ids = str(first) if first == last else f"{first}-{last}"
                     supervisor.start(f"r{ids}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
                                                  "--id", ids])
+                if view is not None:
+                    say(view, "every process started; the monitor takes over this screen once it is up")
+                    view.started_all()
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
                                 started=lambda: first_step.after is not None)
@@ -242,6 +261,19 @@ def spawn_team(
     return result
 
 
+def startup_view(scenario: Scenario, clock: str, handover: Path) -> StartupView:
+    """The start-up frame, drawn on stdout when the block is entered (:class:`tools.startup.StartupView`)."""
+    from ringtrack.tools.startup import StartupView
+
+    return StartupView(out, scenario, clock, handover)
+
+
+def say(view: StartupView | None, note: str) -> None:
+    """Show on the start-up frame (if any) what spawn is starting."""
+    if view is not None:
+        view.note = note
+
+
 def secured(directory: Path, scenario: Scenario) -> str:
     """Check the team folder serves every participant of ``scenario`` (before anything starts) and
     return the endpoint the world listens on."""
@@ -254,6 +286,8 @@ def secured(directory: Path, scenario: Scenario) -> str:
 def stalled_at(log_path: Path, folder: Path) -> str:
     """What a stalled run waited for: the step after the last one logged, and, from the world's
     standard error, the robot its lockstep wait last named."""
+    from ringtrack.tools.runlog import read_log
+
     steps = len(read_log(log_path).steps) if log_path.is_file() else 0
     waiting = ""
     world_stderr = folder / "world.stderr"
@@ -267,6 +301,8 @@ def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:
     """One line per child that crashed on its own, with the tail of its standard error; a monitor
     that stopped because the run log could not be written (a full disk, whose stderr file cannot
     hold its message either) says which file and how many complete steps it holds."""
+    from ringtrack.tools.runlog import LogWriteError, read_log
+
     lines = []
     for child in supervisor.crashed():
         if child.name == "monitor" and child.process.returncode == LogWriteError.exit_code:
@@ -310,7 +346,9 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
                     "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
     if not log_path.exists():
         return result
-    from ringtrack.agents import engine  # here: spawn's first line comes before this import
+    from ringtrack.agents import engine  # here: spawn's first frame comes before these imports
+    from ringtrack.bus.counting import totals_by_category, totals_by_kind
+    from ringtrack.tools.runlog import history_from_log, read_log
 
     log = read_log(log_path)
     if log.steps:
@@ -340,6 +378,8 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
 def robot_energy(by_name: dict[str, list[float]], robots: int) -> dict[str, object] | None:
     """The summary's energy section from an end record's ``energy_j`` (None unless every robot
     reported: a crashed robot's energy is unknown)."""
+    from ringtrack.bus.radio import energy_report
+
     names = [f"r{robot}" for robot in range(robots)]
     if not all(name in by_name for name in names):
         return None

@@ -12,6 +12,7 @@ import statistics
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from types import TracebackType
 from typing import Generic, TypeVar
 
@@ -24,6 +25,7 @@ from ringtrack.bus.keys import robot_index
 from ringtrack.tools.console import BUSIEST, SUMMARISED_ABOVE
 from ringtrack.tools.dashboard import Dashboard, TeamModel, ending_text, messages_saved
 from ringtrack.tools.monitor import COMPARED, MonitorReport
+from ringtrack.tools.startup import take_over
 
 LINE_PERIOD_S = 2.0
 FINAL_WAIT_S = 5.0  # leaving the view waits at most this long (wall seconds) for the drawer's last frame
@@ -67,14 +69,17 @@ class LiveView:
     :meth:`refresh` only leaves the frame in a :class:`Mailbox` and returns: a drawer thread writes
     it to the console, and a frame is skipped while the previous one is still being written.
     Leaving the ``with`` block waits at most ``final_wait_s`` for the last frame; a drawer still
-    stuck on its output then finishes on its own once the stream is read (it is a daemon thread)."""
+    stuck on its output then finishes on its own once the stream is read (it is a daemon thread).
+    With ``handover`` (spawn draws the start-up frame until the monitor is ready) the drawer first
+    waits for the terminal (:func:`tools.startup.take_over`); the monitor meanwhile goes on."""
 
     def __init__(self, console: Console, model: TeamModel, dashboard: bool,
-                 final_wait_s: float = FINAL_WAIT_S) -> None:
+                 final_wait_s: float = FINAL_WAIT_S, handover: Path | None = None) -> None:
         self.console = console
         self.model = model
         self.dashboard = dashboard
         self.final_wait_s = final_wait_s
+        self.handover = handover
         self.last_line = -LINE_PERIOD_S
         self.mailbox: Mailbox[TeamModel | str] = Mailbox()
         self.drawer = threading.Thread(target=self._draw, name="ringtrack-drawer", daemon=True)
@@ -107,6 +112,8 @@ class LiveView:
             while (line := self.mailbox.take()) is not None:
                 self.console.print(line, highlight=False, soft_wrap=True)
             return
+        if self.handover is not None:
+            take_over(self.handover)
         live = Live(console=self.console, auto_refresh=False, redirect_stdout=False, redirect_stderr=False)
         live.start()
         try:

@@ -1,0 +1,117 @@
+"""spawn's start-up frame (tools/startup.py): drawn before any process starts, then handed to the monitor.
+
+These tests assert the order the code guarantees, never a wall-clock bound: the frame is on the
+terminal before the first process is started, it shows the start-up state, and spawn and the monitor
+never draw at the same time.
+"""
+
+from __future__ import annotations
+
+import io
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from ringtrack.tools import supervisor
+from ringtrack.tools.dashboard import TeamModel, startup_names
+from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.startup import READY, StartupView, started_at, take_over
+from ringtrack.tools.views import LiveView
+from ringtrack.world.scenario import load_scenario
+
+pytestmark = pytest.mark.timeout(120)
+PATIENCE_S = 60.0  # how long a poll waits for what must happen (only a broken build waits that long)
+
+
+def terminal(width: int = 100, height: int = 30) -> Console:
+    """A recording console that says it is a terminal, as spawn's stdout on one."""
+    return Console(file=io.StringIO(), record=True, width=width, height=height, force_terminal=True,
+                   color_system=None)
+
+
+def eventually(condition, what: str) -> None:
+    deadline = time.monotonic() + PATIENCE_S
+    while not condition():
+        assert time.monotonic() < deadline, f"never happened: {what}"
+        time.sleep(0.01)
+
+
+class Stop(Exception):
+    """Raised by the fake start: the test has seen what it needed."""
+
+
+def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_path: Path) -> None:
+    console = terminal()
+    monkeypatch.setattr("ringtrack.tools.spawn.out", console)
+    started: list[tuple[str, list[str], str]] = []
+
+    def start(self, name: str, argv, stdout=None):
+        started.append((name, list(argv), console.export_text(clear=False)))
+        if name == "monitor":
+            raise Stop()
+
+    monkeypatch.setattr(supervisor.Supervisor, "start", start)
+    with pytest.raises(Stop):
+        spawn_team(load_scenario("paper-stationary"), runs=tmp_path)
+    (world, world_argv, before_world), (monitor, monitor_argv, _) = started
+    assert world == "world" and monitor == "monitor"
+    # On the terminal before the world process was started: the start-up state of every participant.
+    assert "paper-stationary · 6 robots" in before_world and "starting" in before_world.splitlines()[0]
+    assert "starting: 0/8 participants up" in before_world
+    assert "waiting for: world monitor r0 r1 r2 r3 r4 r5" in before_world
+    # The monitor is told where to take the terminal over, and counts from spawn's time.
+    handover = Path(monitor_argv[monitor_argv.index("--display-handover") + 1])
+    assert handover.parent.parent == tmp_path and "--display-handover" not in world_argv
+    assert started_at(handover) is not None
+
+
+def test_no_start_up_frame_without_a_terminal(monkeypatch, tmp_path: Path) -> None:
+    console = Console(file=io.StringIO(), record=True, width=100, height=30, force_terminal=False)
+    monkeypatch.setattr("ringtrack.tools.spawn.out", console)
+    started: list[list[str]] = []
+
+    def start(self, name: str, argv, stdout=None):
+        started.append(list(argv))
+        if name == "monitor":
+            raise Stop()
+
+    monkeypatch.setattr(supervisor.Supervisor, "start", start)
+    with pytest.raises(Stop):
+        spawn_team(load_scenario("paper-stationary"), runs=tmp_path)
+    assert console.export_text() == "" and "--display-handover" not in started[1]
+
+
+def test_spawn_hands_the_terminal_over_only_when_the_monitor_is_ready(tmp_path: Path) -> None:
+    scenario = load_scenario("paper-stationary")
+    spawn_console, monitor_console = terminal(), terminal()
+    handover = tmp_path / "display.handover"
+    with StartupView(spawn_console, scenario, "lockstep", handover) as view:
+        assert view.live.is_started and "waiting for: world monitor" in spawn_console.export_text(clear=False)
+        assert started_at(handover) == view.model.started
+        model = TeamModel(scenario, "lockstep")
+        model.expected, model.up = startup_names(scenario), {"monitor"}
+        model.started = started_at(handover) or 0.0
+        with LiveView(monitor_console, model, dashboard=True, handover=handover):
+            eventually(lambda: handover.read_text() == READY, "the monitor says it is ready")
+            time.sleep(0.3)  # the monitor's first frame waits: spawn has not started everybody yet
+            assert view.live.is_started and monitor_console.export_text(clear=False) == ""
+            view.started_all()
+            eventually(lambda: not handover.exists(), "spawn releases the terminal")
+            assert not view.live.is_started  # spawn's frame is gone before the monitor draws
+            eventually(lambda: "participants up" in monitor_console.export_text(clear=False),
+                       "the monitor draws its start-up frame")
+        assert "1/8 participants up" in monitor_console.export_text()
+
+
+def test_take_over_gives_up_waiting_after_its_timeout(tmp_path: Path) -> None:
+    handover = tmp_path / "display.handover"
+    handover.write_text("12.5")
+    assert started_at(handover) == 12.5
+    assert take_over(handover, timeout_s=0.05) is False and handover.read_text() == READY
+    releaser = threading.Timer(0.05, handover.unlink)
+    releaser.start()
+    assert take_over(handover, timeout_s=PATIENCE_S) is True
+    releaser.join()
