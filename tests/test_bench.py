@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import io
 import json
+import re
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode
+from ringtrack.tools.bench import engine_results
 from ringtrack.tools.cli import main
 
 pytestmark = pytest.mark.timeout(240)
@@ -55,3 +59,17 @@ def test_engine_bench_reports_a_run_an_experiment_and_a_sweep(tmp_path: Path) ->
         {"trials": 2, "runs": 4, "converged": 4}
     assert {key: result["sweep"][key] for key in ("robots", "runs", "converged")} == \
         {"robots": "3..4", "runs": 8, "converged": 8}
+
+
+def test_bench_engine_shows_its_progress_on_a_terminal_only() -> None:
+    terminal = Console(file=io.StringIO(), record=True, width=100, force_terminal=True, color_system=None)
+    results = engine_results(1, [3], console=terminal)
+    shown = terminal.export_text()
+    assert results["sweep"]["runs"] == 2
+    # One bar per part, each complete at the end (in batch-steps: batches x control.max_steps).
+    for label, total in (("one run, N = 6", 3000), ("experiment N = 6, 1 trials x 2", 6000),
+                         ("sweep N = 3..3, 1 trials x 2", 6000)):
+        assert re.search(rf"{re.escape(label)} .* {total}/{total}", shown), shown
+    piped = Console(file=io.StringIO(), record=True, width=100, force_terminal=False)
+    engine_results(1, [3], console=piped)
+    assert piped.export_text() == ""

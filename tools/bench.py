@@ -24,12 +24,14 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from rich.console import Console
+from rich.progress import TaskID
 from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.bus.keys import new_run_id
-from ringtrack.tools.console import UsageError, err, out, write_json
-from ringtrack.tools.experiment import robot_list, stationary_experiment
+from ringtrack.tools.console import UsageError, err, out, progress_bar, write_json
+from ringtrack.tools.experiment import STRATEGIES, robot_list, stationary_experiment
 from ringtrack.tools.options import JSON_FILE, at_least
 from ringtrack.tools.supervisor import Supervisor
 from ringtrack.world.scenario import Scenario, load_scenario
@@ -125,20 +127,56 @@ def parse_range(text: str) -> list[int]:
 
 
 # ---------------------------------------------------------------------------------------- engine
-def engine_results(trials: int, sizes: list[int]) -> dict[str, object]:
+PROGRESS_EVERY = 50  # steps between progress updates (a batch that converges early jumps to its end)
+
+
+class EngineProgress:
+    """The parts of ``bench engine`` as progress bars on stderr, counted in batch-steps (a batch of
+    trials stops at its last trial's convergence, so a bar jumps when a batch ends early); nothing is
+    shown when ``console`` (default stderr) is not a terminal."""
+
+    def __init__(self, steps: int, console: Console = err) -> None:
+        self.steps = steps  # per batch
+        self.bar = progress_bar(console, disable=not console.is_terminal)
+        self.task: TaskID | None = None
+        self.done: dict[tuple[int, str], int] = {}
+
+    def part(self, label: str, batches: int) -> None:
+        """End the current bar and start one for ``batches`` batches."""
+        self.close()
+        self.task, self.done = self.bar.add_task(label, total=batches * self.steps), {}
+
+    def on_step(self, robots: int, strategy: str, step: int) -> None:
+        """The experiments' progress callback: batch (``robots``, ``strategy``) has run ``step`` steps."""
+        self.done[robots, strategy] = step
+        if self.task is not None and step % PROGRESS_EVERY == 0:
+            self.bar.update(self.task, completed=sum(self.done.values()))
+
+    def close(self) -> None:
+        if self.task is not None:
+            self.bar.update(self.task, completed=self.bar.tasks[self.task].total)
+
+
+def engine_results(trials: int, sizes: list[int], console: Console = err) -> dict[str, object]:
     """One run of ``paper-stationary`` (all ``control.max_steps`` steps), the ``trials``-trial
     two-strategy experiment for N = 6, and the sweep over ``sizes``: steps per second, wall seconds
-    and how many runs converged."""
+    and how many runs converged. Progress goes to ``console`` (:class:`EngineProgress`)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1")
     scenario = load_scenario("paper-stationary")
-    started = time.perf_counter()
-    history = engine.run(scenario, steps=scenario.max_steps, record_positions=False)
-    elapsed = time.perf_counter() - started
-    err.print(f"running the {trials}-trial two-strategy experiment for N = 6 ...")
-    experiment = stationary_experiment("paper-stationary", [6], trials, 0)
-    err.print(f"running the sweep N = {sizes[0]}..{sizes[-1]} x {trials} trials ...")
-    sweep = stationary_experiment("paper-stationary", sizes, trials, 0)
+    progress = EngineProgress(scenario.max_steps, console)
+    with progress.bar:
+        progress.part(f"one run, N = {scenario.robots}", 1)
+        started = time.perf_counter()
+        history = engine.run(scenario, steps=scenario.max_steps, record_positions=False,
+                             on_step=lambda step: progress.on_step(scenario.robots, "self", step))
+        elapsed = time.perf_counter() - started
+        progress.part(f"experiment N = 6, {trials} trials x 2", len(STRATEGIES))
+        experiment = stationary_experiment("paper-stationary", [6], trials, 0, progress.on_step)
+        progress.part(f"sweep N = {sizes[0]}..{sizes[-1]}, {trials} trials x 2", len(STRATEGIES) * len(sizes))
+        sweep = stationary_experiment("paper-stationary", sizes, trials, 0, progress.on_step)
+        progress.close()
+
     def converged(result: dict) -> int:
         return sum(entry["converged"] for entry in result["summary"])
 

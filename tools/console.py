@@ -8,9 +8,12 @@ import json
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
 
 out = Console()
 # soft_wrap: a one-line message stays one line whatever the terminal width (errors are grepped).
@@ -30,6 +33,15 @@ class OutputError(ValueError):
     line naming the file and why. Not bad input: the command exits with ``exit_code``."""
 
     exit_code = 1
+
+
+def progress_bar(console: Console | None = None, disable: bool = False) -> Progress:
+    """The progress display of a long command: on ``console`` (default stderr), one bar per task with
+    its count done and the time elapsed; ``disable`` shows nothing at all."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=console or err, disable=disable)
 
 
 def write_json(path: Path, data: Any) -> None:

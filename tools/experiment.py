@@ -10,13 +10,12 @@ from collections.abc import Callable, Sequence
 import msgspec
 import numpy as np
 from rich import box
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.bus.messages import poll_bytes
 from ringtrack.tools import robustness
-from ringtrack.tools.console import UsageError, err, out, write_csv, write_json
+from ringtrack.tools.console import UsageError, err, out, progress_bar, write_csv, write_json
 from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
@@ -184,8 +183,7 @@ def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps}
     # Validate the scenario and flags before showing any progress.
     limit = random_start_scenarios(args.scenario, args.robots[0], **overrides)["self"].max_steps
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=err, transient=False) as progress:
+    with progress_bar() as progress:
         tasks = {
             (size, strategy): progress.add_task(f"N={size:<3} {strategy:<8}", total=limit)
             for size in args.robots
@@ -347,8 +345,7 @@ def run_moving(args: argparse.Namespace) -> int:
     steps = moving_scenario(args.scenario, "self", "decentralized", *main, args.steps).max_steps
     settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
     distinct = len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES)
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=err) as progress:
+    with progress_bar() as progress:
         task = progress.add_task("moving-target runs", total=distinct * steps)
         done: dict[str, int] = {}
 
