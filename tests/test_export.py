@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.cli import main
+from ringtrack.tools.experiment import MOVING_COLUMNS
 from ringtrack.tools.export import LINK_COLUMNS, STEP_COLUMNS
 from ringtrack.tools.runlog import read_log
 from ringtrack.world.geometry import angle_of
@@ -69,11 +70,36 @@ def test_experiment_tables(tmp_path: Path) -> None:
     for row, entry in zip(rows, expected, strict=True):
         assert int(row["robots"]) == entry["robots"] and row["strategy"] == entry["strategy"]
         assert int(row["ctime"]) == entry["ctime"] and float(row["com_bar"]) == entry["com_bar"]
-    moving = tmp_path / "moving.csv"
-    assert main(["experiment", "moving", "--trials", "1", "--steps", "40", "--settle", "10", "--no-velocities",
-                 "--csv", str(moving)]) == 0
+
+
+def test_moving_experiment_table_has_a_row_per_trial(tmp_path: Path) -> None:
+    moving, results = tmp_path / "moving.csv", tmp_path / "moving.json"
+    assert main(["experiment", "moving", "--trials", "2", "--seed", "4", "--steps", "40", "--settle", "10",
+                 "--csv", str(moving), "--json", str(results)]) == 0
+    import json
+
+    result = json.loads(results.read_text())
     header, rows = rows_of(moving)
-    assert [(row["strategy"], row["estimation"]) for row in rows] == [("constant", "centralized"),
-                                                                      ("self", "centralized"),
-                                                                      ("self", "decentralized")]
-    assert all(float(row["terr_mean"]) >= 0 and 0 <= float(row["poll_rate"]) <= 1 for row in rows)
+    assert header == MOVING_COLUMNS
+    # Every distinct run once (the velocity setting (1.0, 0.6) is the comparison's circle), every trial.
+    runs = [("comparison", 1.0, 0.6, "constant", "centralized"), ("comparison", 1.0, 0.6, "self", "centralized"),
+            ("comparison", 1.0, 0.6, "self", "decentralized")]
+    runs += [("velocities", v, w, strategy, mode) for v, w in ((0.6, 0.6), (1.0, 0.4), (1.0, 0.8))
+             for strategy, mode in (("constant", "centralized"), ("self", "decentralized"))]
+    assert [(row["group"], float(row["speed"]), float(row["angular_speed"]), row["strategy"], row["estimation"],
+             int(row["trial"]), int(row["seed"])) for row in rows] == [
+        (*run, trial, 4 + trial) for run in runs for trial in (0, 1)]
+    for row in rows:
+        polls = float(row["polls"])
+        assert float(row["robot_messages"]) == 4 * polls and 0 <= float(row["poll_rate"]) <= 1
+        assert float(row["poll_rate"]) == pytest.approx(polls / (40 * 6))
+        assert float(row["terr_mean"]) >= 0 and float(row["cerr_mean_deg"]) >= 0
+        assert (row["fusion"] == "ci") == (row["estimation"] == "decentralized")
+    # The per-run means of the table are the means of its trials.
+    for run in result["runs"][:3]:
+        trials = [row for row in rows if (row["group"], row["strategy"], row["estimation"]) ==
+                  ("comparison", run["strategy"], run["estimation"])]
+        for column in ("terr_mean", "cerr_mean_deg", "poll_rate", "polls"):
+            assert sum(float(row[column]) for row in trials) / 2 == pytest.approx(run[column], rel=1e-12), column
+    constant = [row for row in rows if row["strategy"] == "constant"]
+    assert all(float(row["poll_rate"]) == 1.0 and int(row["estimation_messages_per_step"]) == 7 for row in constant)

@@ -13,6 +13,7 @@ from rich import box
 from rich.table import Table
 
 from ringtrack.agents import engine
+from ringtrack.bus.faults import POLL_MESSAGES
 from ringtrack.bus.messages import poll_bytes
 from ringtrack.tools import robustness
 from ringtrack.tools.console import UsageError, err, out, progress_bar, write_csv, write_json
@@ -23,9 +24,10 @@ from ringtrack.world.target import Circle
 STRATEGIES = ("constant", "self")
 CSV_FILE = output_path((".csv",))
 STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
-MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "cerr_mean_deg",
-                  "terr_mean", "poll_rate", "robot_messages_per_step", "robot_bytes_per_step",
-                  "estimation_messages_per_step"]
+# One row per trial of every distinct moving-target run (``experiment moving --csv``).
+MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "trial", "seed",
+                  "cerr_mean_deg", "terr_mean", "poll_rate", "polls", "robot_messages", "robot_bytes",
+                  "robot_messages_per_step", "robot_bytes_per_step", "estimation_messages_per_step"]
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -70,7 +72,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
     moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
-                        help="write one row per run (setting, strategy, estimation: means over the trials) as CSV")
+                        help="write the per-trial rows as CSV (setting, strategy, estimation, trial, seed, Cerr and "
+                        "Terr means, polls, messages, ...)")
     moving.set_defaults(handler=run_moving)
     robustness.register(kinds)
 
@@ -282,7 +285,9 @@ def moving_experiment(
 ) -> dict:
     """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
     settings; returns the JSON-ready result with, per run, means from step ``settle`` on and the
-    trial-mean Cerr (true, degrees) and Terr (metres) series."""
+    trial-mean Cerr (true, degrees) and Terr (metres) series, and per-trial ``rows`` of every
+    distinct run (the velocity setting equal to the scenario's circle repeats the comparison's runs:
+    their trials are rows of group "comparison" only)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     main = circle_of(base)
@@ -293,38 +298,30 @@ def moving_experiment(
     seeds = list(range(seed, seed + trials))
     histories: dict[tuple, engine.History] = {}
     runs: list[dict] = []
+    rows: list[dict] = []
     started = time.perf_counter()
     for group, (speed, angular_speed), (strategy, mode) in plan:
         key = (speed, angular_speed, strategy, mode)
         scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
         if settle >= scenario.max_steps:
             raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
+        setting = {"group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
+                   "strategy": strategy, "estimation": mode,
+                   "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
         if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
             label = f"v={speed} w={angular_speed} {strategy}+{mode}"
             report = None if on_step is None else (lambda k, text=label: on_step(text, k))
             histories[key] = engine.run(scenario, seeds, record_positions=False, on_step=report)
+            rows += [{**setting, "trial": index, "seed": trial_seed,
+                      **moving_figures(histories[key], [index], settle, mode)}
+                     for index, trial_seed in enumerate(seeds)]
         history = histories[key]
-        polls = float((history.triggers != 0).mean())
-        robots = scenario.robots
-        runs.append(
-            {
-                "group": group,
-                "speed": speed,
-                "angular_speed": angular_speed,
-                "radius": speed / angular_speed,
-                "strategy": strategy,
-                "estimation": mode,
-                "fusion": scenario.estimation.fusion if mode == "decentralized" else None,
-                "cerr_mean_deg": float(history.cerr_true[settle:].mean()),
-                "terr_mean": float(history.terr[settle:].mean()),
-                "poll_rate": polls,
-                "robot_messages_per_step": 4 * polls * robots,
-                "robot_bytes_per_step": polls * robots * poll_bytes(mode == "decentralized"),
-                "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
-                "cerr_series_deg": history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
-                "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
-            }
-        )
+        runs.append({
+            **setting,
+            **moving_figures(history, list(range(trials)), settle, mode),
+            "cerr_series_deg": history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
+            "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
+        })
     any_scenario = moving_scenario(base, "self", "decentralized", *main, steps)
     return {
         "experiment": "moving",
@@ -337,6 +334,31 @@ def moving_experiment(
         "series_stride": SERIES_STRIDE,
         "wall_s": time.perf_counter() - started,
         "runs": runs,
+        "rows": rows,
+    }
+
+
+def moving_figures(history: engine.History, trials: list[int], settle: int, mode: str) -> dict[str, float | int]:
+    """The figures of a moving-target run over ``trials`` (indices into the batch): true Cerr (degrees)
+    and Terr (metres) means from step ``settle`` on; over the whole run the poll rate (polls per robot
+    per step), the polls and the robot-to-robot messages and payload bytes they cost (totals of a
+    trial, averaged over ``trials``; and per step), and the estimation messages per step
+    (centralized: every robot's range and the centre's estimate)."""
+    robots = history.triggers.shape[2]
+    polled = history.triggers[:, trials] != 0
+    rate = float(polled.mean())
+    per_poll = poll_bytes(mode == "decentralized")
+    polls = int(polled.sum()) / len(trials)
+    return {
+        "cerr_mean_deg": float(history.cerr_true[settle:, trials].mean()),
+        "terr_mean": float(history.terr[settle:, trials].mean()),
+        "poll_rate": rate,
+        "polls": polls,
+        "robot_messages": POLL_MESSAGES * polls,
+        "robot_bytes": per_poll * polls,
+        "robot_messages_per_step": POLL_MESSAGES * rate * robots,
+        "robot_bytes_per_step": per_poll * rate * robots,
+        "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
     }
 
 
@@ -360,7 +382,7 @@ def run_moving(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result)
     if args.csv:
-        write_csv(args.csv, result["runs"], MOVING_COLUMNS)
+        write_csv(args.csv, result["rows"], MOVING_COLUMNS)
     if args.plot:
         from ringtrack.tools.figures import moving_comparison, moving_velocities
 
