@@ -320,8 +320,8 @@ LEGEND = (
     ("ubd", "ubd uncertainty bound", "ubd bound on the neighbours' motion since heard"),
     ("gV", "gV guaranteed midpoint", "gV guaranteed midpoint of the neighbours"),
     ("ages", "ages: since heard", "ages: steps since pred,succ were heard"),
-    ("links", "links pred|succ", f"links pred|succ: ok or the last fault of {LINK_MEMORY_STEPS} steps"),
     ("map", "x target + estimate", "map: 0-9a-z robots (magenta: polled this step), x target, + estimates"),
+    ("links", "links pred|succ", f"links pred|succ: ok or the last fault of {LINK_MEMORY_STEPS} steps"),
     ("sent", "msgs/B", "sent/recv: robot-to-robot msgs/bytes"),
 )
 
