@@ -204,10 +204,11 @@ def spawn_team(
                                                  str(announce), "--log", str(log_path), "--clock", clock,
                                                  *monitor_flags], stdout=display)
                 endpoints = supervisor.endpoints(announce, "world")
-                if not quiet:
-                    err.print(f"spawn: the world listens on {', '.join(endpoints)} after "
-                              f"{time.perf_counter() - started:.1f} s; starting the others", highlight=False)
-                say(view, f"the world listens on {', '.join(endpoints)}; starting {processes} robot processes")
+                listening = f"the world listens on {', '.join(endpoints)} after {time.perf_counter() - started:.1f} s"
+                if view is not None:  # said on the frame: a line above it would push its top off the screen
+                    say(view, f"{listening}; starting {processes} robot processes")
+                elif not quiet:
+                    err.print(f"spawn: {listening}; starting the others", highlight=False)
                 connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
                 reply_wait = lockstep_wait / 2 if clock == "lockstep" else scenario.control.dt / rate
                 reply_timeout = ["--reply-timeout", str(reply_wait)]
