@@ -47,10 +47,12 @@ def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_pat
     console = terminal()
     monkeypatch.setattr("ringtrack.tools.spawn.out", console)
     started: list[tuple[str, list[str], str]] = []
+    counted_from: list[float | None] = []
 
     def start(self, name: str, argv, stdout=None):
         started.append((name, list(argv), console.export_text(clear=False)))
         if name == "monitor":
+            counted_from.append(started_at(Path(argv[argv.index("--display-handover") + 1])))
             raise Stop()
 
     monkeypatch.setattr(supervisor.Supervisor, "start", start)
@@ -65,7 +67,8 @@ def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_pat
     # The monitor is told where to take the terminal over, and counts from spawn's time.
     handover = Path(monitor_argv[monitor_argv.index("--display-handover") + 1])
     assert handover.parent.parent == tmp_path and "--display-handover" not in world_argv
-    assert started_at(handover) is not None
+    assert counted_from[0] is not None
+    assert not handover.exists()  # spawn stopped: the terminal is released
 
 
 def test_no_start_up_frame_without_a_terminal(monkeypatch, tmp_path: Path) -> None:
@@ -115,3 +118,27 @@ def test_take_over_gives_up_waiting_after_its_timeout(tmp_path: Path) -> None:
     releaser.start()
     assert take_over(handover, timeout_s=PATIENCE_S) is True
     releaser.join()
+
+
+def test_a_start_up_that_ends_early_still_releases_the_terminal(tmp_path: Path) -> None:
+    """Ctrl-C or a failure before every process is started: spawn's frame goes and the monitor may
+    draw its last frame and print its report."""
+    handover = tmp_path / "display.handover"
+    released: list[bool] = []
+    with StartupView(terminal(), load_scenario("paper-stationary"), "lockstep", handover) as view:
+        monitor = threading.Thread(target=lambda: released.append(take_over(handover, timeout_s=PATIENCE_S)))
+        monitor.start()
+        eventually(lambda: handover.read_text() == READY, "the monitor says it is ready")
+    monitor.join()
+    assert released == [True] and not view.live.is_started and not handover.exists()
+
+
+def test_a_monitor_that_ends_stops_waiting_for_the_terminal(tmp_path: Path) -> None:
+    handover = tmp_path / "display.handover"
+    handover.write_text("12.5")
+    model = TeamModel(load_scenario("paper-stationary"), "lockstep")
+    with LiveView(terminal(), model, dashboard=True, handover=handover) as view:
+        eventually(lambda: handover.read_text() == READY, "the monitor says it is ready")
+    # Nobody released the terminal (its waiting lasts 30 s), yet the drawer ended with the view.
+    view.drawer.join(PATIENCE_S)
+    assert not view.drawer.is_alive() and handover.exists()

@@ -38,15 +38,16 @@ def started_at(path: Path) -> float | None:
         return None
 
 
-def take_over(path: Path, timeout_s: float = HANDOVER_WAIT_S) -> bool:
+def take_over(path: Path, timeout_s: float = HANDOVER_WAIT_S, give_up: threading.Event | None = None) -> bool:
     """The monitor's side: say it is ready to draw (``ready`` in ``path``) and wait until the process
-    that draws the start-up frame removes the file, at most ``timeout_s``; returns whether it did."""
+    that draws the start-up frame removes the file, at most ``timeout_s`` or until ``give_up`` is set
+    (the monitor is ending); returns whether the file was removed."""
     temporary = path.with_name(f".{path.name}.partial")
     temporary.write_text(READY)
     os.replace(temporary, path)  # whole: spawn reads either its own time or "ready"
     deadline = time.monotonic() + timeout_s
     while path.exists():
-        if time.monotonic() > deadline:
+        if time.monotonic() > deadline or (give_up is not None and give_up.is_set()):
             return False
         time.sleep(POLL_S)
     return True
@@ -57,7 +58,8 @@ class StartupView:
     saying what is being started) on ``console``, redrawn a few times a second from the moment the
     ``with`` block is entered, and ``handover`` written with the time it counts from. After
     :meth:`started_all`, as soon as the monitor has written ``ready`` there, the frame is erased and
-    the file removed; leaving the block erases it too (a start-up that failed)."""
+    the file removed; leaving the block does the same (a start-up that failed or was interrupted: the
+    monitor may still draw its last frame and print its report)."""
 
     def __init__(self, console: Console, scenario: Scenario, clock: str, handover: Path) -> None:
         self.model = TeamModel(scenario, clock)
@@ -75,10 +77,9 @@ class StartupView:
 
     @note.setter
     def note(self, text: str) -> None:
-        """What the start-up is doing, shown under the participants."""
+        """What the start-up is doing, shown under the participants from the next redraw on (the caller
+        never writes to the terminal itself: a terminal that blocks holds up only the redraws)."""
         self.model.note = text
-        if not self._stopped.is_set():
-            self.live.refresh()
 
     def __enter__(self) -> StartupView:
         self.live.start(refresh=True)  # the first frame, before anything else happens
@@ -94,7 +95,6 @@ class StartupView:
         while not self._stopped.is_set():
             if self._all_started.is_set() and self._monitor_ready():
                 self._stop()
-                self.handover.unlink(missing_ok=True)
                 return
             self._stopped.wait(POLL_S)
 
@@ -107,6 +107,7 @@ class StartupView:
     def _stop(self) -> None:
         self._stopped.set()
         self.live.stop()  # transient: the frame is erased, the monitor draws from the same line
+        self.handover.unlink(missing_ok=True)
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  trace: TracebackType | None) -> None:

@@ -80,6 +80,7 @@ class LiveView:
         self.dashboard = dashboard
         self.final_wait_s = final_wait_s
         self.handover = handover
+        self.closing = threading.Event()  # set on leaving: a drawer still waiting for the terminal stops waiting
         self.last_line = -LINE_PERIOD_S
         self.mailbox: Mailbox[TeamModel | str] = Mailbox()
         self.drawer = threading.Thread(target=self._draw, name="ringtrack-drawer", daemon=True)
@@ -92,6 +93,7 @@ class LiveView:
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  trace: TracebackType | None) -> None:
+        self.closing.set()
         self.mailbox.close()
         self.drawer.join(self.final_wait_s)
 
@@ -113,7 +115,7 @@ class LiveView:
                 self.console.print(line, highlight=False, soft_wrap=True)
             return
         if self.handover is not None:
-            take_over(self.handover)
+            take_over(self.handover, give_up=self.closing)
         live = Live(console=self.console, auto_refresh=False, redirect_stdout=False, redirect_stderr=False)
         live.start()
         try:
