@@ -199,7 +199,7 @@ def spawn_team(
                 monitor_flags += [] if view is None else ["--display-handover", str(handover)]
                 say(view, "starting the world and the monitor")
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
-                    # Started at once: it draws the start-up frame while the world comes up.
+                    # Started at once: it comes up (and takes the start-up frame over) while the world does.
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
                                                  str(announce), "--log", str(log_path), "--clock", clock,
                                                  *monitor_flags], stdout=display)
