@@ -49,9 +49,9 @@ def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None) -> FloatArray
 
 
 def strategy_cerr(strategy: str, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
-    """The paper's Cerr of a run (degrees): memory-based for the self-triggered strategy ("self"),
-    from the true positions for the constant one."""
-    return np.asarray(cerr_memory if strategy == "self" else cerr_true, dtype=float)
+    """The paper's Cerr of a run (degrees): memory-based for the self-triggered strategies ("self",
+    "plan"), from the true positions for the constant one."""
+    return np.asarray(cerr_true if strategy == "constant" else cerr_memory, dtype=float)
 
 
 def converged(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.bool_]:
