@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.estimation import Estimator
-from ringtrack.agents.plan import Plan, new_controller
+from ringtrack.agents.plan import PlanController, neighbour_plans, new_controller
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
@@ -249,10 +249,11 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     ``distance_minus``/``distance_plus`` metres long (to the predecessor, successor; default 0),
     trial t draws its fates with plan seed ``seeds[t]`` (default the plan's) and replies carry a
     belief when ``belief`` and a plan when ``plan_until`` gives the horizon step of the reply each
-    robot's (predecessor, successor) would send it (last axis). ``plan`` may also give groups of trials their own plans (one radio for
-    all). Energy, from the same fates: every copy put on the bus costs its sender transmission (a
-    request dropped before publishing was still sent once), every copy delivered costs its
-    receiver reception (:mod:`bus.radio`), with the exact encoded size of each message."""
+    robot's (predecessor, successor) would send it (last axis). ``plan`` may also give groups of
+    trials their own plans (one radio for all). Energy, from the same fates: every copy put on the
+    bus costs its sender transmission (a request dropped before publishing was still sent once),
+    every copy delivered costs its receiver reception (:mod:`bus.radio`), with the exact encoded
+    size of each message."""
     trials, robots = polled.shape
     reach = np.stack([reach_minus, reach_plus], axis=-1)
     distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
@@ -395,11 +396,13 @@ def run(
         if watch is not None:
             watch(k, controller, positions)
         polled = reasons != 0
-        offers = neighbour_plans(controller.offer()) if params.strategy == "plan" else None  # type: ignore[union-attr]
+        offers = neighbour_plans(controller.offer()) if isinstance(controller, PlanController) else None
         until = None if offers is None else np.stack([offers[0].until, offers[1].until], axis=-1)
         outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, until)
-        extra = {} if offers is None else {"plans": offers}
-        controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus, **extra)
+        if isinstance(controller, PlanController):
+            controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus, plans=offers or (None, None))
+        else:
+            controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
@@ -439,12 +442,6 @@ def run(
         sent_bytes=sent_bytes[:steps],
         energy=energy[:steps],
     )
-
-
-def neighbour_plans(offers: Plan) -> tuple[Plan, Plan]:
-    """The plans each robot's predecessor and successor offer (robots on the last axis)."""
-    return (Plan(*(np.roll(field, 1, axis=-1) for field in offers)),
-            Plan(*(np.roll(field, -1, axis=-1) for field in offers)))
 
 
 def summary(history: History, trial: int = 0) -> dict[str, object]:

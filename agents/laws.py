@@ -98,9 +98,9 @@ def set_trigger_reasons(
     T2 ``m_+ - phi_+ <= theta``, T3 ``m_- + phi_- >= theta``, each tie-robust within ``TIE_RAD``."""
     theta = np.asarray(theta, dtype=float)
     offset = midpoint(m_minus, theta, m_plus) - theta
-    t1 = np.asarray(ubd) >= np.maximum(np.abs(offset), sigma) - TIE_RAD
-    t2 = np.asarray(m_plus) - phi_plus <= theta + TIE_RAD
-    t3 = np.asarray(m_minus) + phi_minus >= theta - TIE_RAD
+    t1 = np.asarray(ubd, dtype=float) >= np.maximum(np.abs(offset), sigma) - TIE_RAD
+    t2 = np.subtract(m_plus, phi_plus) <= theta + TIE_RAD
+    t3 = np.add(m_minus, phi_minus) >= theta - TIE_RAD
     return t1 * int(Trigger.UNCERTAINTY) + t2 * int(Trigger.SUCCESSOR) + t3 * int(Trigger.PREDECESSOR)
 
 

@@ -51,7 +51,8 @@ def no_plan(step: ArrayLike) -> Plan:
     return Plan(step, zeros, zeros, zeros)
 
 
-def prediction_set(step: ArrayLike, since: ArrayLike, plan: Plan, params: ControlParams) -> tuple[FloatArray, FloatArray]:
+def prediction_set(step: ArrayLike, since: ArrayLike, plan: Plan,
+                   params: ControlParams) -> tuple[FloatArray, FloatArray]:
     """Centre and half-width (radians, relative to the replied angle ``b``) of the set a neighbour
     lies in at ``step``, from its reply of step ``since`` carrying ``plan``, with ``w = omega_max dt``:
     ``[max(r-, -w (k - since)), min(r+, w (k - since))]`` while ``k <= T'``, ``D +- w (k - T')`` after.
@@ -65,6 +66,16 @@ def prediction_set(step: ArrayLike, since: ArrayLike, plan: Plan, params: Contro
     centre = np.where(within, (low + high) / 2.0, plan.shift)
     half_width = np.where(within, (high - low) / 2.0, grown)
     return centre, half_width
+
+
+def neighbour_plans(offers: Plan) -> tuple[Plan, Plan]:
+    """The plans each robot's predecessor and successor offer, from every robot's (robots on the
+    last axis of a whole ring)."""
+    def rolled(shift: int) -> Plan:
+        return Plan(np.roll(offers.until, shift, axis=-1), np.roll(offers.low, shift, axis=-1),
+                    np.roll(offers.high, shift, axis=-1), np.roll(offers.shift, shift, axis=-1))
+
+    return rolled(1), rolled(-1)
 
 
 class Memory(NamedTuple):

@@ -334,10 +334,11 @@ def _robot_message_base(kind: str, belief: bool, plan: bool = False) -> int:
     horizon step 1)."""
     if kind == "request":
         return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
-    extra = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
+    mean, covariance = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
     if plan:
-        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra, (1, 0.0, 0.0, 0.0))))
-    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra)))
+        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean, covariance,
+                                    (1, 0.0, 0.0, 0.0))))
+    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean, covariance)))
 
 
 def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
