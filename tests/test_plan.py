@@ -4,6 +4,7 @@ the true neighbour every step."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import msgspec
@@ -13,8 +14,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ringtrack.agents import engine
+from ringtrack.agents.engine import fault_totals
 from ringtrack.agents.node import RobotNode
 from ringtrack.agents.plan import PlanController, no_plan, prediction_set
+from ringtrack.bus.counting import totals_by_category
 from ringtrack.bus.keys import Route
 from ringtrack.bus.messages import (
     NONCE_BASE,
@@ -27,10 +30,13 @@ from ringtrack.bus.messages import (
     encode,
     robot_message_bytes,
 )
+from ringtrack.tools.runlog import read_log
+from ringtrack.tools.spawn import spawn_team
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import ring_order_kept
 from ringtrack.world.scenario import Scenario, ScenarioError, load_scenario, resolve
 from tests.helpers import assert_equals_engine, engine_twin, lockstep_run
+from tests.test_dashboard import final_frame
 
 # Containment is checked to this many radians: the world puts robots on the boundary
 # (boundary_point), so a true angle differs from the planned one by rounding (about 1e-15 rad).
@@ -195,3 +201,28 @@ def test_lockstep_plan_team_equals_the_engine(tmp_path: Path, drop: float) -> No
     logged_bytes = np.array([record["sent_bytes"] for record in log.steps])
     assert np.array_equal(logged_bytes, twin.sent_bytes[:, 0])
     assert result["messages"]["robot"] == int(twin.sent[:, 0].sum())
+
+
+@pytest.mark.processes
+@pytest.mark.timeout(300)
+def test_dashboard_monitor_and_run_log_count_plan_replies_with_faults(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """With dropped messages, the live dashboard's last frame, the monitor's totals, the run log's
+    per-step bytes and the engine all count the same robot-to-robot messages and bytes."""
+    monkeypatch.setenv("COLUMNS", "120")
+    monkeypatch.setenv("LINES", "60")
+    scenario = load_scenario("paper-stationary", strategy="plan", max_steps=80, drop=0.2)
+    result = spawn_team(scenario, runs=tmp_path, dashboard=True, quiet=True)
+    assert result["exit_code"] == 0
+    folder = Path(result["folder"])
+    log = read_log(folder / "log.jsonl")
+    assert log.end is not None and log.end["consistent"] is True and log.end["late"] == 0
+    robot = totals_by_category([tuple(row) for row in log.end["traffic"]])["robot"]
+    twin = engine_twin(log)
+    assert twin.sent_bytes is not None
+    assert (robot["messages"], robot["bytes"]) == (int(twin.sent[:, 0].sum()), int(twin.sent_bytes[:, 0].sum()))
+    assert sum(sum(record["sent_bytes"]) for record in log.steps) == robot["bytes"]
+    assert fault_totals(twin)["dropped"] > 0
+    frame = final_frame((folder / "monitor.stdout").read_text(), "paper-stationary · 6 robots")
+    assert "plan strategy" in frame
+    assert re.search(rf"robot-to-robot\s+{robot['messages']}\s+{robot['bytes']}\s", frame), frame
