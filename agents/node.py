@@ -45,6 +45,7 @@ from ringtrack.bus.messages import (
     RangeReport,
     Reply,
     Request,
+    carries_plan,
 )
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.ring import ring_neighbours
@@ -356,7 +357,8 @@ class RobotNode:
         mean, covariance = self.beliefs.get(step, (None, None))
         fields = (SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step], mean,
                   covariance)
-        reply = PlanReply(*fields, plan=self.offers[step]) if step in self.offers else Reply(*fields)
+        plan = self.offers.get(step)
+        reply = PlanReply(*fields, plan=plan) if plan and carries_plan(step, plan[0]) else Reply(*fields)
         return (robot_name(request.sender), reply)
 
     def _answer_buffered(self) -> Outgoing:

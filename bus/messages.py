@@ -116,10 +116,17 @@ class PlanReply(Reply, tag=11, frozen=True):
     """A :class:`Reply` of the plan strategy: also the sender's committed plan from ``step``, as
     ``plan = (until, low, high, shift)``: its angle about the target (radians, CCW) stays within
     ``[b + low, b + high]`` for steps ``step .. until`` and is ``b + shift`` at ``until``, where ``b``
-    is the angle of ``position`` (``until = step`` and zeros: no plan beyond this step). A separate
-    tag, so the replies of the other strategies keep their bytes."""
+    is the angle of ``position``. A robot with no plan beyond the step (it polls at that step) sends a
+    plain :class:`Reply`, read as ``until = step`` and zeros (:func:`carries_plan`). A separate tag,
+    so the replies of the other strategies keep their bytes."""
 
     plan: PlanFields | None = None
+
+
+def carries_plan(step: ArrayLike, until: ArrayLike) -> NDArray[np.bool_]:
+    """Whether a plan reply of ``step`` with horizon ``until`` is sent as a :class:`PlanReply`: only a
+    plan reaching beyond its step says more than a plain reply."""
+    return np.asarray(until) > np.asarray(step)
 
 
 class Tick(Message, tag=5, frozen=True):
@@ -344,14 +351,17 @@ def _robot_message_base(kind: str, belief: bool, plan: bool = False) -> int:
 def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
                         belief: bool = False, plan_until: ArrayLike | None = None) -> NDArray[np.int64]:
     """The exact encoded size of requests or replies (``kind``; a reply with a ``belief`` carries a
-    mean and covariance, one with a ``plan_until`` a plan to that step, :class:`PlanReply`) of
+    mean and covariance, one with a ``plan_until`` a plan to that step, sent as a :class:`PlanReply`
+    where :func:`carries_plan`) of
     ``step`` from ``sender`` to ``receiver``, broadcast over arrays: the size of the step-1, robot-0
     message plus the extra bytes the larger integers take (floats are always 9 bytes, nonces and
     run ids 5)."""
     extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
+    plain = _robot_message_base(kind, belief) + extra
     if plan_until is not None and kind == "reply":
-        return _robot_message_base(kind, belief, True) + extra + uint_bytes(plan_until) - 1
-    return _robot_message_base(kind, belief) + extra
+        planned = _robot_message_base(kind, belief, True) + extra + uint_bytes(plan_until) - 1
+        return np.where(carries_plan(step, plan_until), planned, plain)
+    return plain
 
 
 def poll_bytes(with_belief: bool) -> int:

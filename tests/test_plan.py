@@ -128,7 +128,7 @@ def test_plan_converges_with_less_talk_than_self(robots: int, com_bar_limit: flo
 
 
 # ---------------------------------------------------------------------------- messages and bytes
-@pytest.mark.parametrize(("step", "until"), [(1, 1), (200, 250), (1000, 70_000)])
+@pytest.mark.parametrize(("step", "until"), [(1, 2), (200, 250), (1000, 70_000)])
 def test_plan_reply_bytes_are_counted_exactly(step: int, until: int) -> None:
     reply = PlanReply(SCHEMA, NONCE_BASE + 9, step, 2, 1, NONCE_BASE + 3, (1.5, 2.5), None, None,
                       (until, -0.01, 0.02, 0.015))
@@ -136,26 +136,28 @@ def test_plan_reply_bytes_are_counted_exactly(step: int, until: int) -> None:
     assert decode(encode(reply), Route("r1", "r2", "reply"), NONCE_BASE + 9, 6) == reply
     plain = Reply(SCHEMA, NONCE_BASE + 9, step, 2, 1, NONCE_BASE + 3, (1.5, 2.5))
     assert len(encode(plain)) == robot_message_bytes("reply", step, 2, 1)  # other strategies: unchanged
+    assert len(encode(plain)) == robot_message_bytes("reply", step, 2, 1, plan_until=step)  # no plan: plain
 
 
 def test_engine_counts_the_bigger_replies() -> None:
-    """Bytes the robots publish: requests and replies by their exact sizes; a plan reply is 29 bytes
-    longer than a plain one (an array of the horizon step, one byte below 128, and three 9-byte floats)
-    while steps stay below 128 - H."""
-    steps = 60
+    """Bytes the robots publish: requests and replies by their exact sizes. A plan reply is 29 bytes
+    longer than a plain one (an array of the horizon step, one byte below 128, and three 9-byte
+    floats) while steps stay below 128 - H; a robot that polls at the step it is asked has no plan
+    beyond it and sends a plain reply."""
+    steps = 75
     history = engine.run(random_start(seed=3), [3], steps=steps, record_positions=False)
     assert history.sent_bytes is not None and history.requests is not None
     robots = history.triggers.shape[2]
-    plain = 0
+    plain, planned = 0, 0
     for row in range(steps):
         for robot in range(robots):
             for side, neighbour in ((0, (robot - 1) % robots), (1, (robot + 1) % robots)):
                 copies = int(history.requests[row, 0, robot, side])
                 plain += copies * int(robot_message_bytes("request", row + 1, robot, neighbour)
                                       + robot_message_bytes("reply", row + 1, neighbour, robot))
-    replies = int(history.requests[:, 0].sum())  # each request copy is answered by one reply
-    assert replies > 2 * robots  # more polls than the first step's
-    assert int(history.sent_bytes[:, 0].sum()) == plain + 29 * replies
+                planned += copies * int(history.triggers[row, 0, neighbour] == 0)
+    assert planned > 0  # replies that carried a plan
+    assert int(history.sent_bytes[:, 0].sum()) == plain + 29 * planned
 
 
 # ---------------------------------------------------------------------------- scenario checks
@@ -182,9 +184,8 @@ def test_a_buffered_request_is_answered_after_the_robot_decided() -> None:
     position = tuple(scenario.start_positions(scenario.seed)[1])
     out = node.handle(Measurement(SCHEMA, NONCE_BASE, 1, 0.0, 1, position, 1.0))
     kinds = [type(message).__name__ for _, message in out]
-    assert kinds == ["Request", "Request", "PlanReply"]
-    reply = out[-1][1]
-    assert isinstance(reply, PlanReply) and reply.plan == (1, 0.0, 0.0, 0.0)
+    assert kinds == ["Request", "Request", "Reply"]  # no plan beyond the step: a plain reply
+    assert node.offers[1] == (1, 0.0, 0.0, 0.0)
 
 
 # ---------------------------------------------------------------------------- lockstep over Zenoh
