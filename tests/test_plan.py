@@ -142,7 +142,7 @@ def test_plan_reply_bytes_are_counted_exactly(step: int, until: int) -> None:
 def test_engine_counts_the_bigger_replies() -> None:
     """Bytes the robots publish: requests and replies by their exact sizes. A plan reply is 29 bytes
     longer than a plain one (an array of the horizon step, one byte below 128, and three 9-byte
-    floats) while steps stay below 128 - H; a robot that polls at the step it is asked has no plan
+    floats) while steps stay below 128 - H (H = 10 by default); a robot that polls at the step it is asked has no plan
     beyond it and sends a plain reply."""
     steps = 75
     history = engine.run(random_start(seed=3), [3], steps=steps, record_positions=False)

@@ -13,7 +13,7 @@ Strategy = Literal["self", "constant", "plan"]
 FreshLaw = Literal["prop", "deadbeat"]
 Mode = Literal["known", "centralized", "decentralized"]
 Criterion = Literal["trace", "det"]
-PLAN_HORIZON = 50  # default H of the plan strategy, steps (README: chosen by measurement)
+PLAN_HORIZON = 10  # default H of the plan strategy, steps (README: chosen by measurement)
 
 @dataclass(frozen=True)
 class ControlParams:

@@ -13,7 +13,7 @@ A scenario file looks like::
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
     [control]
     strategy = "self"          # "self" | "constant" | "plan" (replies carry plans; known target)
-    plan_horizon = 50          # plan: the most steps ahead a reply's plan describes (H)
+    plan_horizon = 10          # plan: the most steps ahead a reply's plan describes (H)
     law = "prop"               # fresh-information law: "prop" | "deadbeat"
     dt = 0.1                   # s
     omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
