@@ -131,7 +131,8 @@ def stationary_experiment(
     Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
     and standard deviation of Ctime and Com-bar, and per team size and strategy after the first
     ``ratios`` of its means to the first's (the ``baseline``; by default self / constant). A
-    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator);
+    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator) and
+    ``robot_bytes`` the robot-to-robot bytes of those steps (the summary's ``robot_bytes_mean``);
     ``ctime_true`` (convergence by the true Cerr) is None when not reached within the steps run, as
     a batch stops once every trial has converged by the strategy's own Cerr.
     ``on_step(robots, strategy, step)`` reports progress.
@@ -150,6 +151,8 @@ def stationary_experiment(
             report = None if on_step is None else (lambda k, s=strategy, n=size: on_step(n, s, k))
             history = engine.run(scenario, seeds, until_converged=True, record_positions=False, on_step=report)
             ctime, com_bar = history.ctime, history.com_bar
+            assert history.sent_bytes is not None  # engine runs count bytes
+            sent_bytes = history.sent_bytes
             for index, trial_seed in enumerate(seeds):
                 rows.append(
                     {
@@ -162,6 +165,7 @@ def stationary_experiment(
                         "ctime_true": int(history.ctime_true[index]) or None,
                         "com_bar": None if ctime[index] == 0 else float(com_bar[index]),
                         "triggers": int((history.triggers[: ctime[index] or None, index] != 0).sum()),
+                        "robot_bytes": int(sent_bytes[: ctime[index] or None, index].sum()),
                     }
                 )
             done = ctime > 0
@@ -174,6 +178,7 @@ def stationary_experiment(
                 "ctime_std": float(ctime[done].std()) if done.any() else None,
                 "com_bar_mean": float(com_bar[done].mean()) if done.any() else None,
                 "com_bar_std": float(com_bar[done].std()) if done.any() else None,
+                "robot_bytes_mean": float(np.mean([row["robot_bytes"] for row in rows[-trials:]])),
                 "sigma_deg": float(np.rad2deg(scenario.control.sigma)),
                 "law": scenario.control.law,
                 "threshold_deg": float(np.rad2deg(scenario.threshold)),
