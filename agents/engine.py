@@ -100,7 +100,7 @@ class History:
 
     @property
     def cerr(self) -> FloatArray:
-        """The paper's Cerr of the run's strategy: memory-based for "self", true for "constant"."""
+        """The paper's Cerr of the run's strategy: memory-based for "self" and "plan", true for "constant"."""
         return strategy_cerr(self.scenario.control.strategy, self.cerr_memory, self.cerr_true)
 
     @property

@@ -4,8 +4,8 @@
   constant-strategy Cerr);
 * ``Cerr_memory(k) = sum_i |gV_i(k) - theta_i(k)|`` from each robot's memory before it polls in step
   k (the paper's self-triggered Cerr);
-* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategy and ``Cerr_true``
-  for the constant one (:func:`strategy_cerr`); a step where a live robot's offset is unknown (a
+* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategies (self, plan)
+  and ``Cerr_true`` for the constant one (:func:`strategy_cerr`); a step where a live robot's offset is unknown (a
   realtime robot that sent no command in time) has no ``Cerr_memory`` (NaN), never a zero error;
 * ``Ctime = min{k >= 1 : Cerr(k) < threshold}`` (1-based; 0 here when it never happens), the one
   rule :func:`converged` every convergence decision uses (engine, world process, run logs);
