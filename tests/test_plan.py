@@ -197,6 +197,16 @@ def test_lockstep_plan_team_equals_the_engine(tmp_path: Path, drop: float) -> No
     (plan replies included) equal to what the engine counts, per robot and step."""
     result, log = lockstep_run(load_scenario("paper-stationary", strategy="plan", max_steps=200, drop=drop), tmp_path)
     assert_equals_engine(log)
+    # Every step, the team's true positions (as the world logged them) keep their order and lie in the
+    # sets the robots' memory (the engine's, equal to the processes') holds for them.
+    logged = [np.array(record["positions"]) for record in log.steps]
+
+    def watch(step: int, controller: PlanController, positions: np.ndarray) -> None:
+        assert ring_order_kept(log.scenario.region, logged[step - 1]).all(), step
+        if step > 1:
+            assert set_excess(controller, logged[step - 1][None], log.scenario.target) <= CONTAINMENT_TOLERANCE, step
+
+    engine.run(log.scenario, [log.header["seed"]], steps=len(log.steps), record_positions=False, watch=watch)
     twin = engine_twin(log)
     assert twin.sent_bytes is not None
     logged_bytes = np.array([record["sent_bytes"] for record in log.steps])
