@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.plan import PlanController, neighbour_plans, new_controller
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
@@ -100,7 +100,7 @@ class History:
 
     @property
     def cerr(self) -> FloatArray:
-        """The paper's Cerr of the run's strategy: memory-based for "self", true for "constant"."""
+        """The paper's Cerr of the run's strategy: memory-based for "self" and "plan", true for "constant"."""
         return strategy_cerr(self.scenario.control.strategy, self.cerr_memory, self.cerr_true)
 
     @property
@@ -239,7 +239,7 @@ PlanGroups = list[tuple[FaultPlan, NDArray[np.int64]]]  # distinct fault plans a
 def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
              reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
-             belief: bool = False) -> Exchange:
+             belief: bool = False, plan_until: NDArray[np.int64] | None = None) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
     :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
     robot of every trial at once: a polling robot requests both neighbours; a robot also probes
@@ -248,10 +248,12 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     (:func:`bus.faults.published_copies`), and each reply meets its own fate on arrival. Links are
     ``distance_minus``/``distance_plus`` metres long (to the predecessor, successor; default 0),
     trial t draws its fates with plan seed ``seeds[t]`` (default the plan's) and replies carry a
-    belief when ``belief``. ``plan`` may also give groups of trials their own plans (one radio for
-    all). Energy, from the same fates: every copy put on the bus costs its sender transmission (a
-    request dropped before publishing was still sent once), every copy delivered costs its
-    receiver reception (:mod:`bus.radio`), with the exact encoded size of each message."""
+    belief when ``belief`` and a plan when ``plan_until`` gives the horizon step of the reply each
+    robot's (predecessor, successor) would send it (last axis). ``plan`` may also give groups of
+    trials their own plans (one radio for all). Energy, from the same fates: every copy put on the
+    bus costs its sender transmission (a request dropped before publishing was still sent once),
+    every copy delivered costs its receiver reception (:mod:`bus.radio`), with the exact encoded
+    size of each message."""
     trials, robots = polled.shape
     reach = np.stack([reach_minus, reach_plus], axis=-1)
     distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
@@ -273,7 +275,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     fresh = (requests > 0) & ~reply.dropped
     radio = groups[0][0].radio
     request_bytes = robot_message_bytes("request", step, robot, neighbour)
-    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief)
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, plan_until)
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
     on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
@@ -337,6 +339,7 @@ def run(
     record_positions: bool = True,
     on_step: StepObserver | None = None,
     plans: Sequence[FaultPlan] | None = None,
+    watch: Callable[[int, Any, FloatArray], None] | None = None,
 ) -> History:
     """Run ``scenario`` for each seed (default: the scenario's own) as one vectorised batch.
 
@@ -344,6 +347,8 @@ def run(
     first step by which every trial has converged. ``on_step(k)`` is called after each step (progress).
     ``plans`` gives each trial its own fault plan (default: the scenario's for all), so that runs
     that differ only in their faults share one batch (:meth:`History.select` splits it again).
+    ``watch(k, controller, positions)`` is called after each step's observe with the true step-start
+    positions (tests check invariants of the robots' memory every step).
     """
     seeds = [scenario.seed] if seeds is None else [seeds] if isinstance(seeds, int) else list(seeds)
     steps = scenario.max_steps if steps is None else steps
@@ -354,7 +359,7 @@ def run(
     positions = np.stack([scenario.start_positions(seed) for seed in seeds])
     trials, robots = positions.shape[:2]
     team = TeamEstimate(scenario, seeds, paths)
-    controller = MidpointController(region, params, positions)
+    controller = new_controller(region, params, positions)
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
     offsets = np.empty((steps, trials, robots))
@@ -388,9 +393,16 @@ def run(
         reasons = controller.observe(k, positions, centres, reach)
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
+        if watch is not None:
+            watch(k, controller, positions)
         polled = reasons != 0
-        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief)
-        controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
+        offers = neighbour_plans(controller.offer()) if isinstance(controller, PlanController) else None
+        until = None if offers is None else np.stack([offers[0].until, offers[1].until], axis=-1)
+        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, until)
+        if isinstance(controller, PlanController):
+            controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus, plans=offers or (None, None))
+        else:
+            controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)

@@ -77,14 +77,30 @@ def trigger_reasons(
     at coarse settings (e.g. dt 0.5 s, omega_max 1 deg/s, sigma 0.1 deg: every quantity is a multiple
     of 1/8 degree, exact in degrees but not in radians).
     """
-    theta = np.asarray(theta, dtype=float)
-    ubd = uncertainty_bound(c_minus, c_plus, params)
-    offset = midpoint(m_minus, theta, m_plus) - theta
     reach_minus = params.omega_max * np.asarray(c_minus) * params.dt
     reach_plus = params.omega_max * np.asarray(c_plus) * params.dt
-    t1 = ubd >= np.maximum(np.abs(offset), params.sigma) - TIE_RAD
-    t2 = np.asarray(m_plus) - reach_plus <= theta + TIE_RAD
-    t3 = np.asarray(m_minus) + reach_minus >= theta - TIE_RAD
+    ubd = uncertainty_bound(c_minus, c_plus, params)
+    return set_trigger_reasons(theta, m_minus, m_plus, reach_minus, reach_plus, ubd, params.sigma)
+
+
+def set_trigger_reasons(
+    theta: ArrayLike,
+    m_minus: ArrayLike,
+    m_plus: ArrayLike,
+    phi_minus: ArrayLike,
+    phi_plus: ArrayLike,
+    ubd: ArrayLike,
+    sigma: float,
+) -> NDArray[np.int64]:
+    """T1-T3 of :func:`trigger_reasons` for neighbours known to lie in the prediction sets
+    ``[m_- - phi_-, m_- + phi_-]`` and ``[m_+ - phi_+, m_+ + phi_+]`` (radians, robot-local frame),
+    with ``ubd`` the bound on ``|V - gV|``: T1 ``ubd >= max(|gV - theta|, sigma)``,
+    T2 ``m_+ - phi_+ <= theta``, T3 ``m_- + phi_- >= theta``, each tie-robust within ``TIE_RAD``."""
+    theta = np.asarray(theta, dtype=float)
+    offset = midpoint(m_minus, theta, m_plus) - theta
+    t1 = np.asarray(ubd, dtype=float) >= np.maximum(np.abs(offset), sigma) - TIE_RAD
+    t2 = np.subtract(m_plus, phi_plus) <= theta + TIE_RAD
+    t3 = np.add(m_minus, phi_minus) >= theta - TIE_RAD
     return t1 * int(Trigger.UNCERTAINTY) + t2 * int(Trigger.SUCCESSOR) + t3 * int(Trigger.PREDECESSOR)
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator, prior_belief
+from ringtrack.agents.plan import Plan, PlanController, new_controller
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
     NONCE_BASE,
@@ -38,10 +39,13 @@ from ringtrack.bus.messages import (
     Estimate,
     Measurement,
     Message,
+    PlanFields,
+    PlanReply,
     Point,
     RangeReport,
     Reply,
     Request,
+    carries_plan,
 )
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.ring import ring_neighbours
@@ -70,6 +74,18 @@ def pack_covariance(matrix: FloatArray) -> Covariance:
     return (float(matrix[0, 0]), float(matrix[0, 1]), float(matrix[1, 1]))
 
 
+def pack_plan(plan: Plan) -> PlanFields:
+    return (int(plan.until), float(plan.low), float(plan.high), float(plan.shift))
+
+
+def unpack_plan(reply: Reply | None) -> Plan | None:
+    """The plan a reply carries (None: a reply without one, read by the paper's rule)."""
+    if not isinstance(reply, PlanReply) or reply.plan is None:
+        return None
+    until, low, high, shift = reply.plan
+    return Plan(np.asarray(until, dtype=np.int64), np.asarray(low), np.asarray(high), np.asarray(shift))
+
+
 def unpack_covariance(packed: Covariance) -> FloatArray:
     xx, xy, yy = packed
     return np.array([[xx, xy], [xy, yy]])
@@ -89,7 +105,9 @@ class RobotNode:
         self.predecessor = (robot - 1) % scenario.robots
         self.successor = (robot + 1) % scenario.robots
         self._nonce = nonce or (lambda: NONCE_BASE + secrets.randbits(31))  # always 5 bytes on the wire
-        self.controller: MidpointController | None = None
+        self.controller: MidpointController | PlanController | None = None
+        self.planning = scenario.control.strategy == "plan"
+        self.offers: dict[int, PlanFields] = {}  # step -> the plan a reply of that step carries
         self.estimator = (
             Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
         )
@@ -154,7 +172,8 @@ class RobotNode:
             self.beliefs[self.step] = (pack_point(mean), pack_covariance(covariance))
             self.beliefs.pop(self.step - KEPT_STEPS, None)
             self.centre, self.covariance = self.estimator.centre, self.beliefs[self.step][1]
-        outgoing = self._answer_buffered()
+        # A plan reply describes the step's decision: requests buffered for this step wait for it.
+        outgoing = [] if self.planning else self._answer_buffered()
         self.awaiting, self.replies = {}, {}
         if measurement.live is not None:  # the world says who is in the ring from this step on
             self.set_alive(set(measurement.live))
@@ -163,7 +182,8 @@ class RobotNode:
             report = RangeReport(SCHEMA, self.run, self.step, self.robot, measurement.position, measurement.range,
                                  measurement.live)
             return [*outgoing, (FUSION, report)]
-        return [*outgoing, *self._decide()]
+        decided = self._decide()
+        return [*outgoing, *decided, *(self._answer_buffered() if self.planning else [])]
 
     def on_estimate(self, estimate: Estimate) -> Outgoing:
         """Steer about the centre's estimate: at once when it is this step's and the robot waits for
@@ -241,14 +261,18 @@ class RobotNode:
             return []
         assert self.controller is not None
         before, after = self.replies.get(self.predecessor), self.replies.get(self.successor)
-        self.controller.receive(
+        received = (
             before.position if before else self.controller.predecessor_position,
             after.position if after else self.controller.successor_position,
-            predecessor_fresh=before is not None,
-            successor_fresh=after is not None,
-            predecessor_age=self.step - before.step if before else 0,
-            successor_age=self.step - after.step if after else 0,
+            before is not None,
+            after is not None,
+            self.step - before.step if before else 0,
+            self.step - after.step if after else 0,
         )
+        if isinstance(self.controller, PlanController):
+            self.controller.receive(*received, plans=(unpack_plan(before), unpack_plan(after)))
+        else:
+            self.controller.receive(*received)
         beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
                    if reply is not None and reply.mean is not None and reply.covariance is not None]
         if self.estimator is not None and beliefs:
@@ -265,13 +289,16 @@ class RobotNode:
         """Observe the step and either command at once or poll both neighbours."""
         assert self.position is not None
         if self.controller is None:
-            self.controller = MidpointController(self.scenario.region, self.scenario.control, self.position)
+            self.controller = new_controller(self.scenario.region, self.scenario.control, self.position)
         if len(self.alive | {self.robot}) < 3:
             self.trigger = 0  # no ring to spread on: hold position until robots come back
             return [self._command(hold=True)]
         reach = (self.reachable(self.predecessor), self.reachable(self.successor))
         self.trigger = int(self.controller.observe(self.step, self.position, self.centre, reach))
         self.ages = (int(self.controller.predecessor_age), int(self.controller.successor_age))
+        if isinstance(self.controller, PlanController):
+            self.offers[self.step] = pack_plan(self.controller.offer())
+            self.offers.pop(self.step - KEPT_STEPS, None)
         neighbours = (self.predecessor, self.successor)
         # Every unreachable neighbour gets one request per step: the poll itself or a probe.
         probed = [n for n in neighbours if not self.reachable(n)] if not self.trigger else []
@@ -328,8 +355,10 @@ class RobotNode:
         kept if that step is forgotten (the reply's ``step`` says which)."""
         step = request.step if request.step in self.positions else min(self.positions)
         mean, covariance = self.beliefs.get(step, (None, None))
-        reply = Reply(SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step],
-                      mean, covariance)
+        fields = (SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step], mean,
+                  covariance)
+        plan = self.offers.get(step)
+        reply = PlanReply(*fields, plan=plan) if plan and carries_plan(step, plan[0]) else Reply(*fields)
         return (robot_name(request.sender), reply)
 
     def _answer_buffered(self) -> Outgoing:

@@ -109,6 +109,26 @@ class Reply(Message, tag=4, frozen=True):
     category: ClassVar[str] = "robot"
 
 
+PlanFields = tuple[Step, Real, Real, Real]  # (T', r-, r+, D): horizon step and radians relative to the position
+
+
+class PlanReply(Reply, tag=11, frozen=True):
+    """A :class:`Reply` of the plan strategy: also the sender's committed plan from ``step``, as
+    ``plan = (until, low, high, shift)``: its angle about the target (radians, CCW) stays within
+    ``[b + low, b + high]`` for steps ``step .. until`` and is ``b + shift`` at ``until``, where ``b``
+    is the angle of ``position``. A robot with no plan beyond the step (it polls at that step) sends a
+    plain :class:`Reply`, read as ``until = step`` and zeros (:func:`carries_plan`). A separate tag,
+    so the replies of the other strategies keep their bytes."""
+
+    plan: PlanFields | None = None
+
+
+def carries_plan(step: ArrayLike, until: ArrayLike) -> NDArray[np.bool_]:
+    """Whether a plan reply of ``step`` with horizon ``until`` is sent as a :class:`PlanReply`: only a
+    plan reaching beyond its step says more than a plain reply."""
+    return np.asarray(until) > np.asarray(step)
+
+
 class Tick(Message, tag=5, frozen=True):
     """World -> monitor: the true state at the start of ``step`` (never sent to robots)."""
 
@@ -196,7 +216,8 @@ KINDS: dict[str, type[Message]] = {
     cls.kind: cls
     for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate, FaultNotice)
 }
-AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats | RangeReport | Estimate | FaultNotice
+AnyMessage = (Measurement | Command | Request | Reply | PlanReply | Tick | End | Stats | RangeReport | Estimate
+              | FaultNotice)
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(AnyMessage)
@@ -315,22 +336,32 @@ def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
 
 
 @cache
-def _robot_message_base(kind: str, belief: bool) -> int:
-    """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0."""
+def _robot_message_base(kind: str, belief: bool, plan: bool = False) -> int:
+    """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0 (a plan reply's
+    horizon step 1)."""
     if kind == "request":
         return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
-    extra = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
-    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra)))
+    mean, covariance = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
+    if plan:
+        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean, covariance,
+                                    (1, 0.0, 0.0, 0.0))))
+    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean, covariance)))
 
 
 def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
-                        belief: bool = False) -> NDArray[np.int64]:
+                        belief: bool = False, plan_until: ArrayLike | None = None) -> NDArray[np.int64]:
     """The exact encoded size of requests or replies (``kind``; a reply with a ``belief`` carries a
-    mean and covariance) of ``step`` from ``sender`` to ``receiver``, broadcast over arrays: the
-    size of the step-1, robot-0 message plus the extra bytes the larger integers take (floats are
-    always 9 bytes, nonces and run ids 5)."""
+    mean and covariance, one with a ``plan_until`` a plan to that step, sent as a :class:`PlanReply`
+    where :func:`carries_plan`) of
+    ``step`` from ``sender`` to ``receiver``, broadcast over arrays: the size of the step-1, robot-0
+    message plus the extra bytes the larger integers take (floats are always 9 bytes, nonces and
+    run ids 5)."""
     extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
-    return _robot_message_base(kind, belief) + extra
+    plain = _robot_message_base(kind, belief) + extra
+    if plan_until is not None and kind == "reply":
+        planned = _robot_message_base(kind, belief, True) + extra + uint_bytes(plan_until) - 1
+        return np.where(carries_plan(step, plan_until), planned, plain)
+    return plain
 
 
 def poll_bytes(with_belief: bool) -> int:

@@ -72,7 +72,7 @@ def with_estimation(key: str, value: str) -> str:
         pytest.param(
             BASE + "speed = 3\n",
             "x.toml: unknown key 'speed' in [control]; allowed keys: "
-            "strategy, law, dt, omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps",
+            "strategy, law, dt, omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps, plan_horizon",
             id="unknown-control-key",
         ),
         pytest.param(
@@ -87,7 +87,7 @@ def with_estimation(key: str, value: str) -> str:
         ),
         pytest.param(
             BASE + 'strategy = "lazy"\n',
-            "x.toml: control.strategy: invalid enum value 'lazy'; use one of 'self', 'constant'",
+            "x.toml: control.strategy: invalid enum value 'lazy'; use one of 'self', 'constant', 'plan'",
             id="bad-choice",
         ),
         pytest.param(
@@ -290,7 +290,7 @@ def test_scenario_accepts_the_shipped_moving_scenarios_and_variants():
 BAD_SCENARIOS = {
     "wrong type": ('[team]\nrobots = "six"\n', "team.robots: expected `int`, got `str`; fix the value"),
     "unknown key": ("[control]\nspeed = 3\n", "unknown key 'speed' in [control]; allowed keys: strategy, law, dt, "
-                    "omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps"),
+                    "omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps, plan_horizon"),
     "non-convex": (None, "region is not convex at vertex 2 [1.0, 1.0]; give a convex polygon"),
     "target outside": ("position = [9.0, 9.0]",
                        "target.position [9.0, 9.0] is not inside the region; move it inside the polygon"),

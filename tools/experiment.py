@@ -1,5 +1,6 @@
 """``ringtrack experiment stationary``: the paper's comparison of the constant and self-triggered
-strategies on the same seeded random starts, over one or several team sizes."""
+strategies (or any of constant, self, plan: ``--strategies``) on the same seeded random starts, over
+one or several team sizes."""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
 
-STRATEGIES = ("constant", "self")
+STRATEGIES = ("constant", "self")  # compared by default; the first is the baseline of the ratios
+KNOWN_STRATEGIES = ("constant", "self", "plan")
 CSV_FILE = output_path((".csv",))
 STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
 # One row per trial of every distinct moving-target run (``experiment moving --csv``).
@@ -35,12 +37,18 @@ def register(commands: argparse._SubParsersAction) -> None:
     kinds = parser.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     stationary = kinds.add_parser(
         "stationary",
-        help="constant vs self-triggered on the same random starts (Ctime, Com-bar)",
-        description="Run both strategies on the same seeded random starts (trial t uses seed S + t) "
-        "and compare Ctime and Com-bar; --robots 3,6,10,20 sweeps team sizes.",
+        help="constant vs self-triggered (or --strategies) on the same random starts (Ctime, Com-bar)",
+        description="Run the strategies on the same seeded random starts (trial t uses seed S + t) "
+        "and compare Ctime and Com-bar; --robots 3,6,10,20 sweeps team sizes; --strategies self,plan compares "
+        "others (ratios against the first).",
     )
     stationary.add_argument("scenario", nargs="?", default="paper-stationary", help="base scenario")
     stationary.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 3,6,10,20")
+    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES),
+                            help="strategies to compare, the first the ratios' baseline (default constant,self; "
+                            "e.g. self,plan)")
+    stationary.add_argument("--plan-horizon", type=at_least(0), metavar="H",
+                            help="plan strategy: the most steps ahead a reply's plan describes")
     stationary.add_argument("--trials", type=at_least(1), default=30, help="random starts per team size (default 30)")
     stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
@@ -89,14 +97,25 @@ def robot_list(text: str) -> list[int]:
     return sizes
 
 
-def random_start_scenarios(base: str, robots: int, **overrides: object) -> dict[str, Scenario]:
+def strategy_list(text: str) -> list[str]:
+    """Parse ``self,plan`` into distinct strategy names."""
+    names = [part.strip() for part in text.split(",") if part.strip()]
+    unknown = [name for name in names if name not in KNOWN_STRATEGIES]
+    if not names or unknown or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(
+            f"--strategies {text!r}: give distinct names of {', '.join(KNOWN_STRATEGIES)}, e.g. self,plan")
+    return names
+
+
+def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = STRATEGIES,
+                           **overrides: object) -> dict[str, Scenario]:
     """The base scenario with ``robots`` robots, random starts and default threshold, per strategy."""
     text, label = read_scenario_text(base)
     spec = parse_scenario(text, label)
     spec = msgspec.structs.replace(spec, team=msgspec.structs.replace(spec.team, angles_deg=None))
     return {
         strategy: resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
-        for strategy in STRATEGIES
+        for strategy in strategies
     }
 
 
@@ -106,13 +125,16 @@ def stationary_experiment(
     trials: int,
     seed: int,
     on_step: Callable[[int, str, int], None] | None = None,
+    strategies: Sequence[str] = STRATEGIES,
     **overrides: object,
 ) -> dict:
-    """Run both strategies for every team size on seeds ``seed .. seed + trials - 1``.
+    """Run the ``strategies`` for every team size on seeds ``seed .. seed + trials - 1``.
 
     Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
-    and standard deviation of Ctime and Com-bar, and per team size ``ratios`` self / constant. A
-    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator);
+    and standard deviation of Ctime and Com-bar, and per team size and strategy after the first
+    ``ratios`` of its means to the first's (the ``baseline``; by default self / constant). A
+    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator) and
+    ``robot_bytes`` the robot-to-robot bytes of those steps (the summary's ``robot_bytes_mean``);
     ``ctime_true`` (convergence by the true Cerr) is None when not reached within the steps run, as
     a batch stops once every trial has converged by the strategy's own Cerr.
     ``on_step(robots, strategy, step)`` reports progress.
@@ -125,12 +147,14 @@ def stationary_experiment(
     ratios: list[dict] = []
     started = time.perf_counter()
     for size in robots:
-        scenarios = random_start_scenarios(base, size, **overrides)
+        scenarios = random_start_scenarios(base, size, strategies, **overrides)
         means: dict[str, dict] = {}
         for strategy, scenario in scenarios.items():
             report = None if on_step is None else (lambda k, s=strategy, n=size: on_step(n, s, k))
             history = engine.run(scenario, seeds, until_converged=True, record_positions=False, on_step=report)
             ctime, com_bar = history.ctime, history.com_bar
+            assert history.sent_bytes is not None  # engine runs count bytes
+            sent_bytes = history.sent_bytes
             for index, trial_seed in enumerate(seeds):
                 rows.append(
                     {
@@ -143,6 +167,7 @@ def stationary_experiment(
                         "ctime_true": int(history.ctime_true[index]) or None,
                         "com_bar": None if ctime[index] == 0 else float(com_bar[index]),
                         "triggers": int((history.triggers[: ctime[index] or None, index] != 0).sum()),
+                        "robot_bytes": int(sent_bytes[: ctime[index] or None, index].sum()),
                     }
                 )
             done = ctime > 0
@@ -155,26 +180,32 @@ def stationary_experiment(
                 "ctime_std": float(ctime[done].std()) if done.any() else None,
                 "com_bar_mean": float(com_bar[done].mean()) if done.any() else None,
                 "com_bar_std": float(com_bar[done].std()) if done.any() else None,
+                "robot_bytes_mean": float(np.mean([row["robot_bytes"] for row in rows[-trials:]])),
                 "sigma_deg": float(np.rad2deg(scenario.control.sigma)),
                 "law": scenario.control.law,
                 "threshold_deg": float(np.rad2deg(scenario.threshold)),
             }
             summary.append(means[strategy])
-        constant, triggered = means["constant"], means["self"]
-        if constant["ctime_mean"] and triggered["ctime_mean"]:
-            ratios.append(
-                {
-                    "robots": size,
-                    "ctime_ratio": triggered["ctime_mean"] / constant["ctime_mean"],
-                    "com_bar_ratio": triggered["com_bar_mean"] / constant["com_bar_mean"],
-                }
-            )
+        baseline = means[strategies[0]]
+        for strategy in strategies[1:]:
+            compared = means[strategy]
+            if baseline["ctime_mean"] and compared["ctime_mean"]:
+                ratios.append(
+                    {
+                        "robots": size,
+                        "strategy": strategy,
+                        "baseline": strategies[0],
+                        "ctime_ratio": compared["ctime_mean"] / baseline["ctime_mean"],
+                        "com_bar_ratio": compared["com_bar_mean"] / baseline["com_bar_mean"],
+                    }
+                )
     return {
         "experiment": "stationary",
         "scenario": base,
         "seed": seed,
         "trials": trials,
         "robots": list(robots),
+        "strategies": list(strategies),
         "wall_s": time.perf_counter() - started,
         "summary": summary,
         "ratios": ratios,
@@ -183,21 +214,24 @@ def stationary_experiment(
 
 
 def run_stationary(args: argparse.Namespace) -> int:
-    overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps}
+    overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
+                 "plan_horizon": args.plan_horizon}
+    strategies = args.strategies
     # Validate the scenario and flags before showing any progress.
-    limit = random_start_scenarios(args.scenario, args.robots[0], **overrides)["self"].max_steps
+    limit = random_start_scenarios(args.scenario, args.robots[0], strategies, **overrides)[strategies[0]].max_steps
     with progress_bar() as progress:
         tasks = {
             (size, strategy): progress.add_task(f"N={size:<3} {strategy:<8}", total=limit)
             for size in args.robots
-            for strategy in STRATEGIES
+            for strategy in strategies
         }
 
         def on_step(size: int, strategy: str, step: int) -> None:
             if step % 50 == 0:
                 progress.update(tasks[size, strategy], completed=step)
 
-        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, **overrides)
+        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, strategies,
+                                       **overrides)
         for task in tasks.values():
             progress.update(task, completed=limit)
     out.print(results_table(result))
@@ -220,14 +254,16 @@ def run_stationary(args: argparse.Namespace) -> int:
 
 
 def results_table(result: dict) -> Table:
-    """Mean +- std of Ctime and Com-bar per team size and strategy, with the self / constant ratios."""
+    """Mean +- std of Ctime and Com-bar per team size and strategy, with the ratios to the first
+    strategy (by default self / constant)."""
+    baseline = result.get("strategies", STRATEGIES)[0]
     table = Table(title=f"stationary target, {result['trials']} trials (seeds {result['seed']}..), Ctime in steps, "
-                  "s/c = self / constant", title_justify="left", box=box.SIMPLE_HEAD)
-    for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime s/c", "Com s/c"):
+                  f"ratios: strategy / {baseline}", title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime ratio", "Com ratio"):
         table.add_column(column, justify="right", no_wrap=True)
-    ratios = {entry["robots"]: entry for entry in result["ratios"]}
+    ratios = {(entry["robots"], entry.get("strategy", "self")): entry for entry in result["ratios"]}
     for entry in result["summary"]:
-        ratio = ratios.get(entry["robots"]) if entry["strategy"] == "self" else None
+        ratio = ratios.get((entry["robots"], entry["strategy"]))
         table.add_row(
             str(entry["robots"]),
             entry["strategy"],

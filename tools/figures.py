@@ -11,32 +11,34 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-STRATEGY_COLOURS = {"constant": "tab:blue", "self": "tab:orange"}
-STRATEGY_LABELS = {"constant": "constant", "self": "self-triggered"}
+STRATEGY_COLOURS = {"constant": "tab:blue", "self": "tab:orange", "plan": "tab:green"}
+STRATEGY_LABELS = {"constant": "constant", "self": "self-triggered", "plan": "plan replies"}
 
 
 def stationary_comparison(result: dict, path: Path) -> None:
     """The paper's comparison figure: Ctime and Com-bar (mean +- std) per strategy; a sweep over team
     sizes draws them against N."""
     sizes = result["robots"]
+    strategies = result.get("strategies", ["constant", "self"])
     figure, (left, right) = plt.subplots(1, 2, figsize=(9, 4.0), layout="constrained")
-    for strategy in ("constant", "self"):
+    for index, strategy in enumerate(strategies):
         entries = [entry for entry in result["summary"] if entry["strategy"] == strategy and entry["ctime_mean"]]
         style = {"color": STRATEGY_COLOURS[strategy], "label": STRATEGY_LABELS[strategy], "capsize": 4}
         if len(sizes) == 1:
-            position = [0 if strategy == "constant" else 1]
+            position = [index]
             for axis, key in ((left, "ctime"), (right, "com_bar")):
                 axis.bar(position, [e[f"{key}_mean"] for e in entries], yerr=[e[f"{key}_std"] for e in entries],
                          **style)
         else:
-            dodge = 0.012 * (max(sizes) - min(sizes)) * (-1 if strategy == "constant" else 1)
+            spread = (2 * index - (len(strategies) - 1)) / max(1, len(strategies) - 1)  # -1 .. 1
+            dodge = 0.012 * (max(sizes) - min(sizes)) * spread
             robots = [entry["robots"] + dodge for entry in entries]
             for axis, key in ((left, "ctime"), (right, "com_bar")):
                 axis.errorbar(robots, [e[f"{key}_mean"] for e in entries], yerr=[e[f"{key}_std"] for e in entries],
                               marker="o", **style)
     if len(sizes) == 1:
         for axis in (left, right):
-            axis.set_xticks([0, 1], [STRATEGY_LABELS["constant"], STRATEGY_LABELS["self"]])
+            axis.set_xticks(range(len(strategies)), [STRATEGY_LABELS[strategy] for strategy in strategies])
             axis.set_xlabel("strategy")
         title = f"N = {sizes[0]}, {result['trials']} random starts"
     else:
@@ -51,8 +53,9 @@ def stationary_comparison(result: dict, path: Path) -> None:
     right.set_ylabel("Com-bar (polls per robot per step)")
     right.set_title("(b) communication, mean ± 1 sd")
     right.set_ylim(0, 1.1)
-    figure.suptitle(f"Stationary target: constant vs self-triggered ({title}); error bars: ±1 standard deviation "
-                    "over the trials", fontsize=10)
+    heading = f"Stationary target: {' vs '.join(STRATEGY_LABELS[strategy] for strategy in strategies)} ({title})"
+    separator = "; " if len(heading) < 80 else "\n"  # the constant vs self-triggered heading fits one line
+    figure.suptitle(f"{heading}{separator}error bars: ±1 standard deviation over the trials", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
     plt.close(figure)

@@ -24,8 +24,10 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
         default=DEFAULT_SCENARIO,
         help=f"a TOML file or a shipped scenario name (default: {DEFAULT_SCENARIO})",
     )
-    parser.add_argument("--strategy", choices=["self", "constant"], help="communication strategy")
+    parser.add_argument("--strategy", choices=["self", "constant", "plan"], help="communication strategy")
     parser.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
+    parser.add_argument("--plan-horizon", type=at_least(0), metavar="H",
+                        help="plan strategy: the most steps ahead a reply's plan describes")
     parser.add_argument(
         "--robots",
         type=int,
@@ -49,6 +51,7 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
             args.scenario,
             strategy=args.strategy,
             law=args.law,
+            plan_horizon=args.plan_horizon,
             robots=args.robots,
             seed=args.seed,
             max_steps=args.steps,

@@ -9,17 +9,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-Strategy = Literal["self", "constant"]
+Strategy = Literal["self", "constant", "plan"]
 FreshLaw = Literal["prop", "deadbeat"]
 Mode = Literal["known", "centralized", "decentralized"]
 Criterion = Literal["trace", "det"]
+PLAN_HORIZON = 10  # default H of the plan strategy, steps (README: chosen by measurement)
 
 @dataclass(frozen=True)
 class ControlParams:
     """Parameters of the midpoint laws.
 
-    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self" or "constant"; ``law`` is the
-    fresh-information law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``).
+    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self", "constant" or "plan"
+    (self-triggered with plan-carrying replies, :mod:`agents.plan`); ``law`` is the fresh-information
+    law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``); ``plan_horizon`` the
+    most steps ahead a plan reply describes (``H``, steps).
     """
 
     omega_max: float
@@ -27,6 +30,7 @@ class ControlParams:
     sigma: float = 0.0
     strategy: Strategy = "self"
     law: FreshLaw = "prop"
+    plan_horizon: int = PLAN_HORIZON
 
     @property
     def max_step(self) -> float:

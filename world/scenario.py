@@ -131,6 +131,7 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
     "sigma_deg": ("control", "sigma_deg"),
     "threshold_deg": ("control", "threshold_deg"),
     "max_steps": ("control", "max_steps"),
+    "plan_horizon": ("control", "plan_horizon"),
     "robots": ("team", "robots"),
     "estimation": ("estimation", "mode"),
     "drop": ("faults", "drop"),
@@ -229,6 +230,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         sigma=math.radians(control.sigma_deg),
         strategy=control.strategy,
         law=control.law,
+        plan_horizon=control.plan_horizon,
     )
     estimation = spec.estimation
     if estimation.mode == "known" and not isinstance(spec.target, Stationary):
@@ -240,6 +242,8 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             f"{label}: estimation.prior = 'trilateration' needs the centralized mode (one robot has one range);"
             " use 'truth' or [x, y]"
         )
+    if control.strategy == "plan":
+        _check_plan(spec, label)
     # Only an estimate is kept inside by the margin: a known target pays no inscribed-circle LP (scipy's
     # import alone takes most of a second at start-up).
     if estimation.mode != "known" and estimation.margin >= (inscribed_radius := region.inner_diameter / 2.0):
@@ -272,6 +276,18 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         faults=_fault_plan(spec, label, _radio(spec, label)),
         communication_range=spec.limits.communication_range,
     )
+
+
+def _check_plan(spec: ScenarioSpec, label: str) -> None:
+    """The plan strategy needs what makes a robot's motion between its triggers a function of its
+    memory alone: a known stationary target and no communication range (whose reachability comes
+    from the world each step)."""
+    if spec.estimation.mode != "known":
+        raise ScenarioError(f"{label}: control.strategy = 'plan' needs a known stationary target "
+                            "(estimation.mode = 'known'); use 'self' to estimate")
+    if spec.limits.communication_range is not None:
+        raise ScenarioError(f"{label}: control.strategy = 'plan' needs unlimited communication; "
+                            "unset limits.communication_range or use 'self'")
 
 
 def _radio(spec: ScenarioSpec, label: str) -> Radio:

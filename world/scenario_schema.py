@@ -12,7 +12,8 @@ A scenario file looks like::
     robots = 6
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
     [control]
-    strategy = "self"          # "self" | "constant"
+    strategy = "self"          # "self" | "constant" | "plan" (replies carry plans; known target)
+    plan_horizon = 10          # plan: the most steps ahead a reply's plan describes (H)
     law = "prop"               # fresh-information law: "prop" | "deadbeat"
     dt = 0.1                   # s
     omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
@@ -66,6 +67,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
+from ringtrack.world.params import PLAN_HORIZON
 from ringtrack.world.schema import Finite, NonNegative, Point, Positive, Probability, Spec
 from ringtrack.world.target import TargetSpec
 
@@ -83,7 +85,7 @@ class TeamSpec(Spec, frozen=True):
 
 
 class ControlSpec(Spec, frozen=True):
-    strategy: Literal["self", "constant"] = "self"
+    strategy: Literal["self", "constant", "plan"] = "self"
     law: Literal["prop", "deadbeat"] = "prop"
     dt: Positive = 0.1
     omega_max_deg: Positive | None = None
@@ -91,6 +93,7 @@ class ControlSpec(Spec, frozen=True):
     sigma_deg: NonNegative = 0.0
     threshold_deg: Positive | None = None
     max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
+    plan_horizon: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = PLAN_HORIZON
 
 
 class SensingSpec(Spec, frozen=True):
