@@ -108,7 +108,9 @@ def test_a_freeze_above_the_lease_drops_the_robot_and_it_rejoins_by_handshake(tm
     assert re.search(r"robot r3 left at step \d+; 5 robots go on", world), world
     assert "robot r3 is back at step" in world
     assert_readmitted_by_handshake(log, world)
-    assert_every_message_counted(log)
+    faults = assert_every_message_counted(log)
+    print("lockstep freeze above the lease:", " ".join(re.findall(r"(?:left|is back|rejoins) at step \d+", world)),
+          {key: faults[key] for key in ("sent", "delivered", "dropped", "lost")})
 
 
 def test_a_robot_silent_past_the_lockstep_wait_is_named_treated_as_gone_and_rejoins(tmp_path: Path) -> None:
