@@ -19,7 +19,7 @@ import asyncio
 from dataclasses import dataclass
 from typing import Literal
 
-from ringtrack.agents.node import Outgoing, RobotNode
+from ringtrack.agents.node import BUFFERED_LIMIT, Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
@@ -131,6 +131,7 @@ class RobotLink:
         self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable, node.distance,
                              realtime=reply_timeout is not None)
         self.outside = False  # told by the world that it is not in the ring
+        self.held: list[Delivery] = []  # requests that came while outside, for the step it comes back at
         self.reach = ReachTokens(participant)
 
     def show_reach(self, alive: set[str]) -> None:
@@ -168,8 +169,27 @@ class RobotLink:
                             Deadline(self.node.step, "estimate"))
 
     def deliver(self, delivery: Delivery) -> None:
-        if isinstance(delivery.message, Measurement) and not self.measurement(delivery.message):
+        """Hand a message to the node through the fault layer. While outside the ring, the robot's
+        step is far behind the world's: a neighbour's request for the step it comes back at may
+        arrive before that step's measurement, and is held until then (the node would refuse a
+        request that far ahead), at most ``BUFFERED_LIMIT`` of them."""
+        message = delivery.message
+        if isinstance(message, Measurement):
+            was_outside = self.outside
+            if not self.measurement(message):
+                return
+            if was_outside:
+                self._deliver(delivery)
+                held, self.held = self.held, []
+                for request in held:
+                    self._deliver(request)
+                return
+        elif isinstance(message, Request) and self.outside and len(self.held) < BUFFERED_LIMIT:
+            self.held.append(delivery)
             return
+        self._deliver(delivery)
+
+    def _deliver(self, delivery: Delivery) -> None:
         deliveries, lost = self.shim.receive(delivery)
         if lost and isinstance(delivery.message, Reply):
             self.send(self.node.on_lost(delivery.message.sender, delivery.message.nonce))
