@@ -41,8 +41,11 @@ class FusionCentre:
         """Take a robot's report; returns the estimates of the steps it completes (at most one)."""
         if report.step <= self.last_step:
             return []  # a step already estimated
-        for robot in report.live or ():  # the world brought robots back at this step
-            self.expected.setdefault(robot, report.step)
+        if report.live is not None:  # the world says who is in the ring from this step on
+            for robot in set(self.expected) - set(report.live):
+                del self.expected[robot]  # one the world stopped waiting for (its lease has not run out)
+            for robot in report.live:  # one the world brought back at this step
+                self.expected.setdefault(robot, report.step)
         self.reports.setdefault(report.step, {})[report.robot] = report
         return self._complete_steps()
 

@@ -6,8 +6,11 @@ robot-to-robot message at all. Its robot-to-robot traffic passes through the fau
 (:class:`bus.shim.LinkShim`); a reply that will not come (dropped, out of range, its sender gone,
 or, in realtime, later than ``reply_timeout``) never blocks it, nor, in realtime, does a fusion
 centre's estimate later than ``ESTIMATE_SHARE * reply_timeout``. A robot that leaves (its
-liveliness token goes) or comes back (the world's measurements say so) re-forms its ring. It ends
-on the world's End, on a signal, or when the world is gone.
+liveliness token goes) or comes back (the world's measurements say so) re-forms its ring. A robot
+told it is outside the ring (restarted, woken after a freeze past the lease, or dropped by a lockstep
+world that waited too long) shows whom it reaches, and every robot shows which robots outside its ring
+it reaches (:mod:`bus.reach`), until the world re-admits them (:mod:`world.admission`). It ends on the
+world's End, on a signal, or when the world is gone.
 """
 
 from __future__ import annotations
@@ -16,12 +19,13 @@ import asyncio
 from dataclasses import dataclass
 from typing import Literal
 
-from ringtrack.agents.node import Outgoing, RobotNode
+from ringtrack.agents.node import BUFFERED_LIMIT, Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
-from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request, Stats
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence
+from ringtrack.bus.reach import ReachTokens
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
 from ringtrack.bus.shim import LinkShim
 from ringtrack.world.scenario import Scenario
@@ -61,7 +65,7 @@ async def run_robot(
 
     async def check_identity(participant: Participant) -> None:
         """Refuse to start as a robot that is alive already (before this one declares its token)."""
-        await refuse_if_alive(participant, {robot_name(node.predecessor), robot_name(node.successor)})
+        await refuse_if_alive(participant)
 
     def claim_identity(participant: Participant) -> None:
         nonlocal claim
@@ -73,6 +77,7 @@ async def run_robot(
         try:
             return await _serve(link, roster, events)
         finally:
+            link.reach.close()
             if claim is not None:
                 claim.close()
 
@@ -125,6 +130,26 @@ class RobotLink:
         self.reply_timeout = reply_timeout
         self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable, node.distance,
                              realtime=reply_timeout is not None)
+        self.outside = False  # told by the world that it is not in the ring
+        self.held: list[Delivery] = []  # requests that came while outside, for the step it comes back at
+        self.reach = ReachTokens(participant)
+
+    def show_reach(self, alive: set[str]) -> None:
+        """Hold a ``reach`` token for each participant in ``alive`` (their token is up) that the world
+        needs to hear of before it re-admits a robot: every one while this robot is outside the ring,
+        else the robots outside this robot's ring."""
+        others = alive - {self.node.name}
+        if not self.outside:
+            others = {name for name in others if (robot := robot_index(name)) is not None
+                      and robot < self.node.scenario.robots and robot not in self.node.alive}
+        self.reach.hold(others)
+
+    def measurement(self, measurement: Measurement) -> bool:
+        """Note whether the world says this robot is outside the ring; False: not for the node."""
+        if measurement.live is None or measurement.robot != self.node.robot:
+            return True
+        self.outside = measurement.robot not in measurement.live
+        return not self.outside
 
     def send(self, outgoing: Outgoing) -> None:
         pending = list(outgoing)
@@ -144,6 +169,27 @@ class RobotLink:
                             Deadline(self.node.step, "estimate"))
 
     def deliver(self, delivery: Delivery) -> None:
+        """Hand a message to the node through the fault layer. While outside the ring, the robot's
+        step is far behind the world's: a neighbour's request for the step it comes back at may
+        arrive before that step's measurement, and is held until then (the node would refuse a
+        request that far ahead), at most ``BUFFERED_LIMIT`` of them."""
+        message = delivery.message
+        if isinstance(message, Measurement):
+            was_outside = self.outside
+            if not self.measurement(message):
+                return
+            if was_outside:
+                self._deliver(delivery)
+                held, self.held = self.held, []
+                for request in held:
+                    self._deliver(request)
+                return
+        elif isinstance(message, Request) and self.outside and len(self.held) < BUFFERED_LIMIT:
+            self.held.append(delivery)
+            return
+        self._deliver(delivery)
+
+    def _deliver(self, delivery: Delivery) -> None:
         deliveries, lost = self.shim.receive(delivery)
         if lost and isinstance(delivery.message, Reply):
             self.send(self.node.on_lost(delivery.message.sender, delivery.message.nonce))
@@ -191,6 +237,7 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
                     # The team starts whole; a robot that leaves (crash) is dropped at once. One that
                     # comes back (restart) is announced by the world with the step it rejoins at.
                     link.send(node.set_alive(node.alive - {robot}))
+        link.show_reach(roster.alive)
         if roster.gone_for_good(WORLD):
             return 1  # the world went away without ending the run
         events = await next_events(link.participant, roster)

@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # bus.security needs the cryptography library: imported only 
     from ringtrack.bus.security import Security
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+LEASE_S = 10.0  # Zenoh's default link lease: a frozen peer is seen gone after about as long
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(\[[0-9a-fA-F:.]+\]|[^/:\s]+):\d{1,5}$")
 
 Mode = Literal["peer", "router", "client"]
@@ -34,13 +35,13 @@ class BusConfig:
     """How a process joins the bus.
 
     ``listen``/``connect`` are Zenoh endpoints such as ``tcp/127.0.0.1:7447``; port 0 picks a free
-    port. ``lease_ms`` bounds how long a frozen peer still looks alive (liveliness).
+    port. ``lease_ms`` bounds how long a frozen peer still looks alive (liveliness; ``--lease``).
     """
 
     mode: Mode = "peer"
     listen: tuple[str, ...] = (LOOPBACK_ANY_PORT,)
     connect: tuple[str, ...] = ()
-    lease_ms: int = 10_000
+    lease_ms: int = round(LEASE_S * 1000)
     admin_space: bool = False  # needed to read back the locators a session bound (see listening_locators)
     extra: dict[str, object] = field(default_factory=dict)  # further "path": value JSON5 settings
     security: Security | None = None  # --secure: mutual TLS and access control (bus.security)

@@ -241,7 +241,8 @@ class FaultCounter:
     dropped`` once every message has arrived. A request dropped before sending is sent but never
     published, a reply duplicated on arrival published once: ``published`` is the sum of
     :func:`request_traffic` over the requests. Counted by :func:`fate_counts`, the rule the engine
-    applies to a whole step at once."""
+    applies to a whole step at once. ``arrived`` counts the copies taken off the bus by the robot's
+    fault layer: what a team published and never took off is lost in transit (:func:`team_faults`)."""
 
     counts: Counter[str] = field(default_factory=Counter)
     reasons: Counter[str] = field(default_factory=Counter)
@@ -262,5 +263,22 @@ class FaultCounter:
     def count_delivered(self, copies: int) -> None:
         self.counts["delivered"] += copies
 
+    def count_arrived(self) -> None:
+        """One published copy taken off the bus (before its fate on arrival, if any, applies)."""
+        self.counts["arrived"] += 1
+
     def table(self) -> dict[str, int]:
-        return {name: self.counts[name] for name in FAULT_COUNTERS}
+        return {name: self.counts[name] for name in (*FAULT_COUNTERS, "arrived")}
+
+
+def team_faults(tables: list[dict[str, int]]) -> dict[str, int]:
+    """A team's fault counts from its robots' :meth:`FaultCounter.table` s: the sums of
+    :data:`FAULT_COUNTERS`, and ``lost``, the copies published that no robot took off the bus (in
+    flight to a robot frozen past the liveliness lease, whose link Zenoh then dropped; answered by a
+    woken robot before its links re-formed; arriving after their receiver ended), counted among the
+    ``dropped``: so ``sent + duplicated == delivered + dropped`` holds for every message published.
+    A robot that never reported (killed) leaves its own sends uncounted and ``lost`` at most an
+    estimate (never below 0)."""
+    totals: Counter[str] = sum((Counter(table) for table in tables), Counter())
+    lost = max(0, totals["published"] - totals["arrived"])
+    return {**{name: totals[name] for name in FAULT_COUNTERS}, "dropped": totals["dropped"] + lost, "lost": lost}

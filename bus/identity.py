@@ -3,9 +3,11 @@ and a collision that slips through (two processes starting at the same instant) 
 
 Zenoh merges liveliness tokens of the same key: a second ``alive/r3`` token is invisible while the
 first is up, and the first one's departure is then not seen either. So a robot asks, before it
-declares its own ``alive`` token, whether one of its name is already up, and it also holds a claim
-token ``claim/<name>/<session id>`` of a key no other session can hold, watching its name's claims
-for any other session's for as long as it runs.
+declares its own ``alive`` token, whether the world sees one of its name (the world's
+``reach/<name>/world`` token, :mod:`bus.reach`, which reaches a joining process over its first link,
+whatever the load) or whether it sees one itself; it also holds a claim token
+``claim/<name>/<session id>`` of a key no other session can hold, watching its name's claims for any
+other session's for as long as it runs.
 """
 
 from __future__ import annotations
@@ -20,8 +22,7 @@ from ringtrack.bus.participant import Participant
 
 log = logging.getLogger(__name__)
 
-WORLD_WAIT_S = 2.0  # how long to wait for the world's token before asking (a robot started before the world)
-SETTLE_S = 1.0  # after the world's token: how long the session may take to link to the other peers
+WORLD_WAIT_S = 2.0  # how long to wait for the world's token before going on (a robot started before the world)
 
 
 class IdCollision(ValueError):
@@ -34,30 +35,22 @@ def token_names(participant: Participant, key_expr: str) -> set[str]:
     return {str(reply.ok.key_expr).rsplit("/", 1)[-1] for reply in replies if reply.ok is not None}
 
 
-async def refuse_if_alive(participant: Participant, neighbours: set[str]) -> None:
-    """Raise :class:`IdCollision` when a participant named as this one is alive in the run (its
-    ``alive`` token is up). Call before declaring this one's own token.
+async def refuse_if_alive(participant: Participant) -> None:
+    """Raise :class:`IdCollision` when a participant named as this one is alive in the run. Call
+    before declaring this one's own token.
 
     A peer sees only the tokens of the peers it has linked to, and links to the others (gossip)
-    some 0.1 s after reaching the world. So it asks until it sees its own name (refused), or the
-    world and both ``neighbours`` (linked), or ``SETTLE_S`` after it first saw the world; it gives up
-    after ``WORLD_WAIT_S`` without the world (no run reached: the claim watch of :class:`IdClaim`
-    remains)."""
+    some time after reaching the world, later under load. So it waits until it sees the world (at
+    most ``WORLD_WAIT_S``: no run reached, the claim watch of :class:`IdClaim` remains), then asks
+    for the world's ``reach`` token of its name and for an ``alive`` token of its name."""
     loop = asyncio.get_running_loop()
-    started, world_seen = loop.time(), None
-    while True:
-        names = token_names(participant, participant.keys.alive())
-        if participant.name in names:
-            raise IdCollision(f"{participant.name} is already alive in run {participant.keys.run:08x} (its liveliness "
-                              "token is up); stop that process first, or give an id no live robot has")
-        now = loop.time()
-        if WORLD in names:
-            world_seen = world_seen or now
-            if neighbours <= names or now - world_seen > SETTLE_S:
-                return
-        elif now - started > WORLD_WAIT_S:
-            return
+    started = loop.time()
+    keys, name = participant.keys, participant.name
+    while WORLD not in token_names(participant, keys.alive(WORLD)) and loop.time() - started < WORLD_WAIT_S:
         await asyncio.sleep(0.05)
+    if token_names(participant, keys.reach(name, WORLD)) or name in token_names(participant, keys.alive(name)):
+        raise IdCollision(f"{name} is already alive in run {keys.run:08x} (its liveliness token is up); stop that "
+                          "process first, or give an id no live robot has")
 
 
 class IdClaim:

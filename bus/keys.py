@@ -4,7 +4,8 @@ Data keys read ``ringtrack/<run>/<destination>/<source>/<kind>`` with participan
 ``monitor``, ``fusion`` (the centralized estimator), ``all`` (broadcast) and ``r<i>`` (robot i), so
 the monitor learns the link of every message from its key alone. Liveliness tokens live under
 ``ringtrack/<run>/alive/<name>`` (the process is up), ``ringtrack/<run>/ready/<name>`` (it has seen
-everyone it talks to) and ``ringtrack/<run>/claim/<name>/<session>`` (one session's claim on a name).
+everyone it talks to), ``ringtrack/<run>/claim/<name>/<session>`` (one session's claim on a name) and
+``ringtrack/<run>/reach/<observed>/<observer>`` (``observer`` sees ``observed`` alive: :mod:`bus.reach`).
 """
 
 from __future__ import annotations
@@ -87,6 +88,10 @@ class Keys:
     def claim(self, name: str, session: str = "*") -> str:
         """The liveliness key by which Zenoh session ``session`` claims participant name ``name``."""
         return f"{self.prefix}/claim/{name}/{session}"
+
+    def reach(self, observed: str = "*", observer: str = "*") -> str:
+        """The liveliness key by which ``observer`` says it sees ``observed``'s ``alive`` token."""
+        return f"{self.prefix}/reach/{observed}/{observer}"
 
     def parse(self, key: str) -> Route | None:
         """The route of a data key of this run, or ``None`` for a key of another shape or run."""

@@ -27,7 +27,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig, BusError
+from ringtrack.bus.config import LEASE_S, LOOPBACK_ANY_PORT, BusConfig, BusError
 from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, ROOT, ROUTER, WORLD, robot_index, robot_name
 
 AUTHORITY = "ca"
@@ -307,7 +307,7 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
         {"id": "send-to-team", "messages": EVERY_MESSAGE, "flows": ["egress"], "permission": "allow",
          "key_exprs": [f"{ROOT}/**"]},
         {"id": "watch-tokens", "messages": WATCHING, "flows": ["ingress"], "permission": "allow",
-         "key_exprs": [f"{ROOT}/*/alive/*", f"{ROOT}/*/ready/*", f"{ROOT}/*/claim/*/*"]},
+         "key_exprs": [f"{ROOT}/*/alive/*", f"{ROOT}/*/ready/*", f"{ROOT}/*/claim/*/*", f"{ROOT}/*/reach/*/*"]},
     ]
     policies: list[dict[str, object]] = []
     for name in names:
@@ -315,7 +315,8 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
             {"id": f"{name}-sends", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
              "key_exprs": [_pattern(source=name)]},
             {"id": f"{name}-tokens", "messages": ["liveliness_token"], "flows": ["ingress"], "permission": "allow",
-             "key_exprs": [f"{ROOT}/*/alive/{name}", f"{ROOT}/*/ready/{name}", f"{ROOT}/*/claim/{name}/*"]},
+             "key_exprs": [f"{ROOT}/*/alive/{name}", f"{ROOT}/*/ready/{name}", f"{ROOT}/*/claim/{name}/*",
+                           f"{ROOT}/*/reach/*/{name}"]},
             {"id": f"{name}-subscribes", "messages": SUBSCRIBING, "flows": ["ingress"], "permission": "allow",
              "key_exprs": inboxes(name)},
         ]
@@ -382,11 +383,12 @@ class Security:
 
 
 def secure_config(directory: Path, names: list[str], robots: int | None, mode: str, listen: tuple[str, ...],
-                  connect: tuple[str, ...], admin_space: bool = False) -> BusConfig:
+                  connect: tuple[str, ...], admin_space: bool = False,
+                  lease_ms: int = round(LEASE_S * 1000)) -> BusConfig:
     """The bus of participants ``names`` of a team of ``robots`` robots (None: the team the folder
     was made for) with ``--secure directory``: checked certificates and TLS endpoints (the default
     loopback listener becomes ``tls/127.0.0.1:0``; a ``tcp/`` endpoint is refused)."""
     team = check_team(directory, names, robots)
     listen = tuple(SECURE_LOOPBACK_ANY_PORT if endpoint == LOOPBACK_ANY_PORT else endpoint for endpoint in listen)
     return BusConfig(mode=mode, listen=listen, connect=connect, admin_space=admin_space,  # type: ignore[arg-type]
-                     security=Security(team, team.robots if robots is None else robots))
+                     lease_ms=lease_ms, security=Security(team, team.robots if robots is None else robots))

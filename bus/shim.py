@@ -83,6 +83,8 @@ class LinkShim:
     def receive(self, delivery: Delivery) -> tuple[list[Delivery], bool]:
         """``(deliveries for the robot now, lost)``; a reply's fate applies on arrival."""
         message = delivery.message
+        if isinstance(message, (Request, Reply)) and not delivery.released:
+            self.counter.count_arrived()
         if not isinstance(message, (Request, Reply)) or delivery.released:
             if isinstance(message, (Request, Reply)):
                 self.counter.count_delivered(1)

@@ -101,7 +101,9 @@ def test_the_policy_is_generated_from_the_key_scheme() -> None:
     # robot 3 may send exactly what its own keys name: a data key whose source is r3
     assert rules["r3-sends"]["key_exprs"] == ["ringtrack/*/*/r3/*"]
     assert keys.data("r4", "r3", "reply").split("/")[2:] == ["r4", "r3", "reply"]
-    assert rules["r3-tokens"]["key_exprs"] == ["ringtrack/*/alive/r3", "ringtrack/*/ready/r3", "ringtrack/*/claim/r3/*"]
+    assert rules["r3-tokens"]["key_exprs"] == ["ringtrack/*/alive/r3", "ringtrack/*/ready/r3", "ringtrack/*/claim/r3/*",
+                                               "ringtrack/*/reach/*/r3"]
+    assert keys.reach("r2", "r3").split("/")[2:] == ["reach", "r2", "r3"]  # r3 says it sees r2
     assert rules["monitor-subscribes"]["key_exprs"] == ["ringtrack/*/**"]
     assert rules["r3-subscribes"]["key_exprs"] == ["ringtrack/*/r3/**", "ringtrack/*/all/**"]
     assert all(rule["flows"] == ["ingress"] for name, rule in rules.items() if name != "send-to-team")

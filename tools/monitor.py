@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
-from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic
+from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic, team_faults
 from ringtrack.bus.keys import MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import (
     Command,
@@ -217,7 +217,7 @@ class MonitorReport:
     rss_kib: dict[str, int]
     end: End | None
     late: int
-    faults: Counter[str] = field(default_factory=Counter)  # robots' fault layers, summed
+    faults: Counter[str] = field(default_factory=Counter)  # robots' fault layers, summed (bus.faults.team_faults)
     notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
     rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
     energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
@@ -287,7 +287,7 @@ async def run_monitor(
                 "dropped_ahead": recorder.dropped_ahead,
                 "rss_kib": report.rss_kib,
                 "consistent": report.consistent(),
-                "faults": {name: report.faults[name] for name in FAULT_COUNTERS},
+                "faults": {name: report.faults[name] for name in (*FAULT_COUNTERS, "lost")},
                 "notes": dict(report.notes),
                 "rejected_by": report.rejected_by,
                 "energy_j": report.energy_j,
@@ -367,7 +367,7 @@ async def _watch(
         rss_kib={name: stats.rss_kib for name, stats in finals.items()} | {MONITOR: peak_rss_kib()},
         end=end,
         late=recorder.late,
-        faults=sum((Counter(stats.faults) for stats in finals.values()), Counter()),
+        faults=Counter(team_faults([stats.faults for stats in finals.values()])),
         notes=sum((Counter(stats.notes) for stats in finals.values()), Counter()),
         rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
         energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},

@@ -8,7 +8,7 @@ import asyncio
 from pathlib import Path
 from typing import NoReturn
 
-from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
+from ringtrack.bus.config import LEASE_S, LOOPBACK_ANY_PORT, BusConfig
 from ringtrack.bus.keys import FUSION, MONITOR, ROUTER, WORLD, robot_name
 from ringtrack.tools.console import UsageError, err, out
 from ringtrack.tools.options import (
@@ -59,6 +59,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     router.add_argument("--announce", type=Path, metavar="PATH",
                         help="write the endpoints the router listens on to PATH (JSON; useful with port 0)")
     router.add_argument("--secure", type=Path, metavar="DIR", help=SECURE_HELP)
+    _lease(router)
     router.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
     router.set_defaults(handler=run_router_role)
 
@@ -96,7 +97,14 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="endpoint to connect to; repeatable")
     parser.add_argument("--monitor", action="store_true", help="a monitor is part of the team: wait for it")
     parser.add_argument("--secure", type=Path, metavar="DIR", help=SECURE_HELP)
+    _lease(parser)
     parser.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
+
+
+def _lease(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--lease", type=positive, default=LEASE_S, metavar="S",
+                        help=f"liveliness lease: a participant silent this many seconds (frozen, cut off) is seen "
+                        f"gone by the others; give every process of a team the same (default {LEASE_S:g})")
 
 
 def robot_ids(text: str) -> list[int]:
@@ -131,11 +139,12 @@ def bus_config(args: argparse.Namespace, names: list[str], robots: int | None, a
     """The bus of participants ``names`` (of a team of ``robots``) from the role's flags; with
     ``--secure DIR`` mutual TLS and access control (:func:`ringtrack.bus.security.secure_config`)."""
     listen, connect = tuple(args.listen or (LOOPBACK_ANY_PORT,)), tuple(args.connect or ())
+    lease_ms = round(args.lease * 1000)
     if args.secure is None:
-        return BusConfig(mode=args.mode, listen=listen, connect=connect, admin_space=admin_space)
+        return BusConfig(mode=args.mode, listen=listen, connect=connect, admin_space=admin_space, lease_ms=lease_ms)
     from ringtrack.bus.security import secure_config
 
-    return secure_config(args.secure, names, robots, args.mode, listen, connect, admin_space)
+    return secure_config(args.secure, names, robots, args.mode, listen, connect, admin_space, lease_ms)
 
 
 def run_world_role(args: argparse.Namespace) -> int:
@@ -188,6 +197,7 @@ def join(args: argparse.Namespace) -> None:
         args.secure = Path(run["secure"])
     if args.reply_timeout is None:
         args.reply_timeout = run["reply_timeout"]
+    args.lease = run.get("lease_s", args.lease)
 
 
 def run_router_role(args: argparse.Namespace) -> int:

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ringtrack.bus.config import LEASE_S
 from ringtrack.bus.keys import new_run_id, participants
 from ringtrack.tools.console import OutputError, UsageError, err, out, write_json
 from ringtrack.tools.options import (
@@ -41,7 +42,7 @@ if TYPE_CHECKING:
     from ringtrack.tools.supervisor import Supervisor
 
 STALL_TIMEOUT_S = 60.0
-LOCKSTEP_WAIT_S = 10.0  # the liveliness lease: a frozen robot is seen gone after about as long
+LOCKSTEP_WAIT_S = LEASE_S  # a frozen robot is seen gone (liveliness) after about as long
 ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
@@ -65,6 +66,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--lockstep-wait", type=positive, default=LOCKSTEP_WAIT_S, metavar="S",
                         help="lockstep: a robot silent this many seconds in one step is treated as gone, and a poll "
                         f"gives up on a reply after half of it (default {LOCKSTEP_WAIT_S:g})")
+    parser.add_argument("--lease", type=positive, default=LEASE_S, metavar="S",
+                        help="liveliness lease of every process: one silent this many seconds (frozen, cut off) is "
+                        f"seen gone by the others (default {LEASE_S:g})")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="run log path (default: RUN_FOLDER/log.jsonl)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the summary JSON here")
     parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR", help="parent of run folders")
@@ -100,6 +104,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         secure=args.secure,
         all_robots=args.all_robots,
         lockstep_wait=args.lockstep_wait,
+        lease=args.lease,
     )
     if args.json:
         write_json(args.json, result)
@@ -135,6 +140,7 @@ def spawn_team(
     secure: Path | None = None,
     all_robots: bool = False,
     lockstep_wait: float = LOCKSTEP_WAIT_S,
+    lease: float = LEASE_S,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -146,7 +152,8 @@ def spawn_team(
     still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
     mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
     robot in the monitor's report. In lockstep the world treats a robot silent for ``lockstep_wait``
-    seconds in one step as gone, and a robot's poll gives up on a reply after half of that."""
+    seconds in one step as gone, and a robot's poll gives up on a reply after half of that; every
+    process announces a liveliness ``lease`` of that many seconds."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -173,7 +180,7 @@ def spawn_team(
     scenario_path.write_bytes(scenario.to_toml())
     log_path = log_path or folder / "log.jsonl"
     announce = folder / "world-endpoints.json"
-    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
+    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent", "--lease", str(lease)]
     common += [] if secure is None else ["--secure", str(secure.resolve())]
     started = time.perf_counter()
     interrupted = ""
@@ -214,7 +221,7 @@ def spawn_team(
                 reply_timeout = ["--reply-timeout", str(reply_wait)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "secure": None if secure is None else str(secure.resolve()),
-                                                 "reply_timeout": reply_wait})
+                                                 "reply_timeout": reply_wait, "lease_s": lease})
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 for first in range(0, scenario.robots, robots_per_process):

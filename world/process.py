@@ -8,9 +8,11 @@ Clocks:
   whatever step it was computed for.
 
 The world starts once every robot (and the monitor, when one is expected) is ready, and ends the
-run with an :class:`~bus.messages.End` to everyone. A robot that disappears leaves the live set (its
-neighbours re-form the ring around it) and stays where it stopped; one that comes back rejoins,
-placed midway between its live ring neighbours (:meth:`world.state.WorldState.rejoin`).
+run with an :class:`~bus.messages.End` to everyone. A robot that disappears (or, in lockstep, stays
+silent for ``lockstep_wait`` seconds) leaves the live set (its neighbours re-form the ring around it)
+and stays where it stopped; one that comes back is re-admitted by a handshake once it and its future
+ring neighbours reach one another (:mod:`world.admission`), placed midway between them
+(:meth:`world.state.WorldState.rejoin`).
 """
 
 from __future__ import annotations
@@ -24,10 +26,12 @@ from pathlib import Path
 from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
-from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index, robot_name
 from ringtrack.bus.messages import SCHEMA, Command, End
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
+from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
+from ringtrack.world.admission import Admission
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.state import WorldState
 
@@ -49,7 +53,7 @@ class WorldOptions:
     expect_monitor: bool = False
     announce: Path | None = None
     until_converged: bool = False
-    lockstep_wait: float = 10.0  # s; lockstep: a live robot silent this long in one step is treated as gone
+    lockstep_wait: float = 10.0  # s (--lockstep-wait); lockstep: a robot silent this long in one step is gone
 
 
 WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
@@ -64,6 +68,10 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
     """Serve one run; returns the process exit code (0 done, 1 failed, 130 interrupted)."""
     keys = Keys(run)
     team = participants(range(scenario.robots), centralized=False, monitor=options.expect_monitor) - {WORLD}
+    centralized = scenario.estimation.mode == "centralized"
+    admission = Admission({WORLD} | ({MONITOR} if options.expect_monitor else set()) | ({FUSION} if centralized
+                                                                                          else set()), scenario.robots)
+    tokens: list[ReachTokens] = []
 
     async def main(participant: Participant, roster: Roster, _held: list) -> int:
         world = WorldState(scenario, seed, run, options.steps)
@@ -73,9 +81,12 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         reason, code = "done", 0
         period = scenario.control.dt / options.rate
         start = asyncio.get_running_loop().time()
+        watch = ReachWatch(participant)
+        context = Context(participant, world, roster, admission, tokens[0])
         try:
             for index in range(options.steps):
-                await step_once(participant, world, roster, start + (index + 1) * period)
+                await step_once(context, start + (index + 1) * period)
+                admit(context)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
                 world.advance()
@@ -84,6 +95,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                     break
         except RunStopped as stop:
             reason, code = str(stop), STOPPED if str(stop).startswith("interrupted") else 1
+        finally:
+            watch.close()
         wall = time.perf_counter() - began
         last = world.step - 1
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
@@ -91,21 +104,59 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         return code
 
     def on_joined(participant: Participant) -> None:
+        tokens.append(ReachTokens(participant))
         if options.announce is not None:
             announce_endpoints(participant.session, options.announce)
 
     role = Role(
         name=WORLD,
-        needed=participants(range(scenario.robots), scenario.estimation.mode == "centralized",
-                            options.expect_monitor) - {WORLD},
+        needed=participants(range(scenario.robots), centralized, options.expect_monitor) - {WORLD},
         main=main,
         listen=(keys.inbox(WORLD),),
         start_on="ready",
         announces_ready=False,
         on_joined=on_joined,
+        on_gathering=lambda roster: tokens[0].hold(alive_robots(roster, scenario.robots)),
         linger_for=lambda code: team,
     )
-    return await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
+    try:
+        return await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
+    finally:
+        for held in tokens:
+            held.close()
+
+
+@dataclass
+class Context:
+    """What a step of the world works with: its participant, the true state, who is alive, the
+    re-admission handshake and the ``reach`` tokens the world holds (one per robot it sees alive)."""
+
+    participant: Participant
+    world: WorldState
+    roster: Roster
+    admission: Admission
+    tokens: ReachTokens
+
+
+def alive_robots(roster: Roster, robots: int) -> set[str]:
+    """The names of the team's robots whose ``alive`` token is up."""
+    return {name for name in roster.alive if (robot := robot_index(name)) is not None and robot < robots}
+
+
+def admit(context: Context) -> None:
+    """At the end of a step: bring back, from the next step, every robot outside the ring that the
+    handshake admits (:class:`world.admission.Admission`)."""
+    world = context.world
+    for robot in context.admission.admit(world.live | world.rejoining, context.roster.alive):
+        world.rejoin(robot)
+        log.info("robot r%d rejoins at step %d: it and its ring neighbours reach one another; placed between them",
+                 robot, world.step + 1)
+
+
+def tell_outside(context: Context, robot: int) -> None:
+    """Tell robot ``robot`` (alive, not in the ring) that it is outside: its measurement of this
+    step with the live set, which leaves it out; it then shows whom it reaches (:mod:`bus.reach`)."""
+    context.participant.send(robot_name(robot), context.world.measurement(robot))
 
 
 def refuse_empty_ring(world: WorldState) -> None:
@@ -122,37 +173,45 @@ def _publish(participant: Participant, world: WorldState) -> None:
         participant.send(robot_name(robot), world.measurement(robot))
 
 
-def _handle(event: object, world: WorldState, roster: Roster, participant: Participant) -> None:
+def _handle(event: object, context: Context) -> None:
     """Apply one event to the world; raise :class:`RunStopped` when the run must end.
 
-    A robot whose process goes away (a crash: its liveliness token is withdrawn) leaves the live
-    set and stays where it is; one that declares itself ready again (a restart) rejoins."""
+    A robot whose process goes away (a crash, or a freeze past the lease: its liveliness token is
+    withdrawn) leaves the live set and stays where it is; one whose token comes up outside the ring
+    (a restart, a wake-up) is told it is outside, and comes back by the handshake of :func:`admit`."""
+    world, participant, roster = context.world, context.participant, context.roster
     if isinstance(event, Delivery) and isinstance(event.message, Command):
         if world.possible(event.message):
             world.accept(event.message)
         else:
             participant.counter.count_rejected("value")
+    elif isinstance(event, Reach):
+        context.admission.update(event)
     elif isinstance(event, Interrupt):
         raise RunStopped(f"interrupted ({event.reason})")
-    elif isinstance(event, Presence):
+    elif isinstance(event, Presence) and event.kind == "alive":
         roster.update(event)
+        context.tokens.hold(alive_robots(roster, world.scenario.robots))
         robot = robot_index(event.name)
-        if robot is None:
+        if robot is None or robot >= world.scenario.robots:
             return
-        if event.kind == "alive" and not event.up and robot in world.live | world.rejoining:
+        if not event.up and robot in world.live | world.rejoining:
             world.leave(robot)
             log.warning("robot %s left at step %d; %d robots go on", event.name, world.step, len(world.live))
-        elif event.kind == "ready" and event.up and robot not in world.live | world.rejoining:
-            world.rejoin(robot)
-            log.info("robot %s rejoins at step %d, placed between its ring neighbours", event.name, world.step + 1)
+        elif event.up and robot not in world.live | world.rejoining:
+            tell_outside(context, robot)
+            log.info("robot %s is back at step %d, outside the ring until it and its ring neighbours reach one "
+                     "another", event.name, world.step)
+    elif isinstance(event, Presence):
+        roster.update(event)
 
 
-async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float,
-                    wait_s: float = 10.0) -> None:
+async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> None:
     """Publish the step and wait for every live robot's command for it: after ``WAIT_NOTICE_S`` the
-    world says which robots it waits for, and after ``wait_s`` (wall seconds) it treats those still
-    silent as gone (a frozen process whose liveliness lease has not run out yet), so one robot
-    cannot hang the team."""
+    world says which robots it waits for, and after ``wait_s`` (wall seconds, ``--lockstep-wait``) it
+    treats those still silent as gone (a frozen process whose liveliness lease has not run out yet),
+    so one robot cannot hang the team; such a robot is told it is outside the ring."""
+    world, participant = context.world, context.participant
     loop = asyncio.get_running_loop()
     started, noticed = loop.time(), False
     _publish(participant, world)
@@ -161,8 +220,9 @@ async def _lockstep(participant: Participant, world: WorldState, roster: Roster,
         if waited >= wait_s:
             for robot in sorted(world.live - world.commanded):
                 world.leave(robot)
-                log.warning("robot r%d sent no command for step %d in %.0f s: treated as gone; %d robots go on",
-                            robot, world.step, wait_s, len(world.live))
+                tell_outside(context, robot)
+                log.warning("lockstep step %d: r%d sent no command within --lockstep-wait %g s; treated as gone, %d "
+                            "robots go on", world.step, robot, wait_s, len(world.live))
             return
         if waited >= WAIT_NOTICE_S and not noticed:
             noticed = True
@@ -174,18 +234,18 @@ async def _lockstep(participant: Participant, world: WorldState, roster: Roster,
         except TimeoutError:
             continue
         for event in events:
-            _handle(event, world, roster, participant)
+            _handle(event, context)
 
 
-async def _realtime(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
+async def _realtime(context: Context, deadline: float) -> None:
     """Publish the step and take whatever commands arrive until ``deadline`` (loop time: the start
     of the run plus ``step * dt / rate``, so the schedule does not drift)."""
     loop = asyncio.get_running_loop()
-    _publish(participant, world)
+    _publish(context.participant, context.world)
     while (remaining := deadline - loop.time()) > 0:
         try:
-            events = await asyncio.wait_for(participant.events(), remaining)
+            events = await asyncio.wait_for(context.participant.events(), remaining)
         except TimeoutError:
             break
         for event in events:
-            _handle(event, world, roster, participant)
+            _handle(event, context)

@@ -41,6 +41,8 @@ class WorldState:
         self.live: set[int] = set(range(scenario.robots))
         self.rejoining: set[int] = set()  # back from the next step on
         self.returned: set[int] = set()  # came back at the start of this step: everyone hears of it
+        self.left: set[int] = set()  # left the ring during this step
+        self.shrunk = False  # robots left during the last step: everyone hears of it
         self.goals: FloatArray = self.positions.copy()
         self.offsets: FloatArray = np.full(scenario.robots, np.nan)  # gV - theta reported for this step, rad
         self.commanded: set[int] = set()
@@ -53,13 +55,15 @@ class WorldState:
 
     def measurement(self, robot: int) -> Measurement:
         """Robot ``robot``'s exact position and its measured range to the target (None beyond the
-        sensing range) at the start of the step."""
+        sensing range) at the start of the step, with the live set when the ring changed or the robot
+        is not in it (then it is told so: :mod:`world.admission`)."""
         position = self.positions[robot]
         measured = self.ranges[robot]
         return Measurement(
             SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
             None if np.isnan(measured) else float(measured), self.in_range(robot),
-            sorted(self.live) if self.returned else None, self.neighbour_distances(robot),
+            sorted(self.live) if self.returned or self.shrunk or robot not in self.live else None,
+            self.neighbour_distances(robot),
         )
 
     def neighbour_distances(self, robot: int) -> list[tuple[int, float]]:
@@ -73,7 +77,9 @@ class WorldState:
         self.rejoining.add(robot)
 
     def leave(self, robot: int) -> None:
-        """A robot's process went away: it stays where it is, out of the ring."""
+        """A robot's process went away (or stopped answering): it stays where it is, out of the ring."""
+        if robot in self.live:
+            self.left.add(robot)
         self.live.discard(robot)
         self.rejoining.discard(robot)
 
@@ -142,6 +148,7 @@ class WorldState:
         for robot in sorted(self.rejoining):
             self._place(robot)
         self.returned, self.rejoining = self.rejoining & self.live, set()
+        self.shrunk, self.left = bool(self.left), set()
         self.commanded.clear()
         self.offsets[:] = np.nan
         self.step += 1
