@@ -78,6 +78,10 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--all-robots", action="store_true",
                         help="list every robot and link in the end-of-run report (default: above 20, "
                         "min/median/max and the 5 busiest)")
+    parser.add_argument("--audit", action="store_true",
+                        help="the monitor receives a copy of every message and counts it itself (an independent "
+                        "tally); by default, in lockstep, it takes the world's own counts of measurements and "
+                        "commands (one digest a step) and observes the rest")
     parser.set_defaults(handler=run_spawn)
 
 
@@ -96,6 +100,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         secure=args.secure,
         all_robots=args.all_robots,
         lockstep_wait=args.lockstep_wait,
+        audit=args.audit,
     )
     if args.json:
         write_json(args.json, result)
@@ -131,6 +136,7 @@ def spawn_team(
     secure: Path | None = None,
     all_robots: bool = False,
     lockstep_wait: float = LOCKSTEP_WAIT_S,
+    audit: bool = False,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -142,7 +148,9 @@ def spawn_team(
     still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
     mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
     robot in the monitor's report. In lockstep the world treats a robot silent for ``lockstep_wait``
-    seconds in one step as gone, and a robot's poll gives up on a reply after half of that."""
+    seconds in one step as gone, and a robot's poll gives up on a reply after half of that. With
+    ``audit`` the monitor receives a copy of every message (else, in lockstep, the world's digests
+    account for measurements and commands)."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -162,6 +170,7 @@ def spawn_team(
     announce = folder / "world-endpoints.json"
     common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent"]
     common += [] if secure is None else ["--secure", str(secure.resolve())]
+    common += ["--audit"] if audit else []
     started = time.perf_counter()
     interrupted = ""
     stop_signal = signal.SIGTERM

@@ -25,7 +25,7 @@ from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
-from ringtrack.bus.messages import SCHEMA, Command, End
+from ringtrack.bus.messages import SCHEMA, Command, Digest, End
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.world.scenario import Scenario
@@ -40,8 +40,9 @@ Clock = Literal["lockstep", "realtime"]
 class WorldOptions:
     """How the world runs: at most ``steps`` steps (fewer with ``until_converged``: it ends after the
     first step whose Cerr is below the threshold), the ``clock``, the realtime ``rate`` factor
-    (simulated seconds per wall second), whether a monitor must be ready before step 1, and where to
-    write the endpoints it listens on (``announce``) so others can connect."""
+    (simulated seconds per wall second), whether a monitor must be ready before step 1, whether to send
+    it a :class:`~bus.messages.Digest` each step, and where to write the endpoints it listens on
+    (``announce``) so others can connect."""
 
     steps: int
     clock: Clock = "lockstep"
@@ -50,6 +51,7 @@ class WorldOptions:
     announce: Path | None = None
     until_converged: bool = False
     lockstep_wait: float = 10.0  # s; lockstep: a live robot silent this long in one step is treated as gone
+    digest: bool = False  # lockstep: send the monitor a Digest of the world's own links each step (no audit)
 
 
 WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
@@ -75,7 +77,10 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         start = asyncio.get_running_loop().time()
         try:
             for index in range(options.steps):
-                await step_once(participant, world, roster, start + (index + 1) * period)
+                commands: list[tuple[Command, int]] = []
+                measurements = await step_once(participant, world, roster, start + (index + 1) * period, commands)
+                if options.digest:
+                    send_digest(participant, world.step, measurements, commands)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
                 world.advance()
@@ -115,19 +120,34 @@ def refuse_empty_ring(world: WorldState) -> None:
         raise RunStopped(f"every robot left the ring by step {world.step}")
 
 
-def _publish(participant: Participant, world: WorldState) -> None:
+Measurements = list[tuple[int, int]]  # (robot, payload bytes) of the measurements of a step
+
+
+def _publish(participant: Participant, world: WorldState) -> Measurements:
     live = sorted(world.live)
     participant.send(MONITOR, world.tick(live))
-    for robot in live:
-        participant.send(robot_name(robot), world.measurement(robot))
+    return [(robot, participant.send(robot_name(robot), world.measurement(robot))) for robot in live]
 
 
-def _handle(event: object, world: WorldState, roster: Roster, participant: Participant) -> None:
-    """Apply one event to the world; raise :class:`RunStopped` when the run must end.
+def send_digest(participant: Participant, step: int, measurements: Measurements,
+                commands: list[tuple[Command, int]]) -> None:
+    """Tell the monitor what the world published (``measurements``) and received (``commands``, with
+    their payload bytes) in ``step``, in digests of at most one command per robot of the team."""
+    chunk = participant.robots
+    participant.send(MONITOR, Digest(SCHEMA, participant.keys.run, step, measurements, commands[:chunk]))
+    for first in range(chunk, len(commands), chunk):
+        participant.send(MONITOR, Digest(SCHEMA, participant.keys.run, step, [], commands[first:first + chunk]))
+
+
+def _handle(event: object, world: WorldState, roster: Roster, participant: Participant,
+            commands: list[tuple[Command, int]]) -> None:
+    """Apply one event to the world, adding every command received to ``commands``; raise
+    :class:`RunStopped` when the run must end.
 
     A robot whose process goes away (a crash: its liveliness token is withdrawn) leaves the live
     set and stays where it is; one that declares itself ready again (a restart) rejoins."""
     if isinstance(event, Delivery) and isinstance(event.message, Command):
+        commands.append((event.message, event.size))
         if world.possible(event.message):
             world.accept(event.message)
         else:
@@ -148,14 +168,14 @@ def _handle(event: object, world: WorldState, roster: Roster, participant: Parti
 
 
 async def _lockstep(participant: Participant, world: WorldState, roster: Roster, deadline: float,
-                    wait_s: float = 10.0) -> None:
+                    commands: list[tuple[Command, int]], wait_s: float = 10.0) -> Measurements:
     """Publish the step and wait for every live robot's command for it: after ``WAIT_NOTICE_S`` the
     world says which robots it waits for, and after ``wait_s`` (wall seconds) it treats those still
     silent as gone (a frozen process whose liveliness lease has not run out yet), so one robot
-    cannot hang the team."""
+    cannot hang the team. Returns the step's measurements; every command received goes to ``commands``."""
     loop = asyncio.get_running_loop()
     started, noticed = loop.time(), False
-    _publish(participant, world)
+    measurements = _publish(participant, world)
     while not world.commanded.issuperset(world.live):
         waited = loop.time() - started
         if waited >= wait_s:
@@ -163,29 +183,25 @@ async def _lockstep(participant: Participant, world: WorldState, roster: Roster,
                 world.leave(robot)
                 log.warning("robot r%d sent no command for step %d in %.0f s: treated as gone; %d robots go on",
                             robot, world.step, wait_s, len(world.live))
-            return
+            return measurements
         if waited >= WAIT_NOTICE_S and not noticed:
             noticed = True
             log.warning("lockstep step %d waits for %s", world.step,
                         ", ".join(f"r{robot}" for robot in sorted(world.live - world.commanded)))
         next_check = wait_s if noticed else min(wait_s, WAIT_NOTICE_S)
-        try:
-            events = await asyncio.wait_for(participant.events(), max(0.01, next_check - waited))
-        except TimeoutError:
-            continue
-        for event in events:
-            _handle(event, world, roster, participant)
+        for event in await participant.events(max(0.01, next_check - waited)):
+            _handle(event, world, roster, participant, commands)
+    return measurements
 
 
-async def _realtime(participant: Participant, world: WorldState, roster: Roster, deadline: float) -> None:
+async def _realtime(participant: Participant, world: WorldState, roster: Roster, deadline: float,
+                    commands: list[tuple[Command, int]]) -> Measurements:
     """Publish the step and take whatever commands arrive until ``deadline`` (loop time: the start
-    of the run plus ``step * dt / rate``, so the schedule does not drift)."""
+    of the run plus ``step * dt / rate``, so the schedule does not drift). Returns the step's
+    measurements; every command received goes to ``commands``."""
     loop = asyncio.get_running_loop()
-    _publish(participant, world)
+    measurements = _publish(participant, world)
     while (remaining := deadline - loop.time()) > 0:
-        try:
-            events = await asyncio.wait_for(participant.events(), remaining)
-        except TimeoutError:
-            break
-        for event in events:
-            _handle(event, world, roster, participant)
+        for event in await participant.events(remaining):
+            _handle(event, world, roster, participant, commands)
+    return measurements
