@@ -241,7 +241,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             " use 'truth' or [x, y]"
         )
     # Only an estimating team needs the inscribed radius: computing it loads scipy's LP solver, which
-    # would add about 35 MiB and a fifth of a second of start-up to every process of a known-target team.
+    # would add about 42 MiB and 0.5 s of CPU (a busy 2-core machine) to every process of a known-target team.
     if estimation.mode != "known" and estimation.margin >= (inscribed_radius := region.inner_diameter / 2.0):
         raise ScenarioError(
             f"{label}: estimation.margin {estimation.margin:g} m leaves no room: the region's inscribed radius "
