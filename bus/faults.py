@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -96,6 +97,8 @@ class Fate:
     def faults(self) -> tuple[str, ...]:
         """What the fault layer did to the message: ``("dropped",)``, or any of "duplicated" and
         "delayed" (each reported to the monitor as a ``FaultNotice`` and logged as an event)."""
+        if not (self.dropped or self.copies > 1 or self.delay_s > 0):
+            return ()
         counts = fate_counts(self.dropped, self.copies, self.delay_s)
         return tuple(what for what in FAULTS if counts[what])
 
@@ -162,7 +165,7 @@ class FaultPlan:
     outages: tuple[Outage, ...] = ()
     radio: Radio = IDEAL
 
-    @property
+    @cached_property
     def active(self) -> bool:
         rates = [self.default, *self.links.values()]
         lossy = self.radio.lossy or bool(self.outages)
@@ -171,6 +174,8 @@ class FaultPlan:
     def fate(self, kind: str, sender: int, receiver: int, step: int, distance: float | None = None) -> Fate:
         """The fate of the ``kind`` message ``sender -> receiver`` of ``step`` over a link of
         ``distance`` metres at the step's start (needed by a lossy radio only)."""
+        if not self.active:  # a clean plan: no draws (a robot settles every message it sends)
+            return DELIVERED
         fates = self.decide(kind, sender, receiver, step, 0.0 if distance is None else distance)
         reason, copies, delay = REASONS[int(fates.reason)], int(fates.copies), float(fates.delay_s)
         if reason is not None:
@@ -254,6 +259,8 @@ class FaultCounter:
 
     def count_fate(self, fate: Fate) -> None:
         """What ``fate`` did to one message: dropped (and why), extra copies, delayed."""
+        if fate == DELIVERED:
+            return  # nothing to count: the common case, spared the arrays of fate_counts
         counts = fate_counts(fate.dropped, fate.copies, fate.delay_s)
         for what in FAULTS:
             self.counts[what] += int(counts[what])

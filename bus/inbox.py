@@ -53,14 +53,27 @@ class Inbox(Generic[Item]):
     def pending(self) -> int:
         return len(self._items)
 
-    async def batch(self) -> list[Item]:
-        """Wait until at least one item is queued, then take everything queued."""
-        while not self._items:
-            self._waiter = self._loop.create_future()
-            if self._items:
-                break
-            await self._waiter
+    async def batch(self, timeout: float | None = None) -> list[Item]:
+        """Wait until at least one item is queued, then take everything queued; after ``timeout``
+        seconds (None: never) return what is queued, perhaps nothing. The timeout is a timer on the
+        loop, not ``asyncio.wait_for``: no task is created per wait."""
+        expired: list[bool] = []
+        timer = None if timeout is None else self._loop.call_later(timeout, self._expire, expired)
+        try:
+            while not self._items and not expired:
+                self._waiter = self._loop.create_future()
+                await self._waiter
+        finally:
+            self._waiter = None
+            if timer is not None:
+                timer.cancel()
         return self.take()
+
+    def _expire(self, expired: list[bool]) -> None:
+        expired.append(True)
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
 
     def take(self) -> list[Item]:
         """Take everything queued now, without waiting."""

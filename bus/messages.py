@@ -188,6 +188,19 @@ class FaultNotice(Message, tag=10, frozen=True):
     category: ClassVar[str] = "monitoring"
 
 
+class Digest(Message, tag=11, frozen=True):
+    """World -> monitor, once a step unless the monitor audits every message itself: the world's own
+    account of its links since its previous digest, so the monitor need not receive a copy of every
+    measurement and command. ``measurements`` are ``(robot, payload bytes)`` of the measurements it
+    published for ``step``; ``commands`` every command it received, with its payload bytes."""
+
+    step: Step
+    measurements: list[tuple[int, Count]]
+    commands: list[tuple[Command, Count]]
+    kind: ClassVar[str] = "digest"
+    category: ClassVar[str] = "monitoring"
+
+
 class RangeReport(Message, tag=8, frozen=True):
     """Robot -> fusion centre (centralized estimation): its position and measured range (None:
     beyond the sensing range) at the start of ``step``, and the ring from this step on when the
@@ -214,10 +227,10 @@ class Estimate(Message, tag=9, frozen=True):
 
 KINDS: dict[str, type[Message]] = {
     cls.kind: cls
-    for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate, FaultNotice)
+    for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate, FaultNotice, Digest)
 }
 AnyMessage = (Measurement | Command | Request | Reply | PlanReply | Tick | End | Stats | RangeReport | Estimate
-              | FaultNotice)
+              | FaultNotice | Digest)
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(AnyMessage)
@@ -241,7 +254,7 @@ def size_limit(kind: str, robots: int) -> int:
     """The most bytes a payload of ``kind`` can take in a team of ``robots``: generous bounds on the
     fields (a list of robot ids or positions: at most 64 bytes per robot; statistics: a traffic row
     per link) refused before decoding, so a 1 MiB payload costs nothing to drop."""
-    per_robot = 1024 if kind == "stats" else 64
+    per_robot = {"stats": 1024, "digest": 192}.get(kind, 64)
     return 1024 + per_robot * robots
 
 
@@ -274,6 +287,9 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
     for robot in robot_ids(message):
         if not 0 <= robot < robots:
             raise Rejected("sender", f"{message.kind} names robot {robot}, not one of a team of {robots}")
+    if isinstance(message, Digest) and any((command.schema, command.run) != (SCHEMA, run)
+                                           for command, _ in message.commands):
+        raise Rejected("foreign", "a digest carrying a command of another schema or run")
     if isinstance(message, Tick) and len(message.positions) != robots:
         raise Rejected("malformed", f"tick with {len(message.positions)} positions for a team of {robots}")
     source, destination = endpoints(message)
@@ -304,6 +320,8 @@ def robot_ids(message: Message) -> list[int]:
         return [message.robot, *(message.live or ())]
     if isinstance(message, Tick):
         return list(message.live)
+    if isinstance(message, Digest):
+        return [*(robot for robot, _ in message.measurements), *(command.robot for command, _ in message.commands)]
     return []
 
 
@@ -317,6 +335,8 @@ def endpoints(message: Message) -> tuple[str, str | None]:
         return robot_name(message.robot), WORLD
     if isinstance(message, Stats):
         return message.name, MONITOR
+    if isinstance(message, Digest):
+        return WORLD, MONITOR
     if isinstance(message, RangeReport):
         return robot_name(message.robot), FUSION
     if isinstance(message, Estimate):

@@ -151,9 +151,10 @@ class Participant:
             self.callback_failures += 1
             log.exception("liveliness callback failed")
 
-    async def events(self) -> list[Event]:
-        """Wait for and return the next batch of validated messages and presence changes."""
-        batch = await self.inbox.batch()
+    async def events(self, timeout: float | None = None) -> list[Event]:
+        """Wait for and return the next batch of validated messages and presence changes (after
+        ``timeout`` seconds, None: never, perhaps an empty one)."""
+        batch = await self.inbox.batch(timeout)
         return self.accept(batch)
 
     def accept(self, batch: list[Raw | Event]) -> list[Event]:

@@ -165,12 +165,7 @@ async def gather_until(
 async def next_events(participant: Participant, roster: Roster, watched: str = WORLD) -> list[Event]:
     """The next batch of events; once ``watched`` has gone, wake at least every half second so the
     caller can give up when it is gone for good (``Roster.gone_for_good``)."""
-    if watched in roster.alive:
-        return await participant.events()
-    try:
-        return await asyncio.wait_for(participant.events(), 0.5)
-    except TimeoutError:
-        return []
+    return await participant.events(None if watched in roster.alive else 0.5)
 
 
 LINGER_S = 3.0

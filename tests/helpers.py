@@ -248,9 +248,10 @@ def short_sighted(estimation: str, prior: str, **overrides: object) -> Scenario:
 RINGTRACK = [sys.executable, "-m", "ringtrack.tools.cli"]
 
 
-def lockstep_run(scenario: Scenario, runs: Path) -> tuple[dict, RunLog]:
-    """Spawn a lockstep team and return its summary and run log."""
-    result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=False)
+def lockstep_run(scenario: Scenario, runs: Path, audit: bool = False) -> tuple[dict, RunLog]:
+    """Spawn a lockstep team (with ``audit``, the monitor observing every message itself) and return
+    its summary and run log."""
+    result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=False, audit=audit)
     assert result["exit_code"] == 0, result
     return result, read_log(Path(result["log"]))
 

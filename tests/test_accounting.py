@@ -25,10 +25,11 @@ STEPS = "300"
 
 
 def run(command: str, flags: list[str], folder: Path) -> tuple[dict, RunLog]:
-    """``ringtrack simulate`` or a lockstep ``ringtrack spawn`` of paper-stationary with ``flags``:
-    its summary JSON and run log."""
+    """``ringtrack simulate`` or a lockstep ``ringtrack spawn`` of paper-stationary with ``flags`` (its
+    monitor auditing every message itself): its summary JSON and run log."""
     summary, log = folder / f"{command}.json", folder / f"{command}.jsonl"
-    extra = ["--runs", str(folder / "runs"), "--no-dashboard", "--clock", "lockstep"] if command == "spawn" else []
+    extra = ["--runs", str(folder / "runs"), "--no-dashboard", "--clock", "lockstep", "--audit"] \
+        if command == "spawn" else []
     completed = subprocess.run([*RINGTRACK, command, "paper-stationary", *flags, "--steps", STEPS, *extra,
                                 "--json", str(summary), "--log", str(log)], capture_output=True, text=True, timeout=240)
     assert completed.returncode == 0, completed.stderr

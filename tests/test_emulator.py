@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ringtrack.agents.engine import History, robot_to_robot_sent
-from ringtrack.bus.counting import totals_by_category
+from ringtrack.bus.counting import per_link, totals_by_category
 from ringtrack.tools.runlog import RunLog, history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import (
@@ -59,7 +59,7 @@ def test_lockstep_team_equals_the_engine(tmp_path: Path, strategy: str) -> None:
 
 
 def test_monitor_totals_equal_senders_and_log(tmp_path: Path) -> None:
-    _, log = lockstep_run(scenario(max_steps=150), tmp_path)
+    _, log = lockstep_run(scenario(max_steps=150), tmp_path, audit=True)  # the monitor observes every message
     end = log.end
     assert end is not None and end["reason"] == "done" and end["late"] == 0 and end["rejected"] == {}
     seen = totals_by_category([tuple(row) for row in end["traffic"]])
@@ -71,6 +71,22 @@ def test_monitor_totals_equal_senders_and_log(tmp_path: Path) -> None:
     logged_messages = sum(sum(record["sent_messages"]) for record in log.steps)
     logged_bytes = sum(sum(record["sent_bytes"]) for record in log.steps)
     assert (logged_messages, logged_bytes) == (seen["robot"]["messages"], seen["robot"]["bytes"])
+
+
+def test_digests_give_the_audited_log_without_copies_of_world_traffic(tmp_path: Path) -> None:
+    # By default the monitor takes measurements and commands from the world's digests (one a step) and
+    # receives no copy of them; with --audit it observes every message. The logs are the same.
+    team = scenario(max_steps=150)
+    digested, digested_log = lockstep_run(team, tmp_path / "digest")
+    audited, audited_log = lockstep_run(team, tmp_path / "audit", audit=True)
+    assert digested["by_kind"]["digest"]["messages"] == 150 and "digest" not in audited["by_kind"]
+    assert digested_log.steps == audited_log.steps
+    assert digested_log.end is not None and audited_log.end is not None
+    assert digested_log.end["consistent"] is True and audited_log.end["consistent"] is True
+    seen, audited_seen = (per_link([tuple(row) for row in log.end["traffic"]], ("robot", "world"))
+                          for log in (digested_log, audited_log))
+    assert seen == audited_seen
+    assert_equals_engine(digested_log)
 
 
 def test_two_runs_at_once_do_not_interfere(tmp_path: Path) -> None:

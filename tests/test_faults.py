@@ -295,7 +295,8 @@ def test_check_reports_bounds_and_flags_violations() -> None:
 # ---------------------------------------------------------------------------- hostile input
 @pytest.mark.processes
 def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: Path) -> None:
-    process = start_spawn(tmp_path, "--steps", "5000")  # outlasts the intruder: every message it sends is heard
+    # outlasts the intruder: every message it sends is heard, by a monitor that audits every key
+    process = start_spawn(tmp_path, "--steps", "5000", "--audit")
     try:
         folder = wait_for_steps(tmp_path, 5)
         hostile = subprocess.run([sys.executable, "-m", "tests.hostile", str(folder), "2"],

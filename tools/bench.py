@@ -450,6 +450,48 @@ def run_latency_bench(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------- suite
+# The team configurations whose speed the suite reports relative to its own round trip.
+RATIO_TEAMS = ((6, 1), (64, 1), (64, 16), (256, 16))
+
+
+def suite_ratios(results: dict[str, Any]) -> dict[str, Any]:
+    """Figures of one suite run that machine noise largely cancels from: for each team of
+    ``RATIO_TEAMS``, how many neighbour round trips (the run's own median) one lockstep step takes;
+    the start-up of 64 robots one per process (seconds); resident memory of a robot process (MiB,
+    one robot and 16 robots per process)."""
+    round_trip_s = results["latency"]["median_us"] * 1e-6
+    rows = {(row["robots"], row["robots_per_process"]): row for row in results["emulator"]}
+    ratios: dict[str, Any] = {"round_trip_us": results["latency"]["median_us"], "round_trips_per_step": {}}
+    for robots, per_process in RATIO_TEAMS:
+        row = rows.get((robots, per_process))
+        if row is not None:
+            ratios["round_trips_per_step"][f"{robots}x{per_process}"] = 1.0 / (row["steps_per_s"] * round_trip_s)
+    if (64, 1) in rows:
+        ratios["startup_64_s"] = rows[64, 1]["startup_s"]
+    for per_process in (1, 16):
+        memory = [row["robot_process_rss_mib"] for key, row in rows.items() if key[1] == per_process
+                  and row["robot_process_rss_mib"]]
+        if memory:
+            ratios[f"robot_process_rss_mib_{per_process}_per_process"] = max(memory)
+    return ratios
+
+
+def ratios_table(ratios: dict[str, Any]) -> Table:
+    table = Table(title=f"relative to this run's neighbour round trip ({ratios['round_trip_us']:.0f} us)")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for team, value in ratios["round_trips_per_step"].items():
+        robots, per_process = team.split("x")
+        table.add_row(f"round trips per lockstep step, {robots} robots, {per_process} per process", f"{value:.1f}")
+    if "startup_64_s" in ratios:
+        table.add_row("start-up of 64 x 1", f"{ratios['startup_64_s']:.1f} s")
+    for per_process in (1, 16):
+        key = f"robot_process_rss_mib_{per_process}_per_process"
+        if key in ratios:
+            table.add_row(f"robot process RSS, {per_process} per process", f"{ratios[key]:.1f} MiB")
+    return table
+
+
 def run_suite(args: argparse.Namespace) -> int:
     results: dict[str, Any] = {"benchmark": "suite", "machine": machine()}
     cores = results["machine"]["cores"]
@@ -465,6 +507,8 @@ def run_suite(args: argparse.Namespace) -> int:
     out.print(engine_table(results["engine"], cores))
     out.print(latency_table(results["latency"], cores))
     out.print(emulator_table(results["emulator"], f"lockstep emulator ({cores} cores, self strategy)"))
+    results["ratios"] = suite_ratios(results)
+    out.print(ratios_table(results["ratios"]))
     if args.json:
         write_json(args.json, results)
     return 0

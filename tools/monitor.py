@@ -19,9 +19,11 @@ from pathlib import Path
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
 from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic, team_faults
-from ringtrack.bus.keys import MONITOR, WORLD, Keys, participants, robot_index
+from ringtrack.bus.keys import MONITOR, WORLD, Keys, Route, participants, robot_index, robot_name
 from ringtrack.bus.messages import (
+    KINDS,
     Command,
+    Digest,
     End,
     Estimate,
     FaultNotice,
@@ -147,6 +149,14 @@ class Recorder:
                          "subject": message.subject, "sender": message.sender, "receiver": message.receiver,
                          "reason": message.reason or None, "delay_s": message.delay_s or None})
 
+    def count_world_message(self, step: int, size: int) -> None:
+        """Count a world message of ``step`` (``size`` payload bytes) the monitor did not receive
+        itself but a :class:`~bus.messages.Digest` reports."""
+        if step >= self.next_step and self._opens(step):
+            entry = self._pending(step)
+            entry.traffic_messages["world"] += 1
+            entry.traffic_bytes["world"] += size
+
     def record(self, record: dict) -> None:
         """Write ``record`` to the log and hand it to ``on_record`` (the dashboard's model)."""
         self.writer.write(record)
@@ -252,10 +262,12 @@ async def run_monitor(
     model: TeamModel | None = None,
     refresh: Refresh | None = None,
     exit_with_parent: bool = False,
+    digests: bool = False,
 ) -> tuple[int, MonitorReport | None]:
     """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
     times per second, and once more with True when the log is complete; returns the exit code and
-    the report (None when stopped before the start)."""
+    the report (None when stopped before the start). With ``digests`` the monitor receives no copy of
+    the measurements and commands: it counts them from the world's digests (:func:`digested`)."""
     keys = Keys(run)
     report: MonitorReport | None = None
     if model is not None:
@@ -272,7 +284,7 @@ async def run_monitor(
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
             recorder = Recorder(writer, scenario, None if model is None else model.add)
-            code, report = await _watch(participant, recorder, roster, held, refresh)
+            code, report = await _watch(participant, recorder, roster, held, refresh, digests)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
             end = {
@@ -301,7 +313,9 @@ async def run_monitor(
             refresh(True)
         return code
 
-    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=(keys.everything,),
+    collect = tuple(keys.data("*", "*", kind) for kind in KINDS if kind not in DIGESTED) if digests \
+        else (keys.everything,)
+    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=collect,
                 stats=lambda participant, code: None, on_gathering=show_startup)
     code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
     return code, report
@@ -313,9 +327,11 @@ async def _watch(
     roster: Roster,
     events: list,
     refresh: Refresh | None,
+    digests: bool = False,
 ) -> tuple[int, MonitorReport]:
     """Record until the run has ended and everything every sender says it sent has been seen (or
-    nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died)."""
+    nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died); with ``digests``, the world's
+    digests count for the measurements and commands the monitor does not receive."""
     finals: dict[str, Stats] = {}
     end: End | None = None
     code = 0
@@ -326,7 +342,10 @@ async def _watch(
     team = senders(recorder.scenario)
     while True:
         for event in events:
-            if isinstance(event, Delivery):
+            if isinstance(event, Delivery) and isinstance(event.message, Digest):
+                if digests:  # else a world digesting for an auditing monitor: what it says is seen already
+                    digested(participant, recorder, event.message)
+            elif isinstance(event, Delivery):
                 message = event.message
                 recorder.on_delivery(event)
                 if isinstance(message, Stats) and message.final:
@@ -373,6 +392,21 @@ async def _watch(
         energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
     )
     return code, report
+
+
+DIGESTED = ("measurement", "command")  # the kinds a world's Digest accounts for
+
+
+def digested(participant: Participant, recorder: Recorder, digest: Digest) -> None:
+    """Count the measurements and commands ``digest`` reports as if the monitor had received them
+    (the world's own counts: what it published, what it received) and record them."""
+    for robot, size in digest.measurements:
+        participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
+        recorder.count_world_message(digest.step, size)
+    for command, size in digest.commands:
+        source = robot_name(command.robot)
+        participant.counter.count_received(("command", source, WORLD), size)
+        recorder.on_delivery(Delivery(command, Route(WORLD, source, "command"), size))
 
 
 def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:

