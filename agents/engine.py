@@ -1,8 +1,9 @@
 """The in-process engine: a whole team, or a batch of trials, stepped with no processes and no bus.
 
-It runs exactly the per-robot sequence of a robot process for every robot at once: measure and
-estimate (:mod:`agents.estimation`), observe and poll (:class:`agents.controller.MidpointController`)
-with neighbour replies read straight from the true step-start positions and beliefs, fuse, move
+It runs exactly the per-robot sequence of a robot process for every robot at once, through the
+scenario's strategy (:mod:`agents.strategy`): measure and estimate (:mod:`agents.estimation`),
+observe and poll (the strategy's controller) with neighbour replies read straight from the true
+step-start positions and beliefs, fuse, move
 (:meth:`world.geometry.ConvexRegion.move_along`). Arrays are indexed ``[step - 1, trial, robot]``.
 """
 
@@ -16,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.strategy import Received, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
@@ -353,8 +354,9 @@ def run(
     paths = np.stack([scenario.target_path(seed, steps) for seed in seeds])  # (T, K, 2)
     positions = np.stack([scenario.start_positions(seed) for seed in seeds])
     trials, robots = positions.shape[:2]
+    strategy = check_strategy(scenario)
     team = TeamEstimate(scenario, seeds, paths)
-    controller = MidpointController(region, params, positions)
+    controller = strategy.controller(region, params, positions)
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
     offsets = np.empty((steps, trials, robots))
@@ -390,7 +392,7 @@ def run(
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         polled = reasons != 0
         outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief)
-        controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
+        strategy.receive(controller, *replies(strategy, controller, neighbours, outcome))
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
@@ -432,6 +434,19 @@ def run(
     )
 
 
+def replies(strategy: Any, controller: Any, neighbours: tuple[FloatArray, FloatArray],
+            outcome: Exchange) -> tuple[Received, Received]:
+    """What came back to every robot from its predecessor and successor in a step: their step-start
+    ``neighbours`` positions (metres) where the reply came, and what the strategy's replies carry,
+    read from each neighbour's controller after it observed the step."""
+    content = strategy.reply_content(controller) if strategy.reply_fields else None
+    sides = []
+    for position, fresh, shift in ((neighbours[0], outcome.fresh_minus, 1), (neighbours[1], outcome.fresh_plus, -1)):
+        carried = None if content is None else np.roll(content, shift, axis=1)
+        sides.append(Received(position, fresh, np.zeros(fresh.shape, dtype=np.int64), carried))
+    return sides[0], sides[1]
+
+
 def summary(history: History, trial: int = 0) -> dict[str, object]:
     """The JSON-ready summary of one trial of a run: convergence, communication and final error."""
     scenario = history.scenario
@@ -441,7 +456,7 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
     com_bar = float(history.com_bar[trial])
     return {
         "scenario": scenario.name,
-        "strategy": scenario.control.strategy,
+        "strategy": strategy_for(scenario.control.strategy).name,
         "law": scenario.control.law,
         "robots": int(history.angles.shape[2]),
         "seed": history.seeds[trial],

@@ -26,8 +26,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator, prior_belief
+from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
     NONCE_BASE,
@@ -89,7 +89,8 @@ class RobotNode:
         self.predecessor = (robot - 1) % scenario.robots
         self.successor = (robot + 1) % scenario.robots
         self._nonce = nonce or (lambda: NONCE_BASE + secrets.randbits(31))  # always 5 bytes on the wire
-        self.controller: MidpointController | None = None
+        self.strategy = check_strategy(scenario)
+        self.controller: Controller | None = None
         self.estimator = (
             Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
         )
@@ -241,14 +242,8 @@ class RobotNode:
             return []
         assert self.controller is not None
         before, after = self.replies.get(self.predecessor), self.replies.get(self.successor)
-        self.controller.receive(
-            before.position if before else self.controller.predecessor_position,
-            after.position if after else self.controller.successor_position,
-            predecessor_fresh=before is not None,
-            successor_fresh=after is not None,
-            predecessor_age=self.step - before.step if before else 0,
-            successor_age=self.step - after.step if after else 0,
-        )
+        self.strategy.receive(self.controller, self._received(before, self.controller.predecessor_position),
+                              self._received(after, self.controller.successor_position))
         beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
                    if reply is not None and reply.mean is not None and reply.covariance is not None]
         if self.estimator is not None and beliefs:
@@ -260,12 +255,20 @@ class RobotNode:
         self._reform_ring()  # a ring change may have arrived during the poll
         return command
 
+    def _received(self, reply: Reply | None, remembered: FloatArray) -> Received:
+        """One side's reply as the strategy takes it (the remembered position where none came)."""
+        fresh = reply is not None
+        fields = self.strategy.reply_fields
+        content = None if not fields else np.array(getattr(reply, "carried", None) or (0.0,) * fields)
+        return Received(np.asarray(reply.position if reply else remembered, dtype=float), np.array(fresh),
+                        np.array(self.step - reply.step if reply else 0), content)
+
     # ------------------------------------------------------------------ helpers
     def _decide(self) -> Outgoing:
         """Observe the step and either command at once or poll both neighbours."""
         assert self.position is not None
         if self.controller is None:
-            self.controller = MidpointController(self.scenario.region, self.scenario.control, self.position)
+            self.controller = self.strategy.controller(self.scenario.region, self.scenario.control, self.position)
         if len(self.alive | {self.robot}) < 3:
             self.trigger = 0  # no ring to spread on: hold position until robots come back
             return [self._command(hold=True)]

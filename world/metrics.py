@@ -4,9 +4,10 @@
   constant-strategy Cerr);
 * ``Cerr_memory(k) = sum_i |gV_i(k) - theta_i(k)|`` from each robot's memory before it polls in step
   k (the paper's self-triggered Cerr);
-* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategy and ``Cerr_true``
-  for the constant one (:func:`strategy_cerr`); a step where a live robot's offset is unknown (a
-  realtime robot that sent no command in time) has no ``Cerr_memory`` (NaN), never a zero error;
+* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategy (and any other
+  that remembers) and ``Cerr_true`` for the constant one (:func:`strategy_cerr`); a step where a
+  live robot's offset is unknown (a realtime robot that sent no command in time) has no
+  ``Cerr_memory`` (NaN), never a zero error;
 * ``Ctime = min{k >= 1 : Cerr(k) < threshold}`` (1-based; 0 here when it never happens), the one
   rule :func:`converged` every convergence decision uses (engine, world process, run logs);
 * ``Terr(k)`` the mean over robots of the distance from the centre each robot steered about to the
@@ -49,9 +50,10 @@ def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None) -> FloatArray
 
 
 def strategy_cerr(strategy: str, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
-    """The paper's Cerr of a run (degrees): memory-based for the self-triggered strategy ("self"),
-    from the true positions for the constant one."""
-    return np.asarray(cerr_memory if strategy == "self" else cerr_true, dtype=float)
+    """The paper's Cerr of a run (degrees): from the true positions for the constant strategy, whose
+    memory is always one step old; memory-based for the self-triggered strategy and every other
+    (strategies that remember, :mod:`agents.strategy`)."""
+    return np.asarray(cerr_true if strategy == "constant" else cerr_memory, dtype=float)
 
 
 def converged(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.bool_]:

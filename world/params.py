@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-Strategy = Literal["self", "constant"]
 FreshLaw = Literal["prop", "deadbeat"]
 Mode = Literal["known", "centralized", "decentralized"]
 Criterion = Literal["trace", "det"]
@@ -18,14 +17,15 @@ Criterion = Literal["trace", "det"]
 class ControlParams:
     """Parameters of the midpoint laws.
 
-    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self" or "constant"; ``law`` is the
+    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` a registered strategy's name ("self",
+    "constant", ...) or the path of a Python file defining one (:mod:`agents.strategy`); ``law`` is the
     fresh-information law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``).
     """
 
     omega_max: float
     dt: float
     sigma: float = 0.0
-    strategy: Strategy = "self"
+    strategy: str = "self"
     law: FreshLaw = "prop"
 
     @property

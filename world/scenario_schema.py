@@ -12,7 +12,7 @@ A scenario file looks like::
     robots = 6
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
     [control]
-    strategy = "self"          # "self" | "constant"
+    strategy = "self"          # "self" | "constant" | "belief" | path/to/strategy.py
     law = "prop"               # fresh-information law: "prop" | "deadbeat"
     dt = 0.1                   # s
     omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
@@ -83,7 +83,7 @@ class TeamSpec(Spec, frozen=True):
 
 
 class ControlSpec(Spec, frozen=True):
-    strategy: Literal["self", "constant"] = "self"
+    strategy: Annotated[str, msgspec.Meta(min_length=1)] = "self"  # a registered name or a .py file
     law: Literal["prop", "deadbeat"] = "prop"
     dt: Positive = 0.1
     omega_max_deg: Positive | None = None
