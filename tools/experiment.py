@@ -14,10 +14,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from ringtrack.agents import engine
-from ringtrack.bus.messages import poll_bytes
+from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
 from ringtrack.tools import robustness
 from ringtrack.tools.console import UsageError, err, out, write_csv, write_json
-from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, strategy_argument
+from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
 
@@ -25,7 +26,8 @@ STRATEGIES = ("constant", "self")
 CSV_FILE = output_path((".csv",))
 STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
 MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "cerr_mean_deg",
-                  "terr_mean", "poll_rate", "robot_messages_per_step", "robot_bytes_per_step",
+                  "terr_mean", "poll_rate", "robot_messages_per_step", "robot_messages_per_robot_step",
+                  "robot_bytes_per_step",
                   "estimation_messages_per_step"]
 
 
@@ -44,6 +46,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
+    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
+                            help="strategies to compare: registered names or .py files (default constant,self)")
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
     stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
     stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
@@ -68,12 +72,33 @@ def register(commands: argparse._SubParsersAction) -> None:
                         help="means are taken from this step on (default 300)")
     moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
     moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
+    moving.add_argument("--strategies", type=strategy_list, metavar="A,B",
+                        help="strategies to compare, each with a centralized and a decentralized EKF (one that needs "
+                        "a mode: that one), e.g. self,belief (default: the paper's three runs)")
     moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
     moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
                         help="write one row per run (setting, strategy, estimation: means over the trials) as CSV")
     moving.set_defaults(handler=run_moving)
     robustness.register(kinds)
+
+
+def strategy_list(text: str) -> list[str]:
+    """Parse ``self,belief`` (registered names or .py files) into the strategies' scenario values."""
+    values = [strategy_argument(part.strip()) or "" for part in text.split(",") if part.strip()]
+    if not values:
+        raise argparse.ArgumentTypeError(f"--strategies {text!r}: give names like self,belief")
+    for value in values:
+        try:
+            strategy_for(value)
+        except StrategyError as error:
+            raise argparse.ArgumentTypeError(f"--strategies {text!r}: {error}") from None
+    return values
+
+
+def strategy_name(value: str) -> str:
+    """The name a strategy (a registered name or a file's path) is reported by."""
+    return strategy_for(value).name
 
 
 def robot_list(text: str) -> list[int]:
@@ -87,15 +112,22 @@ def robot_list(text: str) -> list[int]:
     return sizes
 
 
-def random_start_scenarios(base: str, robots: int, **overrides: object) -> dict[str, Scenario]:
-    """The base scenario with ``robots`` robots, random starts and default threshold, per strategy."""
+def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = STRATEGIES,
+                           **overrides: object) -> dict[str, Scenario]:
+    """The base scenario with ``robots`` robots, random starts and default threshold, per strategy
+    (keyed by the strategy's name)."""
     text, label = read_scenario_text(base)
     spec = parse_scenario(text, label)
     spec = msgspec.structs.replace(spec, team=msgspec.structs.replace(spec.team, angles_deg=None))
-    return {
-        strategy: resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
-        for strategy in STRATEGIES
-    }
+    scenarios = {}
+    for strategy in strategies:
+        scenario = resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
+        try:
+            check_strategy(scenario)
+        except StrategyError as error:
+            raise UsageError(f"--strategies: {error}") from None
+        scenarios[strategy_name(strategy)] = scenario
+    return scenarios
 
 
 def stationary_experiment(
@@ -104,9 +136,11 @@ def stationary_experiment(
     trials: int,
     seed: int,
     on_step: Callable[[int, str, int], None] | None = None,
+    strategies: Sequence[str] = STRATEGIES,
     **overrides: object,
 ) -> dict:
-    """Run both strategies for every team size on seeds ``seed .. seed + trials - 1``.
+    """Run the ``strategies`` (default constant and self) for every team size on seeds ``seed ..
+    seed + trials - 1``.
 
     Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
     and standard deviation of Ctime and Com-bar, and per team size ``ratios`` self / constant. A
@@ -123,7 +157,7 @@ def stationary_experiment(
     ratios: list[dict] = []
     started = time.perf_counter()
     for size in robots:
-        scenarios = random_start_scenarios(base, size, **overrides)
+        scenarios = random_start_scenarios(base, size, strategies, **overrides)
         means: dict[str, dict] = {}
         for strategy, scenario in scenarios.items():
             report = None if on_step is None else (lambda k, s=strategy, n=size: on_step(n, s, k))
@@ -158,8 +192,8 @@ def stationary_experiment(
                 "threshold_deg": float(np.rad2deg(scenario.threshold)),
             }
             summary.append(means[strategy])
-        constant, triggered = means["constant"], means["self"]
-        if constant["ctime_mean"] and triggered["ctime_mean"]:
+        constant, triggered = means.get("constant"), means.get("self")
+        if constant and triggered and constant["ctime_mean"] and triggered["ctime_mean"]:
             ratios.append(
                 {
                     "robots": size,
@@ -183,20 +217,22 @@ def stationary_experiment(
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps}
     # Validate the scenario and flags before showing any progress.
-    limit = random_start_scenarios(args.scenario, args.robots[0], **overrides)["self"].max_steps
+    probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
+    names, limit = list(probe), next(iter(probe.values())).max_steps
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err, transient=False) as progress:
         tasks = {
             (size, strategy): progress.add_task(f"N={size:<3} {strategy:<8}", total=limit)
             for size in args.robots
-            for strategy in STRATEGIES
+            for strategy in names
         }
 
         def on_step(size: int, strategy: str, step: int) -> None:
             if step % 50 == 0:
                 progress.update(tasks[size, strategy], completed=step)
 
-        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, **overrides)
+        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, args.strategies,
+                                       **overrides)
         for task in tasks.values():
             progress.update(task, completed=limit)
     out.print(results_table(result))
@@ -281,17 +317,20 @@ def moving_experiment(
     on_step: Callable[[str, int], None] | None = None,
     velocities: bool = True,
     fusion: str | None = None,
+    strategies: Sequence[str] | None = None,
 ) -> dict:
     """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
     settings; returns the JSON-ready result with, per run, means from step ``settle`` on and the
-    trial-mean Cerr (true, degrees) and Terr (metres) series."""
+    trial-mean Cerr (true, degrees) and Terr (metres) series. ``strategies`` replaces the paper's
+    runs by each strategy with a centralized and a decentralized EKF (:func:`moving_variants`)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     main = circle_of(base)
-    plan = [("comparison", main, strategy) for strategy in MAIN_STRATEGIES]
+    compared = MAIN_STRATEGIES if strategies is None else moving_variants(strategies)
+    plan = [("comparison", main, strategy) for strategy in compared]
     if velocities:
         plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS
-                 for strategy in VELOCITY_STRATEGIES]
+                 for strategy in (VELOCITY_STRATEGIES if strategies is None else compared)]
     seeds = list(range(seed, seed + trials))
     histories: dict[tuple, engine.History] = {}
     runs: list[dict] = []
@@ -308,20 +347,23 @@ def moving_experiment(
         history = histories[key]
         polls = float((history.triggers != 0).mean())
         robots = scenario.robots
+        assert history.sent_bytes is not None
+        per_step = history.sent.sum(axis=-1)  # robot-to-robot messages of each step and trial
         runs.append(
             {
                 "group": group,
                 "speed": speed,
                 "angular_speed": angular_speed,
                 "radius": speed / angular_speed,
-                "strategy": strategy,
+                "strategy": strategy_name(strategy),
                 "estimation": mode,
                 "fusion": scenario.estimation.fusion if mode == "decentralized" else None,
-                "cerr_mean_deg": float(history.cerr_true[settle:].mean()),
-                "terr_mean": float(history.terr[settle:].mean()),
+                "cerr_mean_deg": settled_mean(history.cerr_true, settle),
+                "terr_mean": settled_mean(history.terr, settle),
                 "poll_rate": polls,
-                "robot_messages_per_step": 4 * polls * robots,
-                "robot_bytes_per_step": polls * robots * poll_bytes(mode == "decentralized"),
+                "robot_messages_per_step": float(per_step.mean()),
+                "robot_messages_per_robot_step": (settled_mean(per_step, settle) or 0.0) / robots,
+                "robot_bytes_per_step": float(history.sent_bytes.sum(axis=-1).mean()),
                 "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
                 "cerr_series_deg": history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
                 "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
@@ -346,7 +388,9 @@ def run_moving(args: argparse.Namespace) -> int:
     main = circle_of(args.scenario)
     steps = moving_scenario(args.scenario, "self", "decentralized", *main, args.steps).max_steps
     settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
-    distinct = len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES)
+    variants = moving_variants(args.strategies) if args.strategies else None
+    distinct = (len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES) if variants is None
+                else len(variants) * (1 + len(settings)))
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=err) as progress:
         task = progress.add_task("moving-target runs", total=distinct * steps)
@@ -358,7 +402,7 @@ def run_moving(args: argparse.Namespace) -> int:
                 progress.update(task, completed=sum(done.values()), description=label)
 
         result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step,
-                                   velocities=not args.no_velocities, fusion=args.fusion)
+                                   velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies)
     out.print(moving_table(result))
     if args.json:
         write_json(args.json, result)
@@ -373,18 +417,27 @@ def run_moving(args: argparse.Namespace) -> int:
     return 0
 
 
-RUN_LABELS = {
-    ("constant", "centralized"): "constant, central",
-    ("self", "centralized"): "self, central",
-    ("self", "decentralized"): "self, decentral",
-}
+def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:
+    """``(strategy, estimation mode)`` runs of a moving-target comparison: each strategy with a
+    centralized and a decentralized EKF, or only with the mode it needs."""
+    variants = []
+    for strategy in strategies:
+        needed = strategy_for(strategy).estimation
+        variants += [(strategy, mode) for mode in ("centralized", "decentralized") if needed in (None, mode)]
+    return variants
+
+
+def run_label(strategy: str, mode: str) -> str:
+    """``self, central``: a run's strategy and estimation, as the table names it."""
+    return f"{strategy}, {mode.removesuffix('ized')}"
 
 
 def moving_table(result: dict) -> Table:
     """Means from step ``settle`` on, per run (the velocity setting equal to the main one is shown once)."""
     table = Table(title=f"moving target, {result['trials']} trials, means from step {result['settle']} of "
-                  f"{result['steps']}; msg and B: robot-to-robot traffic", title_justify="left", box=box.SIMPLE_HEAD)
-    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "B/step"):
+                  f"{result['steps']}; msg and B: robot-to-robot traffic (per step: over all steps)",
+                  title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "msg/rs", "B/step"):
         table.add_column(column, justify="right", no_wrap=True)
     main = {(run["speed"], run["angular_speed"]) for run in result["runs"] if run["group"] == "comparison"}
     for run in result["runs"]:
@@ -392,11 +445,12 @@ def moving_table(result: dict) -> Table:
             continue
         table.add_row(
             f"{run['speed']:g}, {run['angular_speed']:g}",
-            RUN_LABELS[run["strategy"], run["estimation"]],
+            run_label(run["strategy"], run["estimation"]),
             f"{run['cerr_mean_deg']:.1f}",
             f"{run['terr_mean']:.3f}",
             f"{run['poll_rate']:.3f}",
             f"{run['robot_messages_per_step']:.2f}",
+            f"{run['robot_messages_per_robot_step']:.3f}",
             f"{run['robot_bytes_per_step']:.0f}",
         )
     return table

@@ -79,6 +79,17 @@ def target_error(centres: ArrayLike, target: ArrayLike) -> FloatArray:
     return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
 
 
+def settled_mean(series: ArrayLike, settle: int) -> float | None:
+    """The mean of a per-step ``series`` (steps on axis 0; any other axes too) once the first
+    ``settle`` steps are left out (steps ``settle + 1 ..``, 1-based), unknown (NaN) values left out
+    too: the settled Cerr (degrees), Terr (metres) or messages per step of a moving-target run, as
+    ``experiment moving --settle`` and ``simulate``/``spawn --from-step`` report them. None when no
+    such step is known."""
+    values = np.asarray(series, dtype=float)[max(settle, 0):]
+    known = values[~np.isnan(values)]
+    return float(known.mean()) if known.size else None
+
+
 def communications(triggers: ArrayLike, until: ArrayLike) -> NDArray[np.int64]:
     """``com(i, until)``: steps ``<= until`` (1-based) in which each robot polled.
 
