@@ -28,6 +28,7 @@ from ringtrack.world.metrics import (
     convergence_step,
     mean_communication_rate,
     memory_cerr,
+    settled_mean,
     strategy_cerr,
     target_error,
     true_cerr,
@@ -447,8 +448,15 @@ def replies(strategy: Any, controller: Any, neighbours: tuple[FloatArray, FloatA
     return sides[0], sides[1]
 
 
-def summary(history: History, trial: int = 0) -> dict[str, object]:
-    """The JSON-ready summary of one trial of a run: convergence, communication and final error."""
+SETTLE_STEPS = 300  # moving targets: Cerr and Terr means leave out the first steps (as experiment moving)
+
+
+def summary(history: History, trial: int = 0, settle: int = SETTLE_STEPS) -> dict[str, object]:
+    """The JSON-ready summary of one trial of a run: convergence, communication and final error.
+    ``robot_messages`` counts every robot-to-robot message put on the bus (requests, replies,
+    pushes); for a moving target ``cerr_mean_deg`` (true Cerr, degrees) and ``terr_mean`` (metres)
+    are means once the first ``settle`` steps are left out (:func:`world.metrics.settled_mean`),
+    for a stationary one ``terr_mean`` is over every step."""
     scenario = history.scenario
     ctime = int(history.ctime[trial])
     ctime_true = int(history.ctime_true[trial])
@@ -470,8 +478,12 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "cerr_final_deg": _known(history.cerr[-1, trial]),
         "cerr_true_final_deg": float(history.cerr_true[-1, trial]),
         "estimation": scenario.estimation.mode,
-        "terr_mean": float(history.terr[:, trial].mean()),
+        "terr_mean": settled_mean(history.terr[:, trial], settle) if scenario.moving
+        else float(history.terr[:, trial].mean()),
         "terr_final": float(history.terr[-1, trial]),
+        "robot_messages": int(history.sent[:, trial].sum()),
+        **({"from_step": settle, "cerr_mean_deg": settled_mean(history.cerr_true[:, trial], settle)}
+           if scenario.moving else {}),
         "faults": fault_totals(history, trial),
         **_radio_summary(history, trial),
     }

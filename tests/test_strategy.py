@@ -13,6 +13,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.agents.laws import Trigger
+from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK, assert_equals_engine, lockstep_run, scenario
 
 pytestmark = [pytest.mark.processes, pytest.mark.timeout(240)]
@@ -86,3 +87,14 @@ def test_a_scenario_file_names_its_strategy(tmp_path: Path) -> None:
     assert needs.returncode == 2
     assert needs.stderr == ("ringtrack: error: --strategy belief: the belief strategy needs estimation.mode = "
                             "'decentralized' (it is 'centralized'); give --estimation decentralized\n")
+
+
+def test_summary_figures_of_a_moving_target_are_settled_means() -> None:
+    moving = engine.run(load_scenario("authors-moving", max_steps=400))
+    result = engine.summary(moving, settle=300)
+    assert result["from_step"] == 300
+    assert result["cerr_mean_deg"] == pytest.approx(float(moving.cerr_true[300:, 0].mean()), rel=1e-12)
+    assert result["terr_mean"] == pytest.approx(float(moving.terr[300:, 0].mean()), rel=1e-12)
+    assert result["robot_messages"] == int(moving.sent.sum()) == 4 * int((moving.triggers != 0).sum())
+    still = engine.summary(engine.run(scenario(max_steps=100)))
+    assert "cerr_mean_deg" not in still and still["robot_messages"] == int(engine.run(scenario(max_steps=100)).sent.sum())

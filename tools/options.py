@@ -44,6 +44,13 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
     parser.add_argument("--communication-range", type=float, metavar="M", help="r_c in metres")
 
 
+def add_from_step_argument(parser: argparse.ArgumentParser) -> None:
+    """``--from-step S``: a moving target's Cerr and Terr means leave out the first S steps."""
+    parser.add_argument("--from-step", type=at_least(0), default=300, metavar="S",
+                        help="moving target: the summary's Cerr and Terr means leave out the first S steps "
+                        "(default 300, as experiment moving --settle)")
+
+
 def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
     """Load ``args.scenario`` with the flags applied (``--steps`` sets ``max_steps``); a bad flag
     value is reported by its flag, e.g. ``--drop 1.5 (faults.drop): expected a probability ...``."""
