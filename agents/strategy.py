@@ -5,9 +5,10 @@ robot of every trial at once: arrays of leading shape ``(T, N)``) and the robot 
 (:mod:`agents.node`, one robot: leading shape ``()``) call the same methods in the same order, so a
 strategy written once runs in both and a lockstep team equals the engine. Each step ``k`` a robot:
 
-1. measures: its estimator folds in its range (the estimation mode's job, not the strategy's);
-2. hears (strategies that :attr:`~Strategy.listens`): fuses, by covariance intersection, the beliefs
-   its ring neighbours told it in step ``k - 1``, by a push or in a request (:meth:`Strategy.hear`);
+1. measures: its estimator folds in its range (the estimation mode's job);
+2. hears (strategies that :attr:`~Strategy.listens`): its estimation step fuses, by covariance
+   intersection, the beliefs its ring neighbours told it in step ``k - 1``, by a push or in a
+   request, between the prediction and its own update (:meth:`Strategy.hear`);
 3. observes: ``reasons = controller.observe(k, position, centre, reach)``; for ``k > 1`` the
    strategy's :meth:`~Strategy.triggers` decides whether the robot polls (step 1 always polls, and
    every strategy polls while it knows nothing of a reachable neighbour);
@@ -147,10 +148,13 @@ class Strategy:
         m^2, ``S + (2, 2)``); only for strategies with :attr:`pushes`."""
         return np.zeros(np.shape(mean)[:-1], dtype=bool)
 
-    def hear(self, estimator: Estimator, beliefs: list[tuple[FloatArray, FloatArray]]) -> None:
-        """Fold the beliefs ``(mean, covariance)`` one robot's neighbours told it in the previous
-        step (predecessor first) into its estimator; by default by covariance intersection."""
-        estimator.fuse(beliefs)
+    def hear(self, estimator: Estimator, positions: ArrayLike, ranges: ArrayLike,
+             beliefs: list[tuple[FloatArray, FloatArray]]) -> None:
+        """One robot's estimation step (its ``ranges`` measured from ``positions``) given the beliefs
+        ``(mean, covariance)`` its neighbours told it in the previous step (predecessor first; maybe
+        none): by default they are fused by covariance intersection after the prediction, before
+        the update (:meth:`agents.estimation.Estimator.measure`). Only for :attr:`listens`."""
+        estimator.measure(positions, ranges, beliefs)
 
 
 class StrategyError(ValueError):
@@ -180,6 +184,7 @@ class SelfTriggered(Strategy):
 REGISTRY: dict[str, str] = {
     "constant": "ringtrack.agents.strategy:Constant",
     "self": "ringtrack.agents.strategy:SelfTriggered",
+    "belief": "ringtrack.agents.belief:SharedBelief",
 }
 
 

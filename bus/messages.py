@@ -109,6 +109,52 @@ class Reply(Message, tag=4, frozen=True):
     category: ClassVar[str] = "robot"
 
 
+class PushMeasurement(Measurement, tag=15, frozen=True):
+    """A :class:`Measurement` that also names the ring neighbours that pushed their belief to this
+    robot in the previous step (``pushed_by``, from their :class:`PushCommand`): in lockstep the
+    robot waits for those pushes (bounded) before it fuses what it was told, so the result does not
+    depend on whether a push or the world's message came first."""
+
+    pushed_by: list[int] = []
+
+
+class PushCommand(Command, tag=14, frozen=True):
+    """A :class:`Command` of a strategy that pushes: also names the neighbours the robot pushed its
+    belief to in this step (``pushed``)."""
+
+    pushed: list[int] = []
+
+
+class BeliefRequest(Request, tag=12, frozen=True):
+    """A :class:`Request` that carries the requester's belief, the target estimate ``mean``
+    (metres) and ``covariance`` (m^2) as it was when it decided to poll; the polled neighbour fuses
+    it in its next step."""
+
+    mean: Point
+    covariance: Covariance
+
+
+class CarryingReply(Reply, tag=13, frozen=True):
+    """A :class:`Reply` that also carries what the strategy puts in its replies (``carried``:
+    :meth:`agents.strategy.Strategy.reply_content`)."""
+
+    carried: Annotated[tuple[Real, ...], msgspec.Meta(max_length=32)] = ()
+
+
+class Push(Message, tag=11, frozen=True):
+    """Ring neighbour -> robot, unasked: the sender's belief (``mean`` metres, ``covariance`` m^2)
+    at ``step`` (after its own update and what it was told, before its poll), sent when it moved
+    enough since the belief it last told (:meth:`agents.strategy.Strategy.wants_push`)."""
+
+    step: Step
+    sender: int
+    receiver: int
+    mean: Point
+    covariance: Covariance
+    kind: ClassVar[str] = "push"
+    category: ClassVar[str] = "robot"
+
+
 class Tick(Message, tag=5, frozen=True):
     """World -> monitor: the true state at the start of ``step`` (never sent to robots)."""
 
@@ -194,9 +240,11 @@ class Estimate(Message, tag=9, frozen=True):
 
 KINDS: dict[str, type[Message]] = {
     cls.kind: cls
-    for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate, FaultNotice)
+    for cls in (Measurement, Command, Request, Reply, Push, Tick, End, Stats, RangeReport, Estimate, FaultNotice)
 }
-AnyMessage = Measurement | Command | Request | Reply | Tick | End | Stats | RangeReport | Estimate | FaultNotice
+AnyMessage = (Measurement | PushMeasurement | Command | PushCommand | Request | BeliefRequest | Reply | CarryingReply
+              | Push | Tick | End | Stats | RangeReport | Estimate | FaultNotice)
+RobotMessage = Request | Reply | Push  # robot-to-robot: through the fault layer
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(AnyMessage)
@@ -272,13 +320,13 @@ def peek(payload: bytes) -> AnyMessage:
 
 def robot_ids(message: Message) -> list[int]:
     """Every robot index a message names (all must belong to the team)."""
-    if isinstance(message, (Request, Reply, FaultNotice)):
+    if isinstance(message, (Request, Reply, Push, FaultNotice)):
         return [message.sender, message.receiver]
     if isinstance(message, Measurement):
         return [message.robot, *(message.in_range or ()), *(message.live or ()),
-                *(robot for robot, _ in message.distances)]
+                *(robot for robot, _ in message.distances), *getattr(message, "pushed_by", ())]
     if isinstance(message, Command):
-        return [message.robot]
+        return [message.robot, *getattr(message, "pushed", ())]
     if isinstance(message, RangeReport):
         return [message.robot, *(message.live or ())]
     if isinstance(message, Tick):
@@ -288,7 +336,7 @@ def robot_ids(message: Message) -> list[int]:
 
 def endpoints(message: Message) -> tuple[str, str | None]:
     """``(source, destination)`` participant names a message claims (destination None: any)."""
-    if isinstance(message, (Request, Reply)):
+    if isinstance(message, (Request, Reply, Push)):
         return robot_name(message.sender), robot_name(message.receiver)
     if isinstance(message, Measurement):
         return WORLD, robot_name(message.robot)
@@ -300,7 +348,7 @@ def endpoints(message: Message) -> tuple[str, str | None]:
         return robot_name(message.robot), FUSION
     if isinstance(message, Estimate):
         return FUSION, None
-    if isinstance(message, FaultNotice):  # faults of a poll are decided by the polling robot
+    if isinstance(message, FaultNotice):  # a request's fate is decided by its sender, a reply's or push's on arrival
         return robot_name(message.sender if message.subject == "request" else message.receiver), MONITOR
     return WORLD, None
 
@@ -315,22 +363,31 @@ def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
 
 
 @cache
-def _robot_message_base(kind: str, belief: bool) -> int:
+def _robot_message_base(kind: str, belief: bool, carried: int = 0) -> int:
     """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0."""
+    mean, covariance = (0.0, 0.0), (0.0, 0.0, 0.0)
+    if kind == "push":
+        return len(encode(Push(SCHEMA, NONCE_BASE, 1, 0, 0, mean, covariance)))
     if kind == "request":
+        if belief:
+            return len(encode(BeliefRequest(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, mean, covariance)))
         return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
-    extra = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
+    extra = (mean, covariance) if belief else (None, None)
+    if carried:
+        return len(encode(CarryingReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean=extra[0],
+                                        covariance=extra[1], carried=(0.0,) * carried)))
     return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra)))
 
 
 def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
-                        belief: bool = False) -> NDArray[np.int64]:
-    """The exact encoded size of requests or replies (``kind``; a reply with a ``belief`` carries a
-    mean and covariance) of ``step`` from ``sender`` to ``receiver``, broadcast over arrays: the
-    size of the step-1, robot-0 message plus the extra bytes the larger integers take (floats are
-    always 9 bytes, nonces and run ids 5)."""
+                        belief: bool = False, carried: int = 0) -> NDArray[np.int64]:
+    """The exact encoded size of requests, replies or pushes (``kind``; a reply with a ``belief``
+    carries a mean and covariance, a request with one is a :class:`BeliefRequest`, a reply with
+    ``carried`` floats a :class:`CarryingReply`) of ``step`` from ``sender`` to ``receiver``,
+    broadcast over arrays: the size of the step-1, robot-0 message plus the extra bytes the larger
+    integers take (floats are always 9 bytes, nonces and run ids 5)."""
     extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
-    return _robot_message_base(kind, belief) + extra
+    return _robot_message_base(kind, belief, carried) + extra
 
 
 def poll_bytes(with_belief: bool) -> int:

@@ -44,7 +44,8 @@ class EstimationParams:
     (centralized; see :class:`Estimator`) or a point; ``prior_variance`` (m^2) sets P0 of "truth"
     and of a point; decentralized robots fuse their neighbours' beliefs with joint CI ("ci") or
     pairwise ("sequential"), minimising "trace" or "det"; every estimate is kept ``margin`` metres
-    inside the region (the filters' own means, not only what a robot steers by).
+    inside the region (the filters' own means, not only what a robot steers by). ``push_gate`` is
+    the gate ``g`` of the belief strategy's pushes (a Mahalanobis distance, dimensionless).
     """
 
     mode: Mode = "known"
@@ -55,3 +56,4 @@ class EstimationParams:
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Criterion = "trace"
     margin: float = 0.1
+    push_gate: float = 2.0

@@ -30,6 +30,8 @@ A scenario file looks like::
     prior_variance = 1.0       # m^2, P0 = p I
     fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
     criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
+    margin = 0.1               # m: every estimate is kept this far inside the region (below D_in / 2)
+    push_gate = 2.0            # strategy "belief": push the belief once it moved g sigmas from the last told
     [limits]
     communication_range = 5.0  # m, r_c: links longer than this are down (default: unlimited)
     [faults]                   # robot-to-robot links; seeded by seed (default: the scenario's)
@@ -107,6 +109,7 @@ class EstimationSpec(Spec, frozen=True):
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Literal["trace", "det"] = "trace"
     margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
+    push_gate: Positive = 2.0  # the belief strategy pushes once (x - x_last)^T P_last^-1 (x - x_last) > g^2
 
 
 class LimitsSpec(Spec, frozen=True):
