@@ -15,7 +15,7 @@ from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
-from ringtrack.tools import robustness
+from ringtrack.tools import gates, robustness
 from ringtrack.tools.console import UsageError, err, out, write_csv, write_json
 from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, strategy_argument
 from ringtrack.world.metrics import settled_mean
@@ -81,6 +81,7 @@ def register(commands: argparse._SubParsersAction) -> None:
                         help="write one row per run (setting, strategy, estimation: means over the trials) as CSV")
     moving.set_defaults(handler=run_moving)
     robustness.register(kinds)
+    gates.register(kinds)
 
 
 def strategy_list(text: str) -> list[str]:
