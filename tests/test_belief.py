@@ -62,9 +62,10 @@ def test_lockstep_belief_team_equals_the_engine(tmp_path: Path) -> None:
     assert np.array_equal(logged.triggers, twin.triggers)
     assert np.array_equal(logged.sent, twin.sent) and np.array_equal(logged.received, twin.received)
     assert twin.pushes is not None and result["by_kind"]["push"]["messages"] == int(twin.pushes.sum()) > 0
-    summary = engine.summary(twin)
+    assert result["robot_messages"] == int(twin.sent.sum())
+    spawned, simulated = engine.summary(logged, settle=100), engine.summary(twin, settle=100)  # as spawn's summary
     for key in ("robot_messages", "cerr_mean_deg", "terr_mean", "from_step"):
-        assert result[key] == pytest.approx(summary[key], rel=1e-9, abs=1e-12)
+        assert spawned[key] == pytest.approx(simulated[key], rel=1e-9, abs=1e-12)
 
 
 def run(command: str, folder: Path, flags: list[str]) -> tuple[dict, object]:
