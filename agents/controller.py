@@ -17,10 +17,13 @@ moving estimate. Ages are integer step counts.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import Trigger, angular_step, trigger_reasons
+from ringtrack.agents.laws import Trigger, angular_step
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
@@ -28,7 +31,8 @@ from ringtrack.world.ring import local_frame, midpoint
 
 
 class MidpointController:
-    """Memory and decisions of the constant or self-triggered midpoint strategy.
+    """Memory and decisions of the midpoint strategies; ``rule(controller)`` is the trigger rule of
+    steps after the first (default: that of the strategy ``params.strategy`` names).
 
     ``predecessor_position``/``successor_position`` (shape ``S + (2,)``) are the remembered
     neighbour positions, ``predecessor_age``/``successor_age`` (shape ``S``, int) their ages in steps,
@@ -42,9 +46,15 @@ class MidpointController:
     ``centre``) is set by :meth:`observe` and kept up to date by :meth:`receive` and :meth:`recentre`.
     """
 
-    def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> None:
+    def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike,
+                 rule: Callable[[Any], NDArray[np.int64]] | None = None) -> None:
         self.region = region
         self.params = params
+        if rule is None:  # the trigger rule of the strategy the parameters name
+            from ringtrack.agents.strategy import strategy_for
+
+            rule = strategy_for(params.strategy).triggers
+        self.rule = rule
         self.own_position: FloatArray = np.array(own_position, dtype=float)
         self.predecessor_position: FloatArray = self.own_position.copy()
         self.successor_position: FloatArray = self.own_position.copy()
@@ -68,8 +78,9 @@ class MidpointController:
         """Start step ``step`` (1-based) at ``own_position`` seen from ``centre``: age the memory and
         return the :class:`Trigger` mask.
 
-        Step 1 always polls (``START``); the constant strategy polls every step (``SCHEDULE``); the
-        self-triggered strategy polls where T1, T2 or T3 holds; any strategy polls while nothing is
+        Step 1 always polls (``START``); later steps poll where the strategy's ``rule`` says so
+        (:meth:`agents.strategy.Strategy.triggers`: the constant strategy every step, ``SCHEDULE``;
+        the self-triggered one where T1, T2 or T3 holds); any strategy polls while nothing is
         known of a neighbour that is within ``reach`` (predecessor, successor) (``UNKNOWN``).
         """
         reasons = self._reasons(step, own_position, centre)
@@ -86,11 +97,7 @@ class MidpointController:
         self._take_offset()
         if step == 1:
             return np.full(self.theta.shape, int(Trigger.START))
-        if self.params.strategy == "constant":
-            return np.full(self.theta.shape, int(Trigger.SCHEDULE))
-        return trigger_reasons(
-            self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, self.params
-        )
+        return self.rule(self)
 
     def _take_offset(self) -> None:
         self.guaranteed_offset = midpoint(self.m_minus, self.theta, self.m_plus) - self.theta

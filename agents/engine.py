@@ -1,8 +1,9 @@
 """The in-process engine: a whole team, or a batch of trials, stepped with no processes and no bus.
 
-It runs exactly the per-robot sequence of a robot process for every robot at once: measure and
-estimate (:mod:`agents.estimation`), observe and poll (:class:`agents.controller.MidpointController`)
-with neighbour replies read straight from the true step-start positions and beliefs, fuse, move
+It runs exactly the per-robot sequence of a robot process for every robot at once, through the
+scenario's strategy (:mod:`agents.strategy`): measure and estimate (:mod:`agents.estimation`),
+observe and poll (the strategy's controller) with neighbour replies read straight from the true
+step-start positions and beliefs, fuse, move
 (:meth:`world.geometry.ConvexRegion.move_along`). Arrays are indexed ``[step - 1, trial, robot]``.
 """
 
@@ -17,7 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.estimation import Estimator
-from ringtrack.agents.plan import PlanController, neighbour_plans, new_controller
+from ringtrack.agents.plan import PlanController, neighbour_plans
+from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
@@ -27,6 +29,7 @@ from ringtrack.world.metrics import (
     convergence_step,
     mean_communication_rate,
     memory_cerr,
+    settled_mean,
     strategy_cerr,
     target_error,
     true_cerr,
@@ -50,8 +53,9 @@ class History:
     :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
     over robots of the distance from the estimate each steered by to the target); ``estimates`` those
     estimates (or ``None`` when not recorded); the request copies each robot published to its
-    predecessor and successor (``requests``, None when read from a log), the robot-to-robot traffic
-    that follows from them per robot (``sent``, ``received``: :func:`ring_traffic`), the fault
+    predecessor and successor (``requests``, None when read from a log) and the beliefs it pushed them
+    (``pushes``), the robot-to-robot traffic that follows per robot (``sent``, ``received``:
+    :func:`ring_traffic` and the pushes), the fault
     layer's counts (``faults``), ``probes`` of unreachable neighbours, the bytes of the
     robot-to-robot messages each robot published and the radio energy of each robot's traffic
     (see :func:`exchange`).
@@ -76,6 +80,7 @@ class History:
     probes: NDArray[np.int64]  # (K, T) requests to unreachable neighbours
     sent_bytes: NDArray[np.int64] | None = None  # (K, T, N) bytes of the robot-to-robot messages each published
     energy: FloatArray | None = None  # (K, T, N, 2) radio energy, J: transmit, receive (None: not known)
+    pushes: NDArray[np.int64] | None = None  # (K, T, N, 2) beliefs pushed to predecessor, successor (None: a log)
 
     @property
     def steps(self) -> int:
@@ -138,8 +143,13 @@ class TeamEstimate:
             for trial in range(len(seeds))
         ]
 
-    def measure(self, positions: FloatArray, targets: FloatArray) -> FloatArray:
-        """Measure ranges and update every filter; returns the centres to steer about (T, N, 2)."""
+    def measure(self, positions: FloatArray, targets: FloatArray, strategy: Strategy | None = None,
+                told: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
+                told_beliefs: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
+        """Measure ranges and update every filter; returns the centres to steer about (T, N, 2).
+        With a listening ``strategy``, decentralized robots also hear (:meth:`Strategy.hear`) the
+        beliefs ``told_beliefs`` (every robot's, as it told them) that their predecessor and successor
+        told them (``told``, per side) in the previous step, predecessor first."""
         if self.mode == "known":
             return np.repeat(targets[:, None, :], self.robots, axis=1)
         centres = np.empty_like(positions)
@@ -150,9 +160,22 @@ class TeamEstimate:
                 centres[trial] = estimators[0].centre
             else:
                 for robot, estimator in enumerate(estimators):
-                    estimator.measure(positions[trial, robot : robot + 1], ranges[robot : robot + 1])
+                    here = positions[trial, robot : robot + 1], ranges[robot : robot + 1]
+                    if strategy is not None and told is not None and told_beliefs is not None:
+                        means, covariances = told_beliefs
+                        neighbours = [(robot + offset) % self.robots for side, offset in ((0, -1), (1, 1))
+                                      if told[side][trial, robot]]
+                        strategy.hear(estimator, *here, [(means[trial, n], covariances[trial, n]) for n in neighbours])
+                    else:
+                        estimator.measure(*here)
                     centres[trial, robot] = estimator.centre
         return centres
+
+    def beliefs(self) -> tuple[FloatArray, FloatArray]:
+        """Every decentralized robot's belief now: means (T, N, 2) metres, covariances (T, N, 2, 2) m^2."""
+        beliefs = [[estimator.belief for estimator in estimators] for estimators in self.estimators]
+        return (np.array([[mean for mean, _ in row] for row in beliefs]),
+                np.array([[covariance for _, covariance in row] for row in beliefs]))
 
     def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> None:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
@@ -207,12 +230,15 @@ def link_traffic(history: History, trial: int = 0) -> list[tuple[str, str, str, 
     assert history.requests is not None, "per-link traffic is known of engine runs only"
     robots = history.requests.shape[2]
     copies = history.requests[:, trial].sum(axis=0)
+    pushed = np.zeros_like(copies) if history.pushes is None else history.pushes[:, trial].sum(axis=0)
     rows: list[tuple[str, str, str, int, None]] = []
     for robot in range(robots):
         for side, neighbour in ((0, (robot - 1) % robots), (1, (robot + 1) % robots)):
             if copies[robot, side]:
                 rows.append(("request", f"r{robot}", f"r{neighbour}", int(copies[robot, side]), None))
                 rows.append(("reply", f"r{neighbour}", f"r{robot}", int(copies[robot, side]), None))
+            if pushed[robot, side]:
+                rows.append(("push", f"r{robot}", f"r{neighbour}", int(pushed[robot, side]), None))
     return rows
 
 
@@ -231,6 +257,8 @@ class Exchange:
     probes: NDArray[np.int64]
     sent_bytes: NDArray[np.int64]
     energy: FloatArray
+    pushes: NDArray[np.int64]  # (T, N, 2) beliefs each robot pushed to its predecessor, successor
+    push_delivered: NDArray[np.bool_]  # (T, N, 2) ... that reached them
 
 
 PlanGroups = list[tuple[FaultPlan, NDArray[np.int64]]]  # distinct fault plans and the trials of each
@@ -239,7 +267,8 @@ PlanGroups = list[tuple[FaultPlan, NDArray[np.int64]]]  # distinct fault plans a
 def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_], reach_minus: NDArray[np.bool_],
              reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
-             belief: bool = False, plan_until: NDArray[np.int64] | None = None) -> Exchange:
+             belief: bool = False, pushed: NDArray[np.bool_] | None = None,
+             request_belief: bool = False, plan_until: NDArray[np.int64] | None = None) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
     :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
     robot of every trial at once: a polling robot requests both neighbours; a robot also probes
@@ -247,9 +276,11 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     unreachable neighbour is dropped, every published copy of a request is answered
     (:func:`bus.faults.published_copies`), and each reply meets its own fate on arrival. Links are
     ``distance_minus``/``distance_plus`` metres long (to the predecessor, successor; default 0),
-    trial t draws its fates with plan seed ``seeds[t]`` (default the plan's) and replies carry a
-    belief when ``belief`` and a plan when ``plan_until`` gives the horizon step of the reply each
-    robot's (predecessor, successor) would send it (last axis). ``plan`` may also give groups of
+    trial t draws its fates with plan seed ``seeds[t]`` (default the plan's), replies carry a
+    belief when ``belief`` and requests when ``request_belief``; replies carry a plan when
+    ``plan_until`` gives the horizon step of the reply each robot's (predecessor, successor) would
+    send it (last axis). ``pushed`` (per side) are the beliefs robots push unasked: each is
+    published once and meets its fate on arrival, like a reply. ``plan`` may also give groups of
     trials their own plans (one radio for all). Energy, from the same fates: every copy put on the
     bus costs its sender transmission (a request dropped before publishing was still sent once),
     every copy delivered costs its receiver reception (:mod:`bus.radio`), with the exact encoded
@@ -268,14 +299,18 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     requests = np.where(requested, published_copies(lost, request.copies), 0)  # each answered by one reply
     of_requests = fate_counts(lost, request.copies, request.delay_s, requested)
     of_replies = reply.counts(requests)
-    counts = {name: of_requests[name] + of_replies[name] for name in (*FAULTS, "delivered")}
-    counts["sent"] = requested.astype(np.int64) + requests
-    counts["published"] = ring_traffic(requests)
+    pushes = np.zeros(reach.shape, np.int64) if pushed is None else pushed.astype(np.int64)
+    push = (_group_fates(groups, "push", robot, neighbour, step, distance, seed, reach.shape) if pushes.any()
+            else Fates(np.zeros(reach.shape, np.int8), np.ones(reach.shape, np.int64), np.zeros(reach.shape)))
+    of_pushes = push.counts(pushes)
+    counts = {name: of_requests[name] + of_replies[name] + of_pushes[name] for name in (*FAULTS, "delivered")}
+    counts["sent"] = requested.astype(np.int64) + requests + pushes
+    counts["published"] = ring_traffic(requests) + pushes.sum(axis=-1)
     faults = np.stack([counts[name].reshape(trials, -1).sum(axis=1) for name in FAULT_COLUMNS], axis=-1)
     fresh = (requests > 0) & ~reply.dropped
     radio = groups[0][0].radio
-    request_bytes = robot_message_bytes("request", step, robot, neighbour)
-    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, plan_until)
+    request_bytes = robot_message_bytes("request", step, robot, neighbour, request_belief)
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, plan_until=plan_until)
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
     on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
@@ -283,9 +318,17 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
                     of_replies["delivered"] * receive_energy(radio, reply_bits)])
     other = np.stack([requests * reply_bytes, requests * transmit_energy(radio, reply_bits, distance),
                       requests * receive_energy(radio, request_bits)])
+    if pushes.any():
+        push_bytes = robot_message_bytes("push", step, robot, neighbour)
+        push_bits = message_bits(radio, push_bytes)
+        own = own + np.stack([pushes * push_bytes, pushes * transmit_energy(radio, push_bits, distance),
+                              np.zeros(reach.shape)])
+        other = other + np.stack([np.zeros(reach.shape), np.zeros(reach.shape),
+                                  of_pushes["delivered"] * receive_energy(radio, push_bits)])
     totals = own.sum(axis=-1) + _to_neighbours(other)
     return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
-                    totals[0].astype(np.int64), np.stack([totals[1], totals[2]], axis=-1))
+                    totals[0].astype(np.int64), np.stack([totals[1], totals[2]], axis=-1), pushes,
+                    (pushes > 0) & ~push.dropped)
 
 
 @lru_cache(maxsize=8)
@@ -358,8 +401,9 @@ def run(
     paths = np.stack([scenario.target_path(seed, steps) for seed in seeds])  # (T, K, 2)
     positions = np.stack([scenario.start_positions(seed) for seed in seeds])
     trials, robots = positions.shape[:2]
+    strategy = check_strategy(scenario)
     team = TeamEstimate(scenario, seeds, paths)
-    controller = new_controller(region, params, positions)
+    controller = strategy.controller(region, params, positions)
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
     offsets = np.empty((steps, trials, robots))
@@ -371,6 +415,12 @@ def run(
     probes = np.empty((steps, trials), dtype=np.int64)
     sent_bytes = np.empty((steps, trials, robots), dtype=np.int64)
     energy = np.empty((steps, trials, robots, 2))
+    pushes = np.zeros((steps, trials, robots, 2), dtype=np.int64)
+    # A listening strategy: what each robot was told in the previous step (per side) and everyone's
+    # belief as told; a pushing one: the belief each robot last told its neighbours.
+    no_one = np.zeros((trials, robots), dtype=bool)
+    told, told_beliefs = (no_one, no_one), (np.empty(0), np.empty(0))
+    last_told = team.beliefs() if strategy.pushes else None
     plan_seeds = fault_seeds(scenario, seeds)
     groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)
     belief = scenario.estimation.mode == "decentralized"
@@ -386,7 +436,11 @@ def run(
             recorded[row] = positions
         angles[row] = angle_of(positions, targets[:, None, :])
         cerr_true[row] = true_cerr(positions, targets)
-        centres = team.measure(positions, targets)
+        if strategy.listens:
+            centres = team.measure(positions, targets, strategy, told, told_beliefs)
+            told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry
+        else:
+            centres = team.measure(positions, targets)
         neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
         lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
         reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
@@ -398,11 +452,22 @@ def run(
         polled = reasons != 0
         offers = neighbour_plans(controller.offer()) if isinstance(controller, PlanController) else None
         until = None if offers is None else np.stack([offers[0].until, offers[1].until], axis=-1)
-        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, until)
-        if isinstance(controller, PlanController):
+        pushed = None
+        if last_told is not None:
+            pushing = ~polled & strategy.wants_push(told_beliefs[0], *last_told, scenario.estimation)
+            pushed = pushing[..., None] & np.stack(reach, axis=-1)
+            telling = polled | pushing
+            last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
+                         np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
+        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens, until)
+        if strategy.listens:  # told by the predecessor's message to its successor, and the other way
+            reached = (outcome.requests > 0) | outcome.push_delivered
+            told = np.roll(reached[..., 1], 1, axis=1), np.roll(reached[..., 0], -1, axis=1)
+        pushes[row] = outcome.pushes
+        if isinstance(controller, PlanController):  # plans come from the neighbours' own controllers
             controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus, plans=offers or (None, None))
         else:
-            controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus)
+            strategy.receive(controller, *replies(strategy, controller, neighbours, outcome))
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
@@ -434,18 +499,39 @@ def run(
         targets=np.swapaxes(paths[:, :steps], 0, 1),
         terr=terr[:steps],
         estimates=None if estimates is None else estimates[:steps],
-        sent=ring_traffic(requests[:steps]),
-        received=ring_traffic(requests[:steps]),
+        sent=ring_traffic(requests[:steps]) + pushes[:steps].sum(axis=-1),
+        received=ring_traffic(requests[:steps]) + _to_neighbours(pushes[:steps]),
         requests=requests[:steps],
         faults=faults[:steps],
         probes=probes[:steps],
         sent_bytes=sent_bytes[:steps],
         energy=energy[:steps],
+        pushes=pushes[:steps],
     )
 
 
-def summary(history: History, trial: int = 0) -> dict[str, object]:
-    """The JSON-ready summary of one trial of a run: convergence, communication and final error."""
+def replies(strategy: Any, controller: Any, neighbours: tuple[FloatArray, FloatArray],
+            outcome: Exchange) -> tuple[Received, Received]:
+    """What came back to every robot from its predecessor and successor in a step: their step-start
+    ``neighbours`` positions (metres) where the reply came, and what the strategy's replies carry,
+    read from each neighbour's controller after it observed the step."""
+    content = strategy.reply_content(controller) if strategy.reply_fields else None
+    sides = []
+    for position, fresh, shift in ((neighbours[0], outcome.fresh_minus, 1), (neighbours[1], outcome.fresh_plus, -1)):
+        carried = None if content is None else np.roll(content, shift, axis=1)
+        sides.append(Received(position, fresh, np.zeros(fresh.shape, dtype=np.int64), carried))
+    return sides[0], sides[1]
+
+
+SETTLE_STEPS = 300  # moving targets: Cerr and Terr means leave out the first steps (as experiment moving)
+
+
+def summary(history: History, trial: int = 0, settle: int = SETTLE_STEPS) -> dict[str, object]:
+    """The JSON-ready summary of one trial of a run: convergence, communication and final error.
+    ``robot_messages`` counts every robot-to-robot message put on the bus (requests, replies,
+    pushes); for a moving target ``cerr_mean_deg`` (true Cerr, degrees) and ``terr_mean`` (metres)
+    are means once the first ``settle`` steps are left out (:func:`world.metrics.settled_mean`),
+    for a stationary one ``terr_mean`` is over every step."""
     scenario = history.scenario
     ctime = int(history.ctime[trial])
     ctime_true = int(history.ctime_true[trial])
@@ -453,7 +539,7 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
     com_bar = float(history.com_bar[trial])
     return {
         "scenario": scenario.name,
-        "strategy": scenario.control.strategy,
+        "strategy": strategy_for(scenario.control.strategy).name,
         "law": scenario.control.law,
         "robots": int(history.angles.shape[2]),
         "seed": history.seeds[trial],
@@ -467,8 +553,12 @@ def summary(history: History, trial: int = 0) -> dict[str, object]:
         "cerr_final_deg": _known(history.cerr[-1, trial]),
         "cerr_true_final_deg": float(history.cerr_true[-1, trial]),
         "estimation": scenario.estimation.mode,
-        "terr_mean": float(history.terr[:, trial].mean()),
+        "terr_mean": settled_mean(history.terr[:, trial], settle) if scenario.moving
+        else float(history.terr[:, trial].mean()),
         "terr_final": float(history.terr[-1, trial]),
+        "robot_messages": int(history.sent[:, trial].sum()),
+        **({"from_step": settle, "cerr_mean_deg": settled_mean(history.cerr_true[:, trial], settle)}
+           if scenario.moving else {}),
         "faults": fault_totals(history, trial),
         **_radio_summary(history, trial),
     }

@@ -73,12 +73,15 @@ class RangeFilter:
         self.ekf.P = np.array(covariance, dtype=float).reshape(2, 2)
 
     def step(self, positions: ArrayLike, ranges: ArrayLike) -> None:
-        """Predict one step, then update with the ranges measured from ``positions`` (m, 2).
-
-        Missing ranges (NaN: beyond the sensing range) and robots within ``SINGULAR_DISTANCE`` of
-        the predicted estimate are skipped; with none left the step is prediction only.
-        """
+        """Predict one step, then update with the ranges measured from ``positions`` (m, 2)."""
         self.ekf.predict()
+        self.update(positions, ranges)
+
+    def update(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+        """Update with the ranges measured from ``positions`` (m, 2). Missing ranges (NaN: beyond
+        the sensing range) and robots within ``SINGULAR_DISTANCE`` of the predicted estimate are
+        skipped; with none left the step is prediction only.
+        """
         points = np.asarray(positions, dtype=float).reshape(-1, 2)
         measured = np.asarray(ranges, dtype=float).reshape(-1)
         distances = np.linalg.norm(self.ekf.x[:, 0] - points, axis=1)
@@ -179,10 +182,13 @@ class Estimator:
         if not bool(self.region.is_interior(mean, self.params.margin)):
             self.filter.ekf.x = self.region.clamp_interior(mean, self.params.margin).reshape(2, 1)
 
-    def measure(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+    def measure(self, positions: ArrayLike, ranges: ArrayLike,
+                told: Sequence[tuple[ArrayLike, ArrayLike]] = ()) -> None:
         """Fold in one step's ranges from robots at ``positions`` (NaN: no range). With the
         "trilateration" prior, the first step's ranges become the prior instead when they fix the
-        target (see the class)."""
+        target (see the class). Beliefs ``told`` by neighbours (``(mean, covariance)``) are fused
+        by :meth:`fuse` between the prediction and the update, so the step's own ranges update
+        the fused prior with their full Kalman weight."""
         first, self.started = not self.started, True
         if first and self.params.prior == "trilateration":
             try:
@@ -192,7 +198,12 @@ class Estimator:
             else:
                 self.keep_inside()
                 return
-        self.filter.step(positions, ranges)
+        if told:
+            self.filter.ekf.predict()
+            self.fuse(told)
+            self.filter.update(positions, ranges)
+        else:
+            self.filter.step(positions, ranges)
         self.keep_inside()
 
     def fuse(self, beliefs: Sequence[tuple[ArrayLike, ArrayLike]]) -> None:

@@ -26,13 +26,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.estimation import Estimator, prior_belief
-from ringtrack.agents.plan import Plan, PlanController, new_controller
+from ringtrack.agents.plan import Plan, PlanController
+from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
     NONCE_BASE,
     SCHEMA,
+    BeliefRequest,
+    CarryingReply,
     Command,
     Covariance,
     End,
@@ -42,6 +44,8 @@ from ringtrack.bus.messages import (
     PlanFields,
     PlanReply,
     Point,
+    Push,
+    PushCommand,
     RangeReport,
     Reply,
     Request,
@@ -105,7 +109,8 @@ class RobotNode:
         self.predecessor = (robot - 1) % scenario.robots
         self.successor = (robot + 1) % scenario.robots
         self._nonce = nonce or (lambda: NONCE_BASE + secrets.randbits(31))  # always 5 bytes on the wire
-        self.controller: MidpointController | PlanController | None = None
+        self.strategy = check_strategy(scenario)
+        self.controller: Controller | None = None
         self.planning = scenario.control.strategy == "plan"
         self.offers: dict[int, PlanFields] = {}  # step -> the plan a reply of that step carries
         self.estimator = (
@@ -125,6 +130,21 @@ class RobotNode:
         self.positions: dict[int, Point] = {}
         self.distances: dict[int, dict[int, float]] = {}  # step -> neighbour -> metres at its start
         self.beliefs: dict[int, Belief] = {}
+        self.carried: dict[int, tuple[float, ...]] = {}  # step -> what the strategy's replies carry
+        self.answerable = 0  # the latest step whose state (position, belief, carried) replies describe
+        # A listening strategy: (neighbour, step) -> the belief it told this robot in that step, the
+        # neighbours whose push of the previous step the world named and that has not come yet, and
+        # this step's range until the robot has heard; a pushing one: the belief it last told and
+        # the neighbours it pushed to this step.
+        self.heard: dict[tuple[int, int], Belief] = {}
+        self.expected: set[int] = set()
+        self.measured: tuple[FloatArray, list[float]] | None = None
+        self.last_told: Belief | None = None
+        if self.estimator is not None and self.strategy.pushes:
+            mean, covariance = self.estimator.belief
+            self.last_told = (pack_point(mean), pack_covariance(covariance))
+        self.pushed: list[int] = []
+        self.pushes_sent = 0
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
         self.replies: dict[int, Reply] = {}
@@ -148,6 +168,8 @@ class RobotNode:
             return self.on_request(message)
         if isinstance(message, Reply):
             return self.on_reply(message)
+        if isinstance(message, Push):
+            return self.on_push(message)
         if isinstance(message, Estimate):
             return self.on_estimate(message)
         if isinstance(message, End):
@@ -166,17 +188,24 @@ class RobotNode:
         self.distances[self.step] = dict(measurement.distances)
         self.distances.pop(self.step - KEPT_STEPS, None)
         measured = np.nan if measurement.range is None else measurement.range
-        if self.estimator is not None:
+        listening = self.strategy.listens and self.estimator is not None
+        if self.estimator is not None and not listening:
             self.estimator.measure(self.position[None, :], [measured])
-            mean, covariance = self.estimator.belief
-            self.beliefs[self.step] = (pack_point(mean), pack_covariance(covariance))
-            self.beliefs.pop(self.step - KEPT_STEPS, None)
-            self.centre, self.covariance = self.estimator.centre, self.beliefs[self.step][1]
-        # A plan reply describes the step's decision: requests buffered for this step wait for it.
-        outgoing = [] if self.planning else self._answer_buffered()
+            self._keep_belief()
+        # A reply that describes the step's decision (a plan, or the strategy's carried content) waits for it.
+        if not listening and not self.strategy.reply_fields and not self.planning:
+            self.answerable = self.step
+        outgoing = self._answer_buffered()
         self.awaiting, self.replies = {}, {}
         if measurement.live is not None:  # the world says who is in the ring from this step on
             self.set_alive(set(measurement.live))
+        if listening:  # hear what the neighbours told in the previous step, once the named pushes are in
+            self.measured = (self.position[None, :], [measured])
+            named = set(getattr(measurement, "pushed_by", ())) & {self.predecessor, self.successor}
+            self.expected = {robot for robot in named if (robot, self.step - 1) not in self.heard}
+            for key in [key for key in self.heard if key[1] < self.step - 1]:
+                del self.heard[key]
+            return outgoing if self.expected else [*outgoing, *self._hear()]
         if self.mode == "centralized":
             self.waiting_for_estimate = True
             report = RangeReport(SCHEMA, self.run, self.step, self.robot, measurement.position, measurement.range,
@@ -207,8 +236,56 @@ class RobotNode:
         self.waiting_for_estimate = False
         return self._decide()
 
+    def _keep_belief(self) -> None:
+        """Remember the step's belief (what replies, requests and pushes of the step carry) and steer by it."""
+        assert self.estimator is not None
+        mean, covariance = self.estimator.belief
+        self.beliefs[self.step] = (pack_point(mean), pack_covariance(covariance))
+        self.beliefs.pop(self.step - KEPT_STEPS, None)
+        self.centre, self.covariance = self.estimator.centre, self.beliefs[self.step][1]
+
+    def _hear(self) -> Outgoing:
+        """A listening robot's estimation step, with the beliefs its neighbours told it in the
+        previous step (predecessor first), then its answers and its decision."""
+        assert self.estimator is not None and self.measured is not None
+        self.expected = set()
+        sides = dict.fromkeys(n for n in (self.predecessor, self.successor) if n != self.robot)
+        told = [self.heard[n, self.step - 1] for n in sides if (n, self.step - 1) in self.heard]
+        beliefs = [(np.asarray(mean, dtype=float), unpack_covariance(covariance)) for mean, covariance in told]
+        self.strategy.hear(self.estimator, *self.measured, beliefs)
+        self._keep_belief()
+        if not self.strategy.reply_fields:
+            self.answerable = self.step
+        return [*self._answer_buffered(), *self._decide()]
+
+    def _told(self, sender: int, step: int, belief: Belief) -> None:
+        """Keep a belief a ring neighbour told this robot (the first of each step; steps a robot can
+        still hear or may reach soon only, so a flood cannot grow the memory)."""
+        if sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS:
+            self.heard.setdefault((sender, step), belief)
+
+    def on_push(self, push: Push) -> Outgoing:
+        """A neighbour's belief, told unasked: heard in the step after ``push.step``."""
+        if push.receiver != self.robot or not self.strategy.listens:
+            return []
+        self._told(push.sender, push.step, (push.mean, push.covariance))
+        return self.on_push_lost(push.sender, push.step)
+
+    def on_push_lost(self, sender: int, step: int) -> Outgoing:
+        """A push the robot waits for came, or will not come (dropped): hear once none is awaited."""
+        if step != self.step - 1 or sender not in self.expected:
+            return []
+        self.expected.discard(sender)
+        return [] if self.expected else self._hear()
+
+    def on_pushes_late(self) -> Outgoing:
+        """The pushes the robot waits for will not come in time: hear without them."""
+        return self._hear() if self.expected else []
+
     def on_request(self, request: Request) -> Outgoing:
-        if request.step > self.step:  # our measurement of that step has not arrived yet
+        if isinstance(request, BeliefRequest) and self.strategy.listens:
+            self._told(request.sender, request.step, (request.mean, request.covariance))
+        if request.step > self.answerable:  # our state of that step is not known yet
             near = self.step == 0 or request.step <= self.step + KEPT_STEPS
             if near and len(self.buffered) < BUFFERED_LIMIT:
                 self.buffered.append(request)
@@ -261,18 +338,19 @@ class RobotNode:
             return []
         assert self.controller is not None
         before, after = self.replies.get(self.predecessor), self.replies.get(self.successor)
-        received = (
-            before.position if before else self.controller.predecessor_position,
-            after.position if after else self.controller.successor_position,
-            before is not None,
-            after is not None,
-            self.step - before.step if before else 0,
-            self.step - after.step if after else 0,
-        )
         if isinstance(self.controller, PlanController):
+            received = (
+                before.position if before else self.controller.predecessor_position,
+                after.position if after else self.controller.successor_position,
+                before is not None,
+                after is not None,
+                self.step - before.step if before else 0,
+                self.step - after.step if after else 0,
+            )
             self.controller.receive(*received, plans=(unpack_plan(before), unpack_plan(after)))
         else:
-            self.controller.receive(*received)
+            self.strategy.receive(self.controller, self._received(before, self.controller.predecessor_position),
+                                  self._received(after, self.controller.successor_position))
         beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
                    if reply is not None and reply.mean is not None and reply.covariance is not None]
         if self.estimator is not None and beliefs:
@@ -284,28 +362,46 @@ class RobotNode:
         self._reform_ring()  # a ring change may have arrived during the poll
         return command
 
+    def _received(self, reply: Reply | None, remembered: FloatArray) -> Received:
+        """One side's reply as the strategy takes it (the remembered position where none came)."""
+        fresh = reply is not None
+        fields = self.strategy.reply_fields
+        content = None if not fields else np.array(getattr(reply, "carried", None) or (0.0,) * fields)
+        return Received(np.asarray(reply.position if reply else remembered, dtype=float), np.array(fresh),
+                        np.array(self.step - reply.step if reply else 0), content)
+
     # ------------------------------------------------------------------ helpers
     def _decide(self) -> Outgoing:
         """Observe the step and either command at once or poll both neighbours."""
         assert self.position is not None
+        self.pushed = []
         if self.controller is None:
-            self.controller = new_controller(self.scenario.region, self.scenario.control, self.position)
+            self.controller = self.strategy.controller(self.scenario.region, self.scenario.control, self.position)
         if len(self.alive | {self.robot}) < 3:
             self.trigger = 0  # no ring to spread on: hold position until robots come back
             return [self._command(hold=True)]
         reach = (self.reachable(self.predecessor), self.reachable(self.successor))
         self.trigger = int(self.controller.observe(self.step, self.position, self.centre, reach))
         self.ages = (int(self.controller.predecessor_age), int(self.controller.successor_age))
+        answers: Outgoing = []
         if isinstance(self.controller, PlanController):
             self.offers[self.step] = pack_plan(self.controller.offer())
             self.offers.pop(self.step - KEPT_STEPS, None)
+        if self.strategy.reply_fields:  # replies describe the robot once it has observed the step
+            self.carried[self.step] = tuple(float(v) for v in self.strategy.reply_content(self.controller))
+            self.carried.pop(self.step - KEPT_STEPS, None)
+        if self.planning or self.strategy.reply_fields:
+            self.answerable = self.step
+            answers = self._answer_buffered()
         neighbours = (self.predecessor, self.successor)
         # Every unreachable neighbour gets one request per step: the poll itself or a probe.
         probed = [n for n in neighbours if not self.reachable(n)] if not self.trigger else []
         self.probes += len(probed) + sum(1 for n in neighbours if self.trigger and not self.reachable(n))
-        outgoing: Outgoing = [self._request(neighbour) for neighbour in probed]
+        outgoing: Outgoing = [*answers, *(self._request(neighbour) for neighbour in probed)]
         if not self.trigger:
-            return [*outgoing, self._command()]
+            return [*outgoing, *self._pushes(), self._command()]
+        if self.strategy.pushes:
+            self.last_told = self.beliefs[self.step]  # the requests tell it
         self.polls += 1
         for neighbour in neighbours:
             request = self._request(neighbour)
@@ -314,7 +410,28 @@ class RobotNode:
         return outgoing
 
     def _request(self, neighbour: int) -> tuple[str, Request]:
+        if self.strategy.listens and self.step in self.beliefs:
+            mean, covariance = self.beliefs[self.step]
+            return robot_name(neighbour), BeliefRequest(SCHEMA, self.run, self.step, self.robot, neighbour,
+                                                        self._nonce(), mean, covariance)
         return robot_name(neighbour), Request(SCHEMA, self.run, self.step, self.robot, neighbour, self._nonce())
+
+    def _pushes(self) -> Outgoing:
+        """A robot that does not poll: its belief to each reachable ring neighbour, when the strategy
+        wants it pushed (:meth:`agents.strategy.Strategy.wants_push`)."""
+        if not self.strategy.pushes or self.last_told is None or self.step not in self.beliefs:
+            return []
+        mean, covariance = self.beliefs[self.step]
+        last_mean, last_covariance = self.last_told
+        if not bool(self.strategy.wants_push(np.asarray(mean, dtype=float), np.asarray(last_mean, dtype=float),
+                                             unpack_covariance(last_covariance), self.scenario.estimation)):
+            return []
+        self.last_told = (mean, covariance)
+        self.pushed = [n for n in dict.fromkeys((self.predecessor, self.successor)) if n != self.robot
+                       and self.reachable(n)]
+        self.pushes_sent += len(self.pushed)
+        return [(robot_name(n), Push(SCHEMA, self.run, self.step, self.robot, n, mean, covariance))
+                for n in self.pushed]
 
     def distance(self, robot: int, step: int) -> float:
         """Metres to ``robot`` at the start of ``step`` as the world measured them; for a robot
@@ -336,19 +453,11 @@ class RobotNode:
         reach = (self.reachable(self.predecessor), self.reachable(self.successor))
         goal = self.position if hold else self.controller.goal(reach, limit)
         offset = float(self.controller.guaranteed_offset) if bool(self.controller.offset_known) else None
-        command = Command(
-            SCHEMA,
-            self.run,
-            step=self.step,
-            robot=self.robot,
-            goal=pack_point(goal),
-            trigger=self.trigger,
-            guaranteed_offset=offset,
-            ages=self.ages,
-            centre=pack_point(self.centre),
-            covariance=self.covariance,
-        )
-        return (WORLD, command)
+        fields = (SCHEMA, self.run, self.step, self.robot, pack_point(goal), self.trigger, offset, self.ages,
+                  pack_point(self.centre), self.covariance)
+        if self.strategy.pushes:
+            return (WORLD, PushCommand(*fields, pushed=list(self.pushed)))
+        return (WORLD, Command(*fields))
 
     def _reply(self, request: Request) -> tuple[str, Message]:
         """Answer with the position (and belief) at the start of the requested step, or the oldest
@@ -358,12 +467,16 @@ class RobotNode:
         fields = (SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step], mean,
                   covariance)
         plan = self.offers.get(step)
-        reply = PlanReply(*fields, plan=plan) if plan and carries_plan(step, plan[0]) else Reply(*fields)
-        return (robot_name(request.sender), reply)
+        if plan and carries_plan(step, plan[0]):
+            return (robot_name(request.sender), PlanReply(*fields, plan=plan))
+        if self.strategy.reply_fields:
+            carried = self.carried.get(step, (0.0,) * self.strategy.reply_fields)
+            return (robot_name(request.sender), CarryingReply(*fields, carried=carried))
+        return (robot_name(request.sender), Reply(*fields))
 
     def _answer_buffered(self) -> Outgoing:
-        ready = [request for request in self.buffered if request.step <= self.step]
-        self.buffered = [request for request in self.buffered if request.step > self.step]
+        ready = [request for request in self.buffered if request.step <= self.answerable]
+        self.buffered = [request for request in self.buffered if request.step > self.answerable]
         return self._replies(ready)
 
     def _renew_answer_budget(self, steps: int) -> None:

@@ -25,8 +25,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.laws import Trigger, fresh_step, guarded_step, set_trigger_reasons
+from ringtrack.agents.strategy import Strategy
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
@@ -326,10 +326,15 @@ def _store(ring: NDArray, slot: IntArray, where: NDArray[np.bool_], values: Arra
     np.put_along_axis(ring, index, np.where(where, values, current)[..., None], axis=-1)
 
 
-def new_controller(region: ConvexRegion, params: ControlParams,
-                   own_position: ArrayLike) -> MidpointController | PlanController:
-    """The controller of ``params.strategy``: a :class:`PlanController` for "plan", else a
-    :class:`agents.controller.MidpointController`."""
-    if params.strategy == "plan":
+class PlanStrategy(Strategy):
+    """The self-triggered rule with plan-carrying replies (this module): its controller is a
+    :class:`PlanController`; the engine and the robot protocol exchange its plans
+    (:meth:`PlanController.offer`, :class:`bus.messages.PlanReply`) and answer a request only once
+    the replier has decided the step (whether it polls decides ``T'``)."""
+
+    name = "plan"
+    summary = "the paper's triggers; replies carry the replier's committed plan (known target)"
+    estimation = "known"
+
+    def controller(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> PlanController:
         return PlanController(region, params, own_position)
-    return MidpointController(region, params, own_position)

@@ -23,7 +23,7 @@ from ringtrack.agents.node import BUFFERED_LIMIT, Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
-from ringtrack.bus.messages import End, Measurement, RangeReport, Reply, Request, Stats
+from ringtrack.bus.messages import End, Measurement, Push, RangeReport, Reply, Request, Stats
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence
 from ringtrack.bus.reach import ReachTokens
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
@@ -37,11 +37,11 @@ ESTIMATE_SHARE = 0.5
 
 @dataclass(frozen=True)
 class Deadline(Posted):
-    """Realtime: what the robot waits for in ``step`` is due: the ``replies`` of its poll, or the
-    fusion centre's ``estimate``."""
+    """What the robot waits for in ``step`` is due: the ``replies`` of its poll, the fusion
+    centre's ``estimate`` (realtime), or the ``pushes`` of the previous step the world named."""
 
     step: int
-    what: Literal["replies", "estimate"]
+    what: Literal["replies", "estimate", "pushes"]
 
 
 async def run_robot(
@@ -83,7 +83,8 @@ async def run_robot(
 
     def stats(participant: Participant, code: int) -> Stats:
         assert link is not None and claim is not None
-        notes = {"polls": node.polls, "probes": node.probes, "ignored_replies": node.ignored_replies,
+        notes = {"polls": node.polls, "probes": node.probes, "pushes": node.pushes_sent,
+                 "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,
                  "id_collisions": len(claim.rivals)}
         return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes,
@@ -159,7 +160,7 @@ class RobotLink:
             if not self.shim.send(destination, message) and robot is not None:
                 pending += self.node.on_lost(robot)
         if self.reply_timeout is None:
-            return  # lockstep: every answer comes, or its loss is known at once
+            return  # every answer and push comes, or its loss is known at once
         sent = {type(message) for _, message in outgoing}
         loop = asyncio.get_running_loop()
         if Request in sent and self.node.awaiting:  # this opened a poll
@@ -191,16 +192,25 @@ class RobotLink:
 
     def _deliver(self, delivery: Delivery) -> None:
         deliveries, lost = self.shim.receive(delivery)
-        if lost and isinstance(delivery.message, Reply):
-            self.send(self.node.on_lost(delivery.message.sender, delivery.message.nonce))
+        message = delivery.message
+        if lost and isinstance(message, Reply):
+            self.send(self.node.on_lost(message.sender, message.nonce))
+        if lost and isinstance(message, Push):
+            self.send(self.node.on_push_lost(message.sender, message.step))
         for copy in deliveries:
             self.send(self.node.handle(copy.message))
+            if isinstance(copy.message, Measurement) and self.node.expected and self.reply_timeout is not None:
+                # the measurement opened a wait for the pushes the world named: bounded like a poll
+                asyncio.get_running_loop().call_later(self.reply_timeout, self.participant.inbox.push,
+                                                      Deadline(self.node.step, "pushes"))
 
     def deadline(self, event: Deadline) -> None:
         if event.step != self.node.step:
             return  # the robot has left that step
         if event.what == "estimate":
             self.send(self.node.on_estimate_lost())
+        elif event.what == "pushes":
+            self.send(self.node.on_pushes_late())
         else:
             for neighbour in list(self.node.awaiting):
                 self.send(self.node.on_lost(neighbour))

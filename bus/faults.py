@@ -7,8 +7,10 @@ faults is reproducible and the engine computes exactly the same fates, for a who
 messages at once (:meth:`FaultPlan.decide`; :meth:`FaultPlan.fate` is the one-message view).
 
 Each poll's fates are settled in the polling robot's own process (:class:`bus.shim.LinkShim`): a
-request's on the way out, a reply's on the way in. A robot therefore learns at once that an answer will not come
-(the explicit loss notice of a lockstep run) and never waits for it. Links are undirected pairs of
+request's on the way out, a reply's on the way in; a push's (a belief a robot tells its neighbours
+unasked) on the way in, in the receiver's process, so a push is always published once. A robot
+therefore learns at once that an answer will not come (the explicit loss notice of a lockstep run)
+and never waits for it. Links are undirected pairs of
 robot ids; an outage takes a set of links down for steps ``first..last`` (inclusive).
 """
 
@@ -29,7 +31,7 @@ FAULT_COUNTERS = ("sent", "delivered", "dropped", "duplicated", "delayed", "publ
 POLL_MESSAGES = 4  # a poll that meets no fault: a request to each ring neighbour and each one's reply
 # Codes of :attr:`Fates.reason` (0: delivered); "range" and "gone" are decided by the callers.
 REASONS: tuple[Reason | None, ...] = (None, "outage", "radio", "drop", "range")
-KIND_CODES = {"request": 1, "reply": 2}
+KIND_CODES = {"request": 1, "reply": 2, "push": 4}
 LINK_CODE = 3  # draws of a link (both directions, every kind): its shadowing
 SALTS = {"drop": 1, "duplicate": 2, "jitter": 3, "radio": 4, "shadow": 5, "shadow-phase": 6}
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)

@@ -112,7 +112,7 @@ class Reply(Message, tag=4, frozen=True):
 PlanFields = tuple[Step, Real, Real, Real]  # (T', r-, r+, D): horizon step and radians relative to the position
 
 
-class PlanReply(Reply, tag=11, frozen=True):
+class PlanReply(Reply, tag=16, frozen=True):
     """A :class:`Reply` of the plan strategy: also the sender's committed plan from ``step``, as
     ``plan = (until, low, high, shift)``: its angle about the target (radians, CCW) stays within
     ``[b + low, b + high]`` for steps ``step .. until`` and is ``b + shift`` at ``until``, where ``b``
@@ -127,6 +127,52 @@ def carries_plan(step: ArrayLike, until: ArrayLike) -> NDArray[np.bool_]:
     """Whether a plan reply of ``step`` with horizon ``until`` is sent as a :class:`PlanReply`: only a
     plan reaching beyond its step says more than a plain reply."""
     return np.asarray(until) > np.asarray(step)
+
+
+class PushMeasurement(Measurement, tag=15, frozen=True):
+    """A :class:`Measurement` that also names the ring neighbours that pushed their belief to this
+    robot in the previous step (``pushed_by``, from their :class:`PushCommand`): in lockstep the
+    robot waits for those pushes (bounded) before it fuses what it was told, so the result does not
+    depend on whether a push or the world's message came first."""
+
+    pushed_by: list[int] = []
+
+
+class PushCommand(Command, tag=14, frozen=True):
+    """A :class:`Command` of a strategy that pushes: also names the neighbours the robot pushed its
+    belief to in this step (``pushed``)."""
+
+    pushed: list[int] = []
+
+
+class BeliefRequest(Request, tag=12, frozen=True):
+    """A :class:`Request` that carries the requester's belief, the target estimate ``mean``
+    (metres) and ``covariance`` (m^2) as it was when it decided to poll; the polled neighbour fuses
+    it in its next step."""
+
+    mean: Point
+    covariance: Covariance
+
+
+class CarryingReply(Reply, tag=13, frozen=True):
+    """A :class:`Reply` that also carries what the strategy puts in its replies (``carried``:
+    :meth:`agents.strategy.Strategy.reply_content`)."""
+
+    carried: Annotated[tuple[Real, ...], msgspec.Meta(max_length=32)] = ()
+
+
+class Push(Message, tag=11, frozen=True):
+    """Ring neighbour -> robot, unasked: the sender's belief (``mean`` metres, ``covariance`` m^2)
+    at ``step`` (after its own update and what it was told, before its poll), sent when it moved
+    enough since the belief it last told (:meth:`agents.strategy.Strategy.wants_push`)."""
+
+    step: Step
+    sender: int
+    receiver: int
+    mean: Point
+    covariance: Covariance
+    kind: ClassVar[str] = "push"
+    category: ClassVar[str] = "robot"
 
 
 class Tick(Message, tag=5, frozen=True):
@@ -188,7 +234,7 @@ class FaultNotice(Message, tag=10, frozen=True):
     category: ClassVar[str] = "monitoring"
 
 
-class Digest(Message, tag=11, frozen=True):
+class Digest(Message, tag=17, frozen=True):
     """World -> monitor, once a step unless the monitor audits every message itself: the world's own
     account of its links since its previous digest, so the monitor need not receive a copy of every
     measurement and command. ``measurements`` are ``(robot, payload bytes)`` of the measurements it
@@ -227,10 +273,12 @@ class Estimate(Message, tag=9, frozen=True):
 
 KINDS: dict[str, type[Message]] = {
     cls.kind: cls
-    for cls in (Measurement, Command, Request, Reply, Tick, End, Stats, RangeReport, Estimate, FaultNotice, Digest)
+    for cls in (Measurement, Command, Request, Reply, Push, Tick, End, Stats, RangeReport, Estimate, FaultNotice,
+                Digest)
 }
-AnyMessage = (Measurement | Command | Request | Reply | PlanReply | Tick | End | Stats | RangeReport | Estimate
-              | FaultNotice | Digest)
+AnyMessage = (Measurement | PushMeasurement | Command | PushCommand | Request | BeliefRequest | Reply | CarryingReply
+              | PlanReply | Push | Tick | End | Stats | RangeReport | Estimate | FaultNotice | Digest)
+RobotMessage = Request | Reply | Push  # robot-to-robot: through the fault layer
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(AnyMessage)
@@ -309,13 +357,13 @@ def peek(payload: bytes) -> AnyMessage:
 
 def robot_ids(message: Message) -> list[int]:
     """Every robot index a message names (all must belong to the team)."""
-    if isinstance(message, (Request, Reply, FaultNotice)):
+    if isinstance(message, (Request, Reply, Push, FaultNotice)):
         return [message.sender, message.receiver]
     if isinstance(message, Measurement):
         return [message.robot, *(message.in_range or ()), *(message.live or ()),
-                *(robot for robot, _ in message.distances)]
+                *(robot for robot, _ in message.distances), *getattr(message, "pushed_by", ())]
     if isinstance(message, Command):
-        return [message.robot]
+        return [message.robot, *getattr(message, "pushed", ())]
     if isinstance(message, RangeReport):
         return [message.robot, *(message.live or ())]
     if isinstance(message, Tick):
@@ -327,7 +375,7 @@ def robot_ids(message: Message) -> list[int]:
 
 def endpoints(message: Message) -> tuple[str, str | None]:
     """``(source, destination)`` participant names a message claims (destination None: any)."""
-    if isinstance(message, (Request, Reply)):
+    if isinstance(message, (Request, Reply, Push)):
         return robot_name(message.sender), robot_name(message.receiver)
     if isinstance(message, Measurement):
         return WORLD, robot_name(message.robot)
@@ -341,7 +389,7 @@ def endpoints(message: Message) -> tuple[str, str | None]:
         return robot_name(message.robot), FUSION
     if isinstance(message, Estimate):
         return FUSION, None
-    if isinstance(message, FaultNotice):  # faults of a poll are decided by the polling robot
+    if isinstance(message, FaultNotice):  # a request's fate is decided by its sender, a reply's or push's on arrival
         return robot_name(message.sender if message.subject == "request" else message.receiver), MONITOR
     return WORLD, None
 
@@ -356,30 +404,38 @@ def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
 
 
 @cache
-def _robot_message_base(kind: str, belief: bool, plan: bool = False) -> int:
+def _robot_message_base(kind: str, belief: bool, carried: int = 0, plan: bool = False) -> int:
     """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0 (a plan reply's
     horizon step 1)."""
+    mean, covariance = (0.0, 0.0), (0.0, 0.0, 0.0)
+    if kind == "push":
+        return len(encode(Push(SCHEMA, NONCE_BASE, 1, 0, 0, mean, covariance)))
     if kind == "request":
+        if belief:
+            return len(encode(BeliefRequest(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, mean, covariance)))
         return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
-    mean, covariance = ((0.0, 0.0), (0.0, 0.0, 0.0)) if belief else (None, None)
+    extra = (mean, covariance) if belief else (None, None)
     if plan:
-        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean, covariance,
-                                    (1, 0.0, 0.0, 0.0))))
-    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean, covariance)))
+        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra, (1, 0.0, 0.0, 0.0))))
+    if carried:
+        return len(encode(CarryingReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean=extra[0],
+                                        covariance=extra[1], carried=(0.0,) * carried)))
+    return len(encode(Reply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra)))
 
 
 def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
-                        belief: bool = False, plan_until: ArrayLike | None = None) -> NDArray[np.int64]:
-    """The exact encoded size of requests or replies (``kind``; a reply with a ``belief`` carries a
-    mean and covariance, one with a ``plan_until`` a plan to that step, sent as a :class:`PlanReply`
-    where :func:`carries_plan`) of
-    ``step`` from ``sender`` to ``receiver``, broadcast over arrays: the size of the step-1, robot-0
-    message plus the extra bytes the larger integers take (floats are always 9 bytes, nonces and
-    run ids 5)."""
+                        belief: bool = False, carried: int = 0, plan_until: ArrayLike | None = None
+                        ) -> NDArray[np.int64]:
+    """The exact encoded size of requests, replies or pushes (``kind``; a reply with a ``belief``
+    carries a mean and covariance, a request with one is a :class:`BeliefRequest`, a reply with
+    ``carried`` floats a :class:`CarryingReply`, one with a ``plan_until`` a plan to that step, sent
+    as a :class:`PlanReply` where :func:`carries_plan`) of ``step`` from ``sender`` to ``receiver``,
+    broadcast over arrays: the size of the step-1, robot-0 message plus the extra bytes the larger
+    integers take (floats are always 9 bytes, nonces and run ids 5)."""
     extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
-    plain = _robot_message_base(kind, belief) + extra
+    plain = _robot_message_base(kind, belief, carried) + extra
     if plan_until is not None and kind == "reply":
-        planned = _robot_message_base(kind, belief, True) + extra + uint_bytes(plan_until) - 1
+        planned = _robot_message_base(kind, belief, plan=True) + extra + uint_bytes(plan_until) - 1
         return np.where(carries_plan(step, plan_until), planned, plain)
     return plain
 

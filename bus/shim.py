@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 from ringtrack.bus.faults import DELIVERED, Fate, FaultCounter, FaultPlan, published_copies
 from ringtrack.bus.keys import MONITOR
-from ringtrack.bus.messages import SCHEMA, FaultNotice, Message, Reply, Request, encode
+from ringtrack.bus.messages import SCHEMA, FaultNotice, Message, Push, Reply, Request, RobotMessage, encode
 from ringtrack.bus.participant import Delivery, Participant
 from ringtrack.bus.radio import airtime_s, message_bits, receive_energy, transmit_energy
 
@@ -16,8 +16,8 @@ class LinkShim:
     """Applies a :class:`FaultPlan` to one robot's robot-to-robot traffic and counts what it does.
 
     ``send`` settles the fate of the robot's own requests (False: dropped, no answer will come);
-    ``receive`` settles the fate of replies to it (``lost``: dropped) and counts deliveries of
-    requests. Delayed messages are published, or handed back to the robot, after their delay. Every
+    ``receive`` settles the fate of replies and pushes to it (``lost``: dropped) and counts
+    deliveries of requests. Delayed messages are published, or handed back to the robot, after their delay. Every
     dropped, duplicated or delayed message is reported to the monitor in a ``FaultNotice``;
     ``reachable(robot)`` says whether a neighbour is within communication range this step and
     ``distance(robot, step)`` how far it was at the start of ``step`` (metres).
@@ -41,14 +41,14 @@ class LinkShim:
         self.counter = FaultCounter()
         self.energy_j = [0.0, 0.0]
 
-    def _fate(self, message: Request | Reply) -> Fate:
+    def _fate(self, message: RobotMessage) -> Fate:
         if isinstance(message, Request) and not self.reachable(message.receiver):
             return Fate(dropped=True, reason="range")
         other = message.receiver if message.sender == self.robot else message.sender
         return self.plan.fate(message.kind, message.sender, message.receiver, message.step,
                               self.distance(other, message.step))
 
-    def _transmit(self, message: Request | Reply, size: int, copies: int) -> float:
+    def _transmit(self, message: RobotMessage, size: int, copies: int) -> float:
         """Spend the energy of ``copies`` transmissions of ``message``; returns the airtime of one
         (realtime with a disk or log-distance radio; else 0)."""
         radio = self.plan.radio
@@ -61,7 +61,7 @@ class LinkShim:
 
     def send(self, destination: str, message: Message) -> bool:
         """Publish ``message``; for a request, its fate applies. Returns False if it was dropped."""
-        if not isinstance(message, (Request, Reply)):
+        if not isinstance(message, (Request, Reply, Push)):
             self.participant.send(destination, message)
             return True
         fate = self._fate(message) if isinstance(message, Request) else DELIVERED
@@ -83,14 +83,14 @@ class LinkShim:
     def receive(self, delivery: Delivery) -> tuple[list[Delivery], bool]:
         """``(deliveries for the robot now, lost)``; a reply's fate applies on arrival."""
         message = delivery.message
-        if isinstance(message, (Request, Reply)) and not delivery.released:
+        if isinstance(message, (Request, Reply, Push)) and not delivery.released:
             self.counter.count_arrived()
-        if not isinstance(message, (Request, Reply)) or delivery.released:
-            if isinstance(message, (Request, Reply)):
+        if not isinstance(message, (Request, Reply, Push)) or delivery.released:
+            if isinstance(message, (Request, Reply, Push)):
                 self.counter.count_delivered(1)
                 self._receive(delivery.size, 1)
             return [delivery], False
-        fate = self._fate(message) if isinstance(message, Reply) else DELIVERED
+        fate = self._fate(message) if isinstance(message, (Reply, Push)) else DELIVERED
         self._settle(message, fate)
         if fate.dropped:
             return [], True
@@ -104,7 +104,7 @@ class LinkShim:
         self._receive(delivery.size, len(copies))
         return copies, False
 
-    def _settle(self, message: Request | Reply, fate: Fate) -> None:
+    def _settle(self, message: RobotMessage, fate: Fate) -> None:
         """Count what ``fate`` does to ``message`` and report each fault to the monitor."""
         self.counter.count_fate(fate)
         for what in fate.faults:

@@ -86,8 +86,8 @@ def with_estimation(key: str, value: str) -> str:
             id="wrong-type-int",
         ),
         pytest.param(
-            BASE + 'strategy = "lazy"\n',
-            "x.toml: control.strategy: invalid enum value 'lazy'; use one of 'self', 'constant', 'plan'",
+            BASE + 'law = "lazy"\n',
+            "x.toml: control.law: invalid enum value 'lazy'; use one of 'prop', 'deadbeat'",
             id="bad-choice",
         ),
         pytest.param(

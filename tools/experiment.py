@@ -14,11 +14,11 @@ from rich import box
 from rich.table import Table
 
 from ringtrack.agents import engine
-from ringtrack.bus.faults import POLL_MESSAGES
-from ringtrack.bus.messages import poll_bytes
-from ringtrack.tools import robustness
+from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
+from ringtrack.tools import gates, robustness
 from ringtrack.tools.console import UsageError, err, out, progress_bar, write_csv, write_json
-from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, strategy_argument
+from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
 
@@ -29,7 +29,8 @@ STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime
 # One row per trial of every distinct moving-target run (``experiment moving --csv``).
 MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "trial", "seed",
                   "cerr_mean_deg", "terr_mean", "poll_rate", "polls", "robot_messages", "robot_bytes",
-                  "robot_messages_per_step", "robot_bytes_per_step", "estimation_messages_per_step"]
+                  "robot_messages_per_step", "robot_messages_per_robot_step", "robot_bytes_per_step",
+                  "estimation_messages_per_step"]
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -53,6 +54,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
+    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
+                            help="strategies to compare: registered names or .py files (default constant,self)")
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
     stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
     stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
@@ -77,6 +80,9 @@ def register(commands: argparse._SubParsersAction) -> None:
                         help="means are taken from this step on (default 300)")
     moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
     moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
+    moving.add_argument("--strategies", type=strategy_list, metavar="A,B",
+                        help="strategies to compare, each with a centralized and a decentralized EKF (one that needs "
+                        "a mode: that one), e.g. self,belief (default: the paper's three runs)")
     moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
     moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
     moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
@@ -84,6 +90,25 @@ def register(commands: argparse._SubParsersAction) -> None:
                         "Terr means, polls, messages, ...)")
     moving.set_defaults(handler=run_moving)
     robustness.register(kinds)
+    gates.register(kinds)
+
+
+def strategy_list(text: str) -> list[str]:
+    """Parse ``self,belief`` (registered names or .py files) into the strategies' scenario values."""
+    values = [strategy_argument(part.strip()) or "" for part in text.split(",") if part.strip()]
+    if not values:
+        raise argparse.ArgumentTypeError(f"--strategies {text!r}: give names like self,belief")
+    for value in values:
+        try:
+            strategy_for(value)
+        except StrategyError as error:
+            raise argparse.ArgumentTypeError(f"--strategies {text!r}: {error}") from None
+    return values
+
+
+def strategy_name(value: str) -> str:
+    """The name a strategy (a registered name or a file's path) is reported by."""
+    return strategy_for(value).name
 
 
 def robot_list(text: str) -> list[int]:
@@ -97,26 +122,22 @@ def robot_list(text: str) -> list[int]:
     return sizes
 
 
-def strategy_list(text: str) -> list[str]:
-    """Parse ``self,plan`` into distinct strategy names."""
-    names = [part.strip() for part in text.split(",") if part.strip()]
-    unknown = [name for name in names if name not in KNOWN_STRATEGIES]
-    if not names or unknown or len(set(names)) != len(names):
-        raise argparse.ArgumentTypeError(
-            f"--strategies {text!r}: give distinct names of {', '.join(KNOWN_STRATEGIES)}, e.g. self,plan")
-    return names
-
-
 def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = STRATEGIES,
                            **overrides: object) -> dict[str, Scenario]:
-    """The base scenario with ``robots`` robots, random starts and default threshold, per strategy."""
+    """The base scenario with ``robots`` robots, random starts and default threshold, per strategy
+    (keyed by the strategy's name)."""
     text, label = read_scenario_text(base)
     spec = parse_scenario(text, label)
     spec = msgspec.structs.replace(spec, team=msgspec.structs.replace(spec.team, angles_deg=None))
-    return {
-        strategy: resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
-        for strategy in strategies
-    }
+    scenarios = {}
+    for strategy in strategies:
+        scenario = resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
+        try:
+            check_strategy(scenario)
+        except StrategyError as error:
+            raise UsageError(f"--strategies: {error}") from None
+        scenarios[strategy_name(strategy)] = scenario
+    return scenarios
 
 
 def stationary_experiment(
@@ -128,7 +149,8 @@ def stationary_experiment(
     strategies: Sequence[str] = STRATEGIES,
     **overrides: object,
 ) -> dict:
-    """Run the ``strategies`` for every team size on seeds ``seed .. seed + trials - 1``.
+    """Run the ``strategies`` (default constant and self) for every team size on seeds ``seed ..
+    seed + trials - 1``.
 
     Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
     and standard deviation of Ctime and Com-bar, and per team size and strategy after the first
@@ -186,15 +208,16 @@ def stationary_experiment(
                 "threshold_deg": float(np.rad2deg(scenario.threshold)),
             }
             summary.append(means[strategy])
-        baseline = means[strategies[0]]
-        for strategy in strategies[1:]:
+        first, *others = list(scenarios)
+        baseline = means[first]
+        for strategy in others:
             compared = means[strategy]
             if baseline["ctime_mean"] and compared["ctime_mean"]:
                 ratios.append(
                     {
                         "robots": size,
                         "strategy": strategy,
-                        "baseline": strategies[0],
+                        "baseline": first,
                         "ctime_ratio": compared["ctime_mean"] / baseline["ctime_mean"],
                         "com_bar_ratio": compared["com_bar_mean"] / baseline["com_bar_mean"],
                     }
@@ -216,21 +239,21 @@ def stationary_experiment(
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
                  "plan_horizon": args.plan_horizon}
-    strategies = args.strategies
     # Validate the scenario and flags before showing any progress.
-    limit = random_start_scenarios(args.scenario, args.robots[0], strategies, **overrides)[strategies[0]].max_steps
+    probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
+    names, limit = list(probe), next(iter(probe.values())).max_steps
     with progress_bar() as progress:
         tasks = {
             (size, strategy): progress.add_task(f"N={size:<3} {strategy:<8}", total=limit)
             for size in args.robots
-            for strategy in strategies
+            for strategy in names
         }
 
         def on_step(size: int, strategy: str, step: int) -> None:
             if step % 50 == 0:
                 progress.update(tasks[size, strategy], completed=step)
 
-        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, strategies,
+        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, args.strategies,
                                        **overrides)
         for task in tasks.values():
             progress.update(task, completed=limit)
@@ -318,19 +341,22 @@ def moving_experiment(
     on_step: Callable[[str, int], None] | None = None,
     velocities: bool = True,
     fusion: str | None = None,
+    strategies: Sequence[str] | None = None,
 ) -> dict:
     """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
     settings; returns the JSON-ready result with, per run, means from step ``settle`` on and the
     trial-mean Cerr (true, degrees) and Terr (metres) series, and per-trial ``rows`` of every
     distinct run (the velocity setting equal to the scenario's circle repeats the comparison's runs:
-    their trials are rows of group "comparison" only)."""
+    their trials are rows of group "comparison" only). ``strategies`` replaces the paper's runs by
+    each strategy with a centralized and a decentralized EKF (:func:`moving_variants`)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     main = circle_of(base)
-    plan = [("comparison", main, strategy) for strategy in MAIN_STRATEGIES]
+    compared = MAIN_STRATEGIES if strategies is None else moving_variants(strategies)
+    plan = [("comparison", main, strategy) for strategy in compared]
     if velocities:
         plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS
-                 for strategy in VELOCITY_STRATEGIES]
+                 for strategy in (VELOCITY_STRATEGIES if strategies is None else compared)]
     seeds = list(range(seed, seed + trials))
     histories: dict[tuple, engine.History] = {}
     runs: list[dict] = []
@@ -342,7 +368,7 @@ def moving_experiment(
         if settle >= scenario.max_steps:
             raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
         setting = {"group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
-                   "strategy": strategy, "estimation": mode,
+                   "strategy": strategy_name(strategy), "estimation": mode,
                    "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
         if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
             label = f"v={speed} w={angular_speed} {strategy}+{mode}"
@@ -376,24 +402,26 @@ def moving_experiment(
 
 def moving_figures(history: engine.History, trials: list[int], settle: int, mode: str) -> dict[str, float | int]:
     """The figures of a moving-target run over ``trials`` (indices into the batch): true Cerr (degrees)
-    and Terr (metres) means from step ``settle`` on; over the whole run the poll rate (polls per robot
-    per step), the polls and the robot-to-robot messages and payload bytes they cost (totals of a
-    trial, averaged over ``trials``; and per step), and the estimation messages per step
-    (centralized: every robot's range and the centre's estimate)."""
+    and Terr (metres) means once the first ``settle`` steps are left out (:func:`world.metrics.settled_mean`);
+    over the whole run the poll rate (polls per robot per step), the polls and the robot-to-robot
+    messages (pushes included) and payload bytes (totals of a trial, averaged over ``trials``; and per
+    step), the robot-to-robot messages per robot-step after ``settle``, and the estimation messages
+    per step (centralized: every robot's range and the centre's estimate)."""
     robots = history.triggers.shape[2]
     polled = history.triggers[:, trials] != 0
-    rate = float(polled.mean())
-    per_poll = poll_bytes(mode == "decentralized")
-    polls = int(polled.sum()) / len(trials)
+    assert history.sent_bytes is not None  # engine runs count bytes
+    messages = history.sent[:, trials].sum(axis=-1)  # (K, trials) robot-to-robot messages published
+    payload = history.sent_bytes[:, trials].sum(axis=-1)
     return {
-        "cerr_mean_deg": float(history.cerr_true[settle:, trials].mean()),
-        "terr_mean": float(history.terr[settle:, trials].mean()),
-        "poll_rate": rate,
-        "polls": polls,
-        "robot_messages": POLL_MESSAGES * polls,
-        "robot_bytes": per_poll * polls,
-        "robot_messages_per_step": POLL_MESSAGES * rate * robots,
-        "robot_bytes_per_step": per_poll * rate * robots,
+        "cerr_mean_deg": settled_mean(history.cerr_true[:, trials], settle),
+        "terr_mean": settled_mean(history.terr[:, trials], settle),
+        "poll_rate": float(polled.mean()),
+        "polls": int(polled.sum()) / len(trials),
+        "robot_messages": int(messages.sum()) / len(trials),
+        "robot_bytes": int(payload.sum()) / len(trials),
+        "robot_messages_per_step": float(messages.mean()),
+        "robot_messages_per_robot_step": (settled_mean(messages, settle) or 0.0) / robots,
+        "robot_bytes_per_step": float(payload.mean()),
         "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
     }
 
@@ -402,7 +430,9 @@ def run_moving(args: argparse.Namespace) -> int:
     main = circle_of(args.scenario)
     steps = moving_scenario(args.scenario, "self", "decentralized", *main, args.steps).max_steps
     settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
-    distinct = len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES)
+    variants = moving_variants(args.strategies) if args.strategies else None
+    distinct = (len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES) if variants is None
+                else len(variants) * (1 + len(settings)))
     with progress_bar() as progress:
         task = progress.add_task("moving-target runs", total=distinct * steps)
         done: dict[str, int] = {}
@@ -413,7 +443,7 @@ def run_moving(args: argparse.Namespace) -> int:
                 progress.update(task, completed=sum(done.values()), description=label)
 
         result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step,
-                                   velocities=not args.no_velocities, fusion=args.fusion)
+                                   velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies)
     out.print(moving_table(result))
     if args.json:
         write_json(args.json, result)
@@ -428,18 +458,27 @@ def run_moving(args: argparse.Namespace) -> int:
     return 0
 
 
-RUN_LABELS = {
-    ("constant", "centralized"): "constant, central",
-    ("self", "centralized"): "self, central",
-    ("self", "decentralized"): "self, decentral",
-}
+def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:
+    """``(strategy, estimation mode)`` runs of a moving-target comparison: each strategy with a
+    centralized and a decentralized EKF, or only with the mode it needs."""
+    variants = []
+    for strategy in strategies:
+        needed = strategy_for(strategy).estimation
+        variants += [(strategy, mode) for mode in ("centralized", "decentralized") if needed in (None, mode)]
+    return variants
+
+
+def run_label(strategy: str, mode: str) -> str:
+    """``self, central``: a run's strategy and estimation, as the table names it."""
+    return f"{strategy}, {mode.removesuffix('ized')}"
 
 
 def moving_table(result: dict) -> Table:
     """Means from step ``settle`` on, per run (the velocity setting equal to the main one is shown once)."""
     table = Table(title=f"moving target, {result['trials']} trials, means from step {result['settle']} of "
-                  f"{result['steps']}; msg and B: robot-to-robot traffic", title_justify="left", box=box.SIMPLE_HEAD)
-    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "B/step"):
+                  f"{result['steps']}; msg and B: robot-to-robot traffic (per step: over all steps)",
+                  title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "msg/rs", "B/step"):
         table.add_column(column, justify="right", no_wrap=True)
     main = {(run["speed"], run["angular_speed"]) for run in result["runs"] if run["group"] == "comparison"}
     for run in result["runs"]:
@@ -447,11 +486,12 @@ def moving_table(result: dict) -> Table:
             continue
         table.add_row(
             f"{run['speed']:g}, {run['angular_speed']:g}",
-            RUN_LABELS[run["strategy"], run["estimation"]],
+            run_label(run["strategy"], run["estimation"]),
             f"{run['cerr_mean_deg']:.1f}",
             f"{run['terr_mean']:.3f}",
             f"{run['poll_rate']:.3f}",
             f"{run['robot_messages_per_step']:.2f}",
+            f"{run['robot_messages_per_robot_step']:.3f}",
             f"{run['robot_bytes_per_step']:.0f}",
         )
     return table

@@ -69,6 +69,16 @@ RUN_STYLES: dict[tuple[str, str], dict[str, Any]] = {
 }
 
 
+def run_style(strategy: str, mode: str) -> dict[str, Any]:
+    """The line style of a moving-target run: the paper's three fixed, any other strategy by its name."""
+    if (strategy, mode) in RUN_STYLES:
+        return RUN_STYLES[strategy, mode]
+    others = ["tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan"]
+    colour = others[sum(map(ord, strategy + mode)) % len(others)]
+    return {"color": colour, "linestyle": ":" if mode == "centralized" else "-",
+            "label": f"{strategy}, {mode} EKF" + (" + CI" if mode == "decentralized" else "")}
+
+
 def _time_axis(result: dict, run: dict) -> list[float]:
     stride = result["series_stride"] * result["dt"]
     return [index * stride for index in range(len(run["cerr_series_deg"]))]
@@ -79,7 +89,7 @@ def moving_comparison(result: dict, path: Path) -> None:
     runs = [run for run in result["runs"] if run["group"] == "comparison"]
     figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
     for run in runs:
-        style = RUN_STYLES[run["strategy"], run["estimation"]]
+        style = run_style(run["strategy"], run["estimation"])
         times = _time_axis(result, run)
         left.plot(times, run["cerr_series_deg"], linewidth=1.2, **style)
         right.plot(times, run["terr_series"], linewidth=1.2, **style)
@@ -109,7 +119,7 @@ def moving_velocities(result: dict, path: Path) -> None:
     for axis, (speed, angular) in zip(axes, settings, strict=True):
         for run in (run for run in runs if (run["speed"], run["angular_speed"]) == (speed, angular)):
             axis.plot(_time_axis(result, run), run["cerr_series_deg"], linewidth=1.0,
-                      **RUN_STYLES[run["strategy"], run["estimation"]])
+                      **run_style(run["strategy"], run["estimation"]))
         axis.set_title(f"v = {speed} m/s, w = {angular} rad/s (r = {speed / angular:.2f} m)", fontsize=9)
         axis.set_xlabel("time (s)")
     axes[0].set_ylabel("Cerr (deg, true)")

@@ -28,6 +28,7 @@ from ringtrack.bus.messages import (
     Estimate,
     FaultNotice,
     Measurement,
+    Push,
     RangeReport,
     Reply,
     Request,
@@ -71,7 +72,7 @@ class PendingStep:
     def complete(self) -> bool:
         """Tick and every live robot's command are in, and every robot-to-robot message its polls
         published: :func:`bus.faults.request_traffic` of each poll request, whose fate the fault
-        notices tell (none: delivered once)."""
+        notices tell (none: delivered once), and each push its command names (published once)."""
         if self.tick is None or not set(self.tick.live) <= set(self.commands):
             return False
         polling = {robot for robot, command in self.commands.items() if command.trigger}
@@ -86,6 +87,7 @@ class PendingStep:
                 fates[notice.sender, notice.receiver] = fate
         expected = 2 * len(polling) * request_traffic(DELIVERED)
         expected += sum(request_traffic(fate) - request_traffic(DELIVERED) for fate in fates.values())
+        expected += sum(len(getattr(command, "pushed", ())) for command in self.commands.values())
         return self.sent_messages.total() >= expected
 
 
@@ -93,7 +95,7 @@ class PendingStep:
 # traffic (statistics, fault notices) is not compared: a sender's final Stats cannot count itself.
 COMPARED = ("robot", "world", "estimation")
 
-STEPPED = (Tick, Measurement, Command, Request, Reply, RangeReport, Estimate, FaultNotice)
+STEPPED = (Tick, Measurement, Command, Request, Reply, Push, RangeReport, Estimate, FaultNotice)
 
 
 class Recorder:
@@ -138,7 +140,7 @@ class Recorder:
             self.latest_tick = max(self.latest_tick, message.step)
         elif isinstance(message, Command):
             entry.commands[message.robot] = message
-        elif isinstance(message, (Request, Reply)):
+        elif isinstance(message, (Request, Reply, Push)):
             entry.sent_messages[message.sender] += 1
             entry.sent_bytes[message.sender] += delivery.size
             entry.received_messages[message.receiver] += 1

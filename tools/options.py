@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+from ringtrack.agents.strategy import REGISTRY, StrategyError, check_strategy
 from ringtrack.tools.console import err, unwritable
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
 from ringtrack.world.threshold import loose_threshold
@@ -24,7 +25,9 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
         default=DEFAULT_SCENARIO,
         help=f"a TOML file or a shipped scenario name (default: {DEFAULT_SCENARIO})",
     )
-    parser.add_argument("--strategy", choices=["self", "constant", "plan"], help="communication strategy")
+    parser.add_argument("--strategy", metavar="NAME|FILE.py",
+                        help=f"communication strategy: {', '.join(sorted(REGISTRY))}, or a Python file defining one "
+                        "(docs/strategies.md)")
     parser.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
     parser.add_argument("--plan-horizon", type=at_least(0), metavar="H",
                         help="plan strategy: the most steps ahead a reply's plan describes")
@@ -43,13 +46,20 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
     parser.add_argument("--communication-range", type=float, metavar="M", help="r_c in metres")
 
 
+def add_from_step_argument(parser: argparse.ArgumentParser) -> None:
+    """``--from-step S``: a moving target's Cerr and Terr means leave out the first S steps."""
+    parser.add_argument("--from-step", type=at_least(0), default=300, metavar="S",
+                        help="moving target: the summary's Cerr and Terr means leave out the first S steps "
+                        "(default 300, as experiment moving --settle)")
+
+
 def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
     """Load ``args.scenario`` with the flags applied (``--steps`` sets ``max_steps``); a bad flag
     value is reported by its flag, e.g. ``--drop 1.5 (faults.drop): expected a probability ...``."""
     try:
-        return load_scenario(
+        scenario = load_scenario(
             args.scenario,
-            strategy=args.strategy,
+            strategy=strategy_argument(args.strategy),
             law=args.law,
             plan_horizon=args.plan_horizon,
             robots=args.robots,
@@ -63,6 +73,26 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
         )
     except OverrideError as error:
         raise ScenarioError(f"{flag(error.name)} {error.value} ({error.path}){error.problem}") from None
+    return checked_strategy(scenario, args.strategy, args.scenario)
+
+
+def strategy_argument(value: str | None) -> str | None:
+    """A ``--strategy`` value as the scenario records it: a registered name as it is, a file's path
+    made absolute (every process of a team reads it from the run folder's scenario)."""
+    if value is None or value in REGISTRY or not value.endswith(".py"):
+        return value
+    return str(Path(value).resolve())
+
+
+def checked_strategy(scenario: Scenario, flag_value: str | None, source: str) -> Scenario:
+    """``scenario`` once its strategy loads and suits it; else a one-line :class:`ScenarioError`
+    naming ``--strategy`` (when given) or the scenario's ``control.strategy``."""
+    try:
+        check_strategy(scenario)
+    except StrategyError as error:
+        where = f"--strategy {flag_value}" if flag_value is not None else f"{source}: control.strategy"
+        raise ScenarioError(f"{where}: {error}") from None
+    return scenario
 
 
 def flag(override: str) -> str:

@@ -13,6 +13,7 @@ from ringtrack.tools.dashboard import messages_saved
 from ringtrack.tools.options import (
     JSON_FILE,
     LOG_FILE,
+    add_from_step_argument,
     add_scenario_arguments,
     scenario_from_arguments,
     warn_if_threshold_loose,
@@ -30,6 +31,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     add_scenario_arguments(parser, steps_help="run exactly this many steps")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the summary as JSON")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="write the run log (same format as spawn's)")
+    add_from_step_argument(parser)
     parser.add_argument("--all-robots", action="store_true",
                         help="list every robot's polls (default: above 20 robots, min/median/max and the 5 busiest)")
     parser.set_defaults(handler=run)
@@ -39,8 +41,8 @@ def run(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
     warn_if_threshold_loose(scenario)
     history = engine.run(scenario, until_converged=args.steps is None, record_positions=args.log is not None)
-    result = engine.summary(history)
-    out.print(summary_table(result, int(history.sent[:, 0].sum()), args.all_robots))
+    result = engine.summary(history, settle=args.from_step)
+    out.print(summary_table(result, args.all_robots))
     if args.json:
         write_json(args.json, result)
     if args.log:
@@ -48,10 +50,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def summary_table(result: dict, robot_messages: int, all_robots: bool = False) -> Table:
-    """A two-column rich table of a run summary (under 80 columns); ``robot_messages`` the
-    robot-to-robot messages the run sent. Polls per robot are listed for at most ``SUMMARISED_ABOVE``
-    robots (or with ``all_robots``), else summarised: min, median, max and the ``BUSIEST``."""
+def summary_table(result: dict, all_robots: bool = False) -> Table:
+    """A two-column rich table of a run summary (under 80 columns). Polls per robot are listed for at
+    most ``SUMMARISED_ABOVE`` robots (or with ``all_robots``), else summarised: min, median, max and
+    the ``BUSIEST``."""
+    robot_messages = result["robot_messages"]
     table = Table(title=f"{result['scenario']}: {result['strategy']} strategy", show_header=False)
     table.add_column(style="bold")
     table.add_column()
@@ -68,14 +71,22 @@ def summary_table(result: dict, robot_messages: int, all_robots: bool = False) -
         ("final Cerr", f"{result['cerr_final_deg']:.4f} deg (true {result['cerr_true_final_deg']:.4f} deg)"),
     ]
     if result["estimation"] != "known":
-        rows.append(("Terr", f"mean {result['terr_mean']:.3f} m, final {result['terr_final']:.3f} m "
-                             f"({result['estimation']} estimation)"))
+        settled = f" after step {result['from_step']}" if "from_step" in result else ""
+        rows.append(("Terr", f"mean{settled} {_figure(result['terr_mean'], '.3f')} m, final "
+                             f"{result['terr_final']:.3f} m ({result['estimation']} estimation)"))
+    if "cerr_mean_deg" in result:
+        rows.append(("Cerr", f"mean after step {result['from_step']} {_figure(result['cerr_mean_deg'], '.2f')} deg "
+                             "(true)"))
     if "energy" in result:
         team, per_robot = 1e3 * result["energy"]["team_j"], [1e3 * j for j in result["energy"]["per_robot_j"]]
         rows.append(("radio energy", f"team {team:.3f} mJ, per robot {min(per_robot):.3f}-{max(per_robot):.3f} mJ"))
     for name, value in rows:
         table.add_row(name, value)
     return table
+
+
+def _figure(value: float | None, spec: str) -> str:
+    return "-" if value is None else f"{value:{spec}}"
 
 
 def polls_text(per_robot: list[int], all_robots: bool) -> str:

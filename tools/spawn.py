@@ -29,6 +29,7 @@ from ringtrack.tools.console import OutputError, UsageError, err, out, write_jso
 from ringtrack.tools.options import (
     JSON_FILE,
     LOG_FILE,
+    add_from_step_argument,
     add_scenario_arguments,
     at_least,
     positive,
@@ -83,6 +84,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     display.add_argument("--dashboard", action="store_true",
                          help="draw the live dashboard even without a terminal (the default on a terminal)")
     display.add_argument("--no-dashboard", action="store_true", help="plain summary lines instead of the dashboard")
+    add_from_step_argument(parser)
     parser.add_argument("--all-robots", action="store_true",
                         help="list every robot and link in the end-of-run report (default: above 20, "
                         "min/median/max and the 5 busiest)")
@@ -110,6 +112,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         lockstep_wait=args.lockstep_wait,
         lease=args.lease,
         audit=args.audit,
+        settle=args.from_step,
     )
     if args.json:
         write_json(args.json, result)
@@ -147,6 +150,7 @@ def spawn_team(
     lockstep_wait: float = LOCKSTEP_WAIT_S,
     lease: float = LEASE_S,
     audit: bool = False,
+    settle: int = 300,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -161,7 +165,8 @@ def spawn_team(
     seconds in one step as gone, and a robot's poll gives up on a reply after half of that; every
     process announces a liveliness ``lease`` of that many seconds. With ``audit`` the monitor
     receives a copy of every message (else, in lockstep, the world's digests account for
-    measurements and commands)."""
+    measurements and commands). A moving target's summary means leave out the first ``settle``
+    steps (:func:`agents.engine.summary`)."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -256,7 +261,7 @@ def spawn_team(
     if not interrupted:
         for line in _failure_lines(supervisor, log_path):
             err.print(line, highlight=False, markup=False)
-    result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started)
+    result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started, settle)
     result["topology"] = topology
     result["startup_s"] = first_step.after
     result["failures"] = failures
@@ -357,7 +362,7 @@ class FirstStep:
 
 
 def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: int, supervisor: Supervisor,
-             wall_s: float) -> dict:
+             wall_s: float, settle: int = 300) -> dict:
     """The summary of ``ringtrack simulate --json`` plus traffic, pids and timing of the run."""
     result: dict = {"run": f"{run:08x}", "clock": clock, "folder": str(folder), "log": str(log_path),
                     "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
@@ -369,7 +374,7 @@ def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: 
 
     log = read_log(log_path)
     if log.steps:
-        result.update(engine.summary(history_from_log(log)))
+        result.update(engine.summary(history_from_log(log), settle=settle))
     end = log.end or {}
     senders = supervisor.senders_counts()
     if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it

@@ -127,10 +127,10 @@ class LiveView:
 
 
 CATEGORY_NAMES = {"robot": "robot-to-robot", "world": "world", "estimation": "estimation", "monitoring": "monitoring"}
-CATEGORY_HELP = ("robot-to-robot: the polls' requests and replies; world: measurements, commands, ticks and the "
-                 "end; estimation: ranges to and estimates from the fusion centre; monitoring: statistics and "
-                 "fault notices the processes send the monitor (not compared: a final statistics message cannot "
-                 "count itself). seen: by the monitor; sent: as the senders counted")
+CATEGORY_HELP = ("robot-to-robot: the polls' requests and replies, and pushed beliefs; world: measurements, "
+                 "commands, ticks and the end; estimation: ranges to and estimates from the fusion centre; "
+                 "monitoring: statistics and fault notices the processes send the monitor (not compared: a final "
+                 "statistics message cannot count itself). seen: by the monitor; sent: as the senders counted")
 
 Counts = list[tuple[int, int]]  # (messages, bytes) per column of a row
 

@@ -4,9 +4,10 @@
   constant-strategy Cerr);
 * ``Cerr_memory(k) = sum_i |gV_i(k) - theta_i(k)|`` from each robot's memory before it polls in step
   k (the paper's self-triggered Cerr);
-* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategies (self, plan)
-  and ``Cerr_true`` for the constant one (:func:`strategy_cerr`); a step where a live robot's offset is unknown (a
-  realtime robot that sent no command in time) has no ``Cerr_memory`` (NaN), never a zero error;
+* the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategy (and any other
+  that remembers) and ``Cerr_true`` for the constant one (:func:`strategy_cerr`); a step where a
+  live robot's offset is unknown (a realtime robot that sent no command in time) has no
+  ``Cerr_memory`` (NaN), never a zero error;
 * ``Ctime = min{k >= 1 : Cerr(k) < threshold}`` (1-based; 0 here when it never happens), the one
   rule :func:`converged` every convergence decision uses (engine, world process, run logs);
 * ``Terr(k)`` the mean over robots of the distance from the centre each robot steered about to the
@@ -49,8 +50,9 @@ def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None) -> FloatArray
 
 
 def strategy_cerr(strategy: str, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
-    """The paper's Cerr of a run (degrees): memory-based for the self-triggered strategies ("self",
-    "plan"), from the true positions for the constant one."""
+    """The paper's Cerr of a run (degrees): from the true positions for the constant strategy, whose
+    memory is always one step old; memory-based for the self-triggered strategy and every other
+    (strategies that remember, :mod:`agents.strategy`)."""
     return np.asarray(cerr_true if strategy == "constant" else cerr_memory, dtype=float)
 
 
@@ -75,6 +77,17 @@ def target_error(centres: ArrayLike, target: ArrayLike) -> FloatArray:
     count = known.sum(axis=-1)
     total = np.where(known, distances, 0.0).sum(axis=-1)
     return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
+
+
+def settled_mean(series: ArrayLike, settle: int) -> float | None:
+    """The mean of a per-step ``series`` (steps on axis 0; any other axes too) once the first
+    ``settle`` steps are left out (steps ``settle + 1 ..``, 1-based), unknown (NaN) values left out
+    too: the settled Cerr (degrees), Terr (metres) or messages per step of a moving-target run, as
+    ``experiment moving --settle`` and ``simulate``/``spawn --from-step`` report them. None when no
+    such step is known."""
+    values = np.asarray(series, dtype=float)[max(settle, 0):]
+    known = values[~np.isnan(values)]
+    return float(known.mean()) if known.size else None
 
 
 def communications(triggers: ArrayLike, until: ArrayLike) -> NDArray[np.int64]:

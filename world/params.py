@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-Strategy = Literal["self", "constant", "plan"]
 FreshLaw = Literal["prop", "deadbeat"]
 Mode = Literal["known", "centralized", "decentralized"]
 Criterion = Literal["trace", "det"]
@@ -19,16 +18,16 @@ PLAN_HORIZON = 10  # default H of the plan strategy, steps (README: chosen by me
 class ControlParams:
     """Parameters of the midpoint laws.
 
-    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` "self", "constant" or "plan"
-    (self-triggered with plan-carrying replies, :mod:`agents.plan`); ``law`` is the fresh-information
-    law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``); ``plan_horizon`` the
-    most steps ahead a plan reply describes (``H``, steps).
+    ``omega_max`` rad/s, ``dt`` s, ``sigma`` rad; ``strategy`` a registered strategy's name ("self",
+    "constant", "plan", "belief", ...) or the path of a Python file defining one (:mod:`agents.strategy`);
+    ``law`` is the fresh-information law ("prop": ``dt * sat(e)``, "deadbeat": ``sign(e) min(omega dt, |e|)``);
+    ``plan_horizon`` the most steps ahead a plan reply describes (``H``, steps).
     """
 
     omega_max: float
     dt: float
     sigma: float = 0.0
-    strategy: Strategy = "self"
+    strategy: str = "self"
     law: FreshLaw = "prop"
     plan_horizon: int = PLAN_HORIZON
 
@@ -48,7 +47,8 @@ class EstimationParams:
     (centralized; see :class:`Estimator`) or a point; ``prior_variance`` (m^2) sets P0 of "truth"
     and of a point; decentralized robots fuse their neighbours' beliefs with joint CI ("ci") or
     pairwise ("sequential"), minimising "trace" or "det"; every estimate is kept ``margin`` metres
-    inside the region (the filters' own means, not only what a robot steers by).
+    inside the region (the filters' own means, not only what a robot steers by). ``push_gate`` is
+    the gate ``g`` of the belief strategy's pushes (a Mahalanobis distance, dimensionless).
     """
 
     mode: Mode = "known"
@@ -59,3 +59,4 @@ class EstimationParams:
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Criterion = "trace"
     margin: float = 0.1
+    push_gate: float = 2.0

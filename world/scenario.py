@@ -270,6 +270,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             fusion=estimation.fusion,
             criterion=estimation.criterion,
             margin=estimation.margin,
+            push_gate=estimation.push_gate,
         ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,

@@ -12,7 +12,7 @@ A scenario file looks like::
     robots = 6
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
     [control]
-    strategy = "self"          # "self" | "constant" | "plan" (replies carry plans; known target)
+    strategy = "self"          # "self" | "constant" | "plan" | "belief" | path/to/strategy.py
     plan_horizon = 10          # plan: the most steps ahead a reply's plan describes (H)
     law = "prop"               # fresh-information law: "prop" | "deadbeat"
     dt = 0.1                   # s
@@ -31,6 +31,8 @@ A scenario file looks like::
     prior_variance = 1.0       # m^2, P0 = p I
     fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
     criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
+    margin = 0.1               # m: every estimate is kept this far inside the region (below D_in / 2)
+    push_gate = 2.0            # strategy "belief": push the belief once it moved g sigmas from the last told
     [limits]
     communication_range = 5.0  # m, r_c: links longer than this are down (default: unlimited)
     [faults]                   # robot-to-robot links; seeded by seed (default: the scenario's)
@@ -85,7 +87,7 @@ class TeamSpec(Spec, frozen=True):
 
 
 class ControlSpec(Spec, frozen=True):
-    strategy: Literal["self", "constant", "plan"] = "self"
+    strategy: Annotated[str, msgspec.Meta(min_length=1)] = "self"  # a registered name or a .py file
     law: Literal["prop", "deadbeat"] = "prop"
     dt: Positive = 0.1
     omega_max_deg: Positive | None = None
@@ -110,6 +112,7 @@ class EstimationSpec(Spec, frozen=True):
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Literal["trace", "det"] = "trace"
     margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
+    push_gate: Positive = 2.0  # the belief strategy pushes once (x - x_last)^T P_last^-1 (x - x_last) > g^2
 
 
 class LimitsSpec(Spec, frozen=True):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ringtrack.bus.messages import SCHEMA, Command, Measurement, Tick
+from ringtrack.bus.messages import SCHEMA, Command, Measurement, PushCommand, PushMeasurement, Tick
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import converged, memory_cerr, strategy_cerr, true_cerr
 from ringtrack.world.ranges import link_distance
@@ -46,6 +46,9 @@ class WorldState:
         self.goals: FloatArray = self.positions.copy()
         self.offsets: FloatArray = np.full(scenario.robots, np.nan)  # gV - theta reported for this step, rad
         self.commanded: set[int] = set()
+        # Robot -> the robots that pushed it their belief in this step, and in the previous one.
+        self.pushes: dict[int, set[int]] = {}
+        self.pushed_last: dict[int, set[int]] = {}
         self.step = 1
         self.boundary_tolerance = 1e-6 * scenario.region.outer_diameter  # metres
 
@@ -56,15 +59,16 @@ class WorldState:
     def measurement(self, robot: int) -> Measurement:
         """Robot ``robot``'s exact position and its measured range to the target (None beyond the
         sensing range) at the start of the step, with the live set when the ring changed or the robot
-        is not in it (then it is told so: :mod:`world.admission`)."""
+        is not in it (then it is told so: :mod:`world.admission`); a :class:`PushMeasurement` naming
+        the robots that pushed it their belief in the previous step when any did."""
         position = self.positions[robot]
         measured = self.ranges[robot]
-        return Measurement(
-            SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
-            None if np.isnan(measured) else float(measured), self.in_range(robot),
-            sorted(self.live) if self.returned or self.shrunk or robot not in self.live else None,
-            self.neighbour_distances(robot),
-        )
+        fields = (SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
+                  None if np.isnan(measured) else float(measured), self.in_range(robot),
+                  sorted(self.live) if self.returned or self.shrunk or robot not in self.live else None,
+                  self.neighbour_distances(robot))
+        pushed_by = self.pushed_last.get(robot)
+        return PushMeasurement(*fields, sorted(pushed_by)) if pushed_by else Measurement(*fields)
 
     def neighbour_distances(self, robot: int) -> list[tuple[int, float]]:
         """``(neighbour, metres)`` of the links from ``robot`` to its live ring neighbours."""
@@ -130,6 +134,9 @@ class WorldState:
             offset = command.guaranteed_offset
             self.offsets[command.robot] = np.nan if offset is None else offset
             self.commanded.add(command.robot)
+            if isinstance(command, PushCommand):
+                for receiver in command.pushed:
+                    self.pushes.setdefault(receiver, set()).add(command.robot)
         return True
 
     def converged(self) -> bool:
@@ -150,6 +157,7 @@ class WorldState:
         self.returned, self.rejoining = self.rejoining & self.live, set()
         self.shrunk, self.left = bool(self.left), set()
         self.commanded.clear()
+        self.pushed_last, self.pushes = self.pushes, {}
         self.offsets[:] = np.nan
         self.step += 1
         self.target = self.path[min(self.step, len(self.path)) - 1]

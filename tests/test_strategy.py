@@ -1,0 +1,100 @@
+"""The strategy interface: the example of docs/strategies.md runs in the engine and equals itself in
+a lockstep team; bad strategies are refused in one line."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ringtrack.agents import engine
+from ringtrack.agents.laws import Trigger
+from ringtrack.world.scenario import load_scenario
+from tests.helpers import RINGTRACK, assert_equals_engine, lockstep_run, scenario
+
+pytestmark = [pytest.mark.processes, pytest.mark.timeout(240)]
+
+DOC = Path(__file__).resolve().parent.parent / "docs" / "strategies.md"
+
+
+def example(tmp_path: Path) -> Path:
+    """The documented example strategy, extracted from docs/strategies.md into a file of its own."""
+    match = re.search(r"<!-- example: (\S+) -->\n```python\n(.*?)```", DOC.read_text(), re.S)
+    assert match, "docs/strategies.md has no example block"
+    path = tmp_path / match.group(1)
+    path.write_text(match.group(2))
+    return path
+
+
+def test_documented_example_runs_in_simulate(tmp_path: Path) -> None:
+    path = example(tmp_path)
+    summary = tmp_path / "summary.json"
+    completed = subprocess.run([*RINGTRACK, "simulate", "paper-stationary", "--strategy", str(path), "--steps", "400",
+                                "--json", str(summary)], capture_output=True, text=True, timeout=120)
+    assert completed.returncode == 0, completed.stderr
+    result = json.loads(summary.read_text())
+    assert result["strategy"] == "heartbeat" and result["steps"] == 400
+    # The heartbeat: no memory reaches 41 steps, and it polls at least where the self-triggered rule does.
+    history = engine.run(scenario(strategy=str(path), max_steps=400))
+    paper = engine.run(scenario(strategy="self", max_steps=400))
+    assert history.ages.max() <= 40
+    assert paper.ages.max() > 40  # the rule alone stays silent longer
+    beats = (history.triggers & int(Trigger.SCHEDULE)) != 0
+    assert beats.any() and np.all(history.ages.max(axis=-1)[beats] == 40)
+    assert result["triggers"]["total"] == int((history.triggers != 0).sum())
+
+
+def test_documented_example_lockstep_team_equals_the_engine(tmp_path: Path) -> None:
+    path = example(tmp_path)
+    _, log = lockstep_run(scenario(strategy=str(path), max_steps=200), tmp_path / "runs")
+    logged = assert_equals_engine(log)
+    assert ((logged.triggers & int(Trigger.SCHEDULE)) != 0).any()
+
+
+@pytest.mark.parametrize(("content", "problem"), [
+    (None, "'lazy' is not a registered strategy nor a Python file; give one of belief, constant, self or the path "
+           "of a .py file that defines a Strategy"),
+    ("import numpy\n", "defines 0 subclasses of ringtrack.agents.strategy.Strategy; define exactly one"),
+    ("raise RuntimeError('boom')\n", "the strategy file failed to load (RuntimeError: boom); fix the file"),
+    ("from ringtrack.agents.strategy import Strategy\nclass Mine(Strategy):\n    name = 'self'\n",
+     "Mine.name is 'self'; give it a name of its own (not one of belief, constant, self)"),
+], ids=["unknown", "empty", "broken", "taken-name"])
+def test_bad_strategies_are_refused_in_one_line(tmp_path: Path, content: str | None, problem: str) -> None:
+    value = "lazy"
+    if content is not None:
+        value = str(tmp_path / "mine.py")
+        Path(value).write_text(content)
+    completed = subprocess.run([*RINGTRACK, "simulate", "--strategy", value], capture_output=True, text=True,
+                               timeout=60)
+    assert completed.returncode == 2
+    prefix = f"ringtrack: error: --strategy {value}: " + ("" if content is None else f"{value}: ")
+    assert completed.stderr == prefix + problem + "\n"
+
+
+def test_a_scenario_file_names_its_strategy(tmp_path: Path) -> None:
+    text = (Path(__file__).resolve().parent.parent / "scenarios" / "paper-stationary.toml").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('strategy = "self"', 'strategy = "lazy"'))
+    completed = subprocess.run([*RINGTRACK, "simulate", str(bad)], capture_output=True, text=True, timeout=60)
+    assert completed.returncode == 2
+    assert completed.stderr.startswith(f"ringtrack: error: {bad}: control.strategy: 'lazy' is not a registered")
+    needs = subprocess.run([*RINGTRACK, "simulate", "authors-moving", "--strategy", "belief", "--estimation",
+                            "centralized"], capture_output=True, text=True, timeout=60)
+    assert needs.returncode == 2
+    assert needs.stderr == ("ringtrack: error: --strategy belief: the belief strategy needs estimation.mode = "
+                            "'decentralized' (it is 'centralized'); give --estimation decentralized\n")
+
+
+def test_summary_figures_of_a_moving_target_are_settled_means() -> None:
+    moving = engine.run(load_scenario("authors-moving", max_steps=400))
+    result = engine.summary(moving, settle=300)
+    assert result["from_step"] == 300
+    assert result["cerr_mean_deg"] == pytest.approx(float(moving.cerr_true[300:, 0].mean()), rel=1e-12)
+    assert result["terr_mean"] == pytest.approx(float(moving.terr[300:, 0].mean()), rel=1e-12)
+    assert result["robot_messages"] == int(moving.sent.sum()) == 4 * int((moving.triggers != 0).sum())
+    still = engine.summary(engine.run(scenario(max_steps=100)))
+    assert "cerr_mean_deg" not in still and still["robot_messages"] == int(engine.run(scenario(max_steps=100)).sent.sum())
