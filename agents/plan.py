@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.laws import Trigger, fresh_step, guarded_step, set_trigger_reasons
-from ringtrack.agents.strategy import Strategy
+from ringtrack.agents.strategy import Controller, Strategy
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
@@ -336,5 +336,7 @@ class PlanStrategy(Strategy):
     summary = "the paper's triggers; replies carry the replier's committed plan (known target)"
     estimation = "known"
 
-    def controller(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> PlanController:
-        return PlanController(region, params, own_position)
+    def controller(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> Controller:
+        # Its ages and knowledge are read-only views of its records, where the protocol has plain
+        # attributes; the engine and the robot protocol hand it plans (receive(..., plans=...)).
+        return PlanController(region, params, own_position)  # type: ignore[return-value]

@@ -416,7 +416,8 @@ def _robot_message_base(kind: str, belief: bool, carried: int = 0, plan: bool = 
         return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
     extra = (mean, covariance) if belief else (None, None)
     if plan:
-        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), *extra, (1, 0.0, 0.0, 0.0))))
+        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean=extra[0],
+                                    covariance=extra[1], plan=(1, 0.0, 0.0, 0.0))))
     if carried:
         return len(encode(CarryingReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean=extra[0],
                                         covariance=extra[1], carried=(0.0,) * carried)))

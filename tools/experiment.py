@@ -23,7 +23,6 @@ from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, 
 from ringtrack.world.target import Circle
 
 STRATEGIES = ("constant", "self")  # compared by default; the first is the baseline of the ratios
-KNOWN_STRATEGIES = ("constant", "self", "plan")
 CSV_FILE = output_path((".csv",))
 STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
 # One row per trial of every distinct moving-target run (``experiment moving --csv``).
@@ -45,17 +44,15 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     stationary.add_argument("scenario", nargs="?", default="paper-stationary", help="base scenario")
     stationary.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 3,6,10,20")
-    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES),
-                            help="strategies to compare, the first the ratios' baseline (default constant,self; "
-                            "e.g. self,plan)")
+    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
+                            help="strategies to compare, registered names or .py files, the first the ratios' "
+                            "baseline (default constant,self; e.g. self,plan)")
     stationary.add_argument("--plan-horizon", type=at_least(0), metavar="H",
                             help="plan strategy: the most steps ahead a reply's plan describes")
     stationary.add_argument("--trials", type=at_least(1), default=30, help="random starts per team size (default 30)")
     stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
-    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
-                            help="strategies to compare: registered names or .py files (default constant,self)")
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
     stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
     stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
