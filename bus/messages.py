@@ -242,7 +242,7 @@ class Digest(Message, tag=17, frozen=True):
 
     step: Step
     measurements: list[tuple[int, Count]]
-    commands: list[tuple[Command, Count]]
+    commands: list[tuple[Command | PushCommand, Count]]  # a PushCommand for strategies that push
     kind: ClassVar[str] = "digest"
     category: ClassVar[str] = "monitoring"
 
