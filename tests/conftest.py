@@ -1,7 +1,9 @@
 """Test configuration: hypothesis defaults shared by every test file, and the ``processes`` marker
 kept honest (shared helpers live in helpers.py).
 
-``HYPOTHESIS_PROFILE=thorough`` runs ten times more examples in the tests that use the default count.
+Hypothesis profiles (``HYPOTHESIS_PROFILE``, see ``tests.helpers.EXAMPLE_SCALE``): ``dev`` by default
+(30 % of each property test's examples, for the edit-test loop), ``ci`` (the full counts; ``make test``
+and CI), ``thorough`` (ten times the full counts).
 
 Markers (registered in pyproject.toml): ``processes`` (the test starts OS processes), ``realtime``
 (it runs the realtime clock) and ``root`` (it needs root). A test without ``processes`` that starts
@@ -18,14 +20,17 @@ import subprocess
 import pytest
 from hypothesis import HealthCheck, settings
 
+from tests.helpers import EXAMPLE_SCALE, PROFILE, examples
+
 _COMMON = dict(
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
     print_blob=True,
 )
-settings.register_profile("ringtrack", max_examples=50, **_COMMON)
-settings.register_profile("thorough", max_examples=500, **_COMMON)
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ringtrack"))
+DEFAULT_EXAMPLES = 50  # a property test without its own count draws this many under "ci"
+for _profile in EXAMPLE_SCALE:
+    settings.register_profile(_profile, max_examples=examples(DEFAULT_EXAMPLES, _profile), **_COMMON)
+settings.load_profile(PROFILE)
 
 # platform.platform() runs `uname -p` once and caches it; run it here, so that a benchmark describing
 # the machine does not count as starting a process.

@@ -12,7 +12,8 @@ that the tests can catch the code disagreeing with it:
 * ``ring_angles``: N angles (radians) in strict CCW cyclic order;
 * ``lyapunov``, ``ccw_gaps``, ``midpoint_offsets``, ``sweep_omega``, ...: formulas written out anew;
 * ``scenario_toml`` / ``scenario_from``: a scenario built from TOML text; ``short_sighted``:
-  authors-moving with a limited sensing range.
+  authors-moving with a limited sensing range;
+* ``examples``: a property test's hypothesis example count under the active profile.
 
 Process helpers (tests marked ``processes``): ``lockstep_run`` and ``assert_equals_engine`` (a
 lockstep team equals the in-process engine), ``start_spawn`` / ``wait_for_steps`` / ``stop_all``
@@ -43,6 +44,22 @@ from ringtrack.world.geometry import ConvexRegion
 from ringtrack.world.scenario import Scenario, load_scenario, parse_scenario, resolve
 
 TWO_PI = 2.0 * math.pi
+
+# ---------------------------------------------------------------------------- hypothesis budgets
+# HYPOTHESIS_PROFILE picks how many examples every property test draws: "ci" (what `make test` and
+# CI run) the counts written in the tests, "dev" (plain pytest, the edit-test loop) 30 % of them,
+# "thorough" ten times as many. conftest.py registers the profiles from the same table.
+EXAMPLE_SCALE = {"dev": 0.3, "ci": 1.0, "thorough": 10.0}
+MIN_EXAMPLES = 10
+PROFILE = os.environ.get("HYPOTHESIS_PROFILE", "dev")
+if PROFILE not in EXAMPLE_SCALE:
+    raise SystemExit(f"HYPOTHESIS_PROFILE={PROFILE!r}: give one of {', '.join(EXAMPLE_SCALE)}")
+
+
+def examples(count: int, profile: str = PROFILE) -> int:
+    """The example count of a property test written for ``count`` examples (its CI count) under
+    ``profile``: scaled by :data:`EXAMPLE_SCALE`, never below :data:`MIN_EXAMPLES` (nor ``count``)."""
+    return max(min(count, MIN_EXAMPLES), round(count * EXAMPLE_SCALE[profile]))
 
 # Authors' polygon and target (docs/algorithms.md sections 10, 11, 13).
 AUTHORS_VERTICES = [[3.0, 7.0], [8.0, 17.0], [5.0, 26.0], [1.0, 22.0]]

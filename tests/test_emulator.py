@@ -128,8 +128,11 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
         assert len(processes_mentioning(str(folder))) == 8
         sent_at = time.monotonic()
         process.send_signal(stop)
+        slowest_poll = 0.0  # s: how late this process got the CPU back, what the load does to the supervisor too
         while processes_mentioning(str(folder)) and time.monotonic() - sent_at < 20:
+            polled_at = time.monotonic()
             time.sleep(0.01)
+            slowest_poll = max(slowest_poll, time.monotonic() - polled_at)
         team_gone_in = time.monotonic() - sent_at
         printed, complaints = (stream.decode() for stream in process.communicate(timeout=20))
         code = process.returncode
@@ -141,8 +144,9 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
                     signal.SIGTERM: ("interrupted (SIGTERM)", "terminated (SIGTERM)")}[stop]
     assert f"run: {said} after " in printed, printed  # the monitor's report
     assert f"ringtrack: run {said}; every process stopped" in complaints, complaints
-    # The supervisor signals, then kills what is left after 1.5 s: the team is gone within 2 s.
-    assert team_gone_in < 2.0, f"the team took {team_gone_in:.2f} s to stop"
+    # The supervisor signals, then kills what is left after 1.5 s: the team is gone within 2 s, plus
+    # twice the longest this test waited for the CPU meanwhile (a loaded machine delays both alike).
+    assert team_gone_in < 2.0 + 2 * slowest_poll, f"the team took {team_gone_in:.2f} s to stop ({slowest_poll=:.2f} s)"
     print(f"{stop.name}: every process of the team gone {team_gone_in:.2f} s after the signal")
     assert processes_mentioning(str(folder)) == []
     log = read_log(folder / "log.jsonl")

@@ -38,8 +38,8 @@ pytestmark = pytest.mark.timeout(300)
 def test_fates_are_reproducible_and_match_their_rates() -> None:
     plan = FaultPlan(seed=3, default=LinkRates(drop=0.2, duplicate=0.1))
     fates = [plan.fate("request", 1, 2, step) for step in range(20000)]
-    assert fates == [FaultPlan(seed=3, default=LinkRates(drop=0.2, duplicate=0.1)).fate("request", 1, 2, step)
-                     for step in range(20000)]
+    again = FaultPlan(seed=3, default=LinkRates(drop=0.2, duplicate=0.1))  # a new plan of the same seed: the same fates
+    assert fates[:2000] == [again.fate("request", 1, 2, step) for step in range(2000)]
     dropped = np.mean([fate.dropped for fate in fates])
     duplicated = np.mean([fate.copies == 2 for fate in fates if not fate.dropped])
     assert abs(dropped - 0.2) < 0.015 and abs(duplicated - 0.1) < 0.015
@@ -251,15 +251,17 @@ def test_a_dead_world_stops_the_team_with_a_clear_message(tmp_path: Path) -> Non
 @pytest.mark.slow
 def test_the_papers_range_bound_is_not_enough_and_a_safe_one_is() -> None:
     counterexample = load_scenario("counterexample-square")  # r_c = 0.7 > L/N = 0.667, < 0.828 needed
+    assert counterexample.communication_range == 0.7
+    runs = {}
     for r_c, converges in ((0.7, False), (counterexample.region.outer_diameter, True)):
         team = load_scenario("counterexample-square", communication_range=r_c, max_steps=3000)
-        history = engine.run(team)
+        history = runs[r_c] = engine.run(team)
         links = link_lengths(history.positions[:, 0])
         in_range_at_start = links[0] <= r_c
         assert np.all(links[:, in_range_at_start] <= r_c + 1e-9)  # a reachable link is never broken
         assert ring_order_kept(team.region, history.positions[:, 0]).all()
         assert bool(history.ctime[0]) is converges
-    failing = engine.run(load_scenario("counterexample-square", max_steps=3000))
+    failing = runs[0.7]  # the scenario as shipped
     assert engine.fault_totals(failing)["probes"] > 0  # robots probe the neighbour they cannot reach
 
 

@@ -15,6 +15,7 @@ from tests.helpers import (
     AUTHORS_VERTICES,
     TWO_PI,
     circular_distance,
+    examples,
     region_with_points,
     regions,
     sweep_omega,
@@ -299,7 +300,7 @@ def test_oracle17_authors_polygon_bounds():
 
 
 @pytest.mark.slow
-@settings(max_examples=30)
+@settings(max_examples=examples(30))
 @given(region_with_points(1), st.floats(0.1, 5.0), st.floats(0.01, 1.0), st.floats(1e-3, 0.5))
 def test_oracle17_omega_max_within_bounds_and_matches_sweep(case, v_max, dt, fraction):
     region, (centre,) = case

@@ -28,6 +28,7 @@ from ringtrack.world.ring import local_frame, midpoint, midpoint_errors, ring_ga
 from tests.helpers import (
     TWO_PI,
     ccw_gaps,
+    examples,
     lyapunov,
     midpoint_offsets,
     region_with_points,
@@ -111,7 +112,7 @@ def test_oracle4_uniform_ring_is_a_fixed_point_of_every_law(robots, rotation, om
     assert np.abs(step).max() <= 1e-12
 
 
-@settings(max_examples=30)
+@settings(max_examples=examples(30))
 @given(region_with_points(1, pull_max=0.9), st.integers(3, 12), st.floats(-math.pi, math.pi), laws, st.sampled_from(["self", "constant"]))
 def test_oracle4_uniform_ring_stays_put_through_the_controller(case, robots, rotation, law, strategy):
     region, (centre,) = case
@@ -162,7 +163,7 @@ def check_monotone_ring_history(history, expect_robots: int, dt: float, omega_de
     assert h.min() >= TWO_PI**3 / (12 * expect_robots**2) * (1 - 1e-12)
 
 
-@settings(max_examples=40)
+@settings(max_examples=examples(40))
 @given(region_with_points(1, pull_max=0.9), ring_angles(3, 30), dts, omegas_deg, laws)
 def test_oracle5_constant_law_is_monotone(case, angles, dt, omega, law):
     region, (centre,) = case
@@ -180,7 +181,7 @@ def test_oracle5_constant_law_is_monotone(case, angles, dt, omega, law):
 
 
 @pytest.mark.slow
-@settings(max_examples=50)
+@settings(max_examples=examples(50))
 @given(region_with_points(1, pull_max=0.9), ring_angles(3, 30, min_weight=1e-4), dts, omegas_deg, laws, sigmas_deg)
 def test_oracle6_self_triggered_law_is_monotone_and_keeps_order(case, angles, dt, omega, law, sigma):
     region, (centre,) = case
@@ -297,7 +298,7 @@ def test_oracle8_uncertainty_bound_is_sound(theta, gap_minus, gap_plus, c_minus,
     assert abs(extreme - g_v) == pytest.approx(ubd, abs=1e-12)
 
 
-@settings(max_examples=25)
+@settings(max_examples=examples(25))
 @given(region_with_points(1, pull_max=0.9), ring_angles(3, 12, min_weight=1e-2), laws, sigmas_deg, dts, omegas_deg)
 def test_oracle8_uncertainty_bound_is_sound_inside_a_running_ring(case, angles, law, sigma, dt, omega):
     """Drive MidpointController like the engine does and check |V_true - gV| <= ubd for every robot

@@ -9,7 +9,17 @@ import numpy as np
 import pytest
 
 from ringtrack.agents import engine
-from ringtrack.bus.faults import FAULT_COUNTERS, Fate, FaultCounter, FaultPlan, LinkRates, Outage, link, request_traffic
+from ringtrack.bus.faults import (
+    FAULT_COUNTERS,
+    REASONS,
+    Fate,
+    FaultCounter,
+    FaultPlan,
+    LinkRates,
+    Outage,
+    link,
+    request_traffic,
+)
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode, robot_message_bytes
 from ringtrack.bus.radio import Radio, airtime_s, loss_probability, message_bits, receive_energy, transmit_energy
 from ringtrack.world.ranges import link_distance
@@ -41,9 +51,12 @@ def stated_loss(radio: Radio, distance: float) -> float:
 def test_log_distance_loss_probability_is_its_formula_at_three_distances(distance: float) -> None:
     expected = stated_loss(LOSSY, distance)
     assert float(loss_probability(LOSSY, distance)) == pytest.approx(expected, abs=1e-9)
-    # and the fault layer loses messages over such a link at that rate (20000 steps, keyed draws)
+    # and the fault layer loses messages over such links at that rate (20000 keyed draws: 10 links of
+    # that length, 2000 steps; each step's messages decided as one batch, as the engine does)
     plan = FaultPlan(seed=5, radio=LOSSY)
-    lost = np.mean([plan.fate("request", 1, 2, step, distance).reason == "radio" for step in range(1, 20001)])
+    senders = np.arange(0, 20, 2)
+    lost = np.mean([plan.decide("request", senders, senders + 1, step, distance).reason == REASONS.index("radio")
+                    for step in range(1, 2001)])
     assert abs(lost - expected) < 4 * math.sqrt(expected * (1 - expected) / 20000) + 1e-4
 
 

@@ -11,7 +11,15 @@ from hypothesis import strategies as st
 
 from ringtrack.world.geometry import ConvexRegion, angle_of
 from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
-from tests.helpers import AUTHORS_TARGET, AUTHORS_VERTICES, TWO_PI, circular_distance, region_with_points, regions
+from tests.helpers import (
+    AUTHORS_TARGET,
+    AUTHORS_VERTICES,
+    TWO_PI,
+    circular_distance,
+    examples,
+    region_with_points,
+    regions,
+)
 
 UNIT_SQUARE = ConvexRegion.from_vertices([[0, 0], [1, 0], [1, 1], [0, 1]])
 
@@ -48,7 +56,7 @@ def test_link_lengths_by_hand():
 
 
 # ---------------------------------------------------------------------------- oracle 19
-@settings(max_examples=60)
+@settings(max_examples=examples(60))
 @given(regions(), st.integers(3, 10), st.lists(st.floats(-math.pi, math.pi), min_size=1, max_size=20))
 def test_oracle19_incentre_uniform_rings_respect_the_necessary_bound(region, robots, rotations):
     centre, _ = region.chebyshev_centre
@@ -83,7 +91,7 @@ def test_oracle20_second_counterexample_target_near_corner():
     assert required == pytest.approx(0.984, abs=0.005)
 
 
-@settings(max_examples=12)
+@settings(max_examples=examples(12))
 @given(region_with_points(1), st.integers(3, 9))
 def test_uniform_link_requirement_matches_brute_force(case, robots):
     region, (centre,) = case
