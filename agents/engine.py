@@ -268,7 +268,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
              reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
              belief: bool = False, pushed: NDArray[np.bool_] | None = None,
-             request_belief: bool = False, plan_until: NDArray[np.int64] | None = None) -> Exchange:
+             request_belief: bool = False, plan_until: NDArray[np.int64] | None = None,
+             carried: int = 0) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
     :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
     robot of every trial at once: a polling robot requests both neighbours; a robot also probes
@@ -279,7 +280,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     trial t draws its fates with plan seed ``seeds[t]`` (default the plan's), replies carry a
     belief when ``belief`` and requests when ``request_belief``; replies carry a plan when
     ``plan_until`` gives the horizon step of the reply each robot's (predecessor, successor) would
-    send it (last axis). ``pushed`` (per side) are the beliefs robots push unasked: each is
+    send it (last axis), and ``carried`` floats of a strategy's own content (a
+    :class:`bus.messages.CarryingReply`). ``pushed`` (per side) are the beliefs robots push unasked: each is
     published once and meets its fate on arrival, like a reply. ``plan`` may also give groups of
     trials their own plans (one radio for all). Energy, from the same fates: every copy put on the
     bus costs its sender transmission (a request dropped before publishing was still sent once),
@@ -310,7 +312,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     fresh = (requests > 0) & ~reply.dropped
     radio = groups[0][0].radio
     request_bytes = robot_message_bytes("request", step, robot, neighbour, request_belief)
-    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, plan_until=plan_until)
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, carried, plan_until)
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
     on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
@@ -459,7 +461,8 @@ def run(
             telling = polled | pushing
             last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
                          np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
-        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens, until)
+        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens, until,
+                           strategy.reply_fields)
         if strategy.listens:  # told by the predecessor's message to its successor, and the other way
             reached = (outcome.requests > 0) | outcome.push_delivered
             told = np.roll(reached[..., 1], 1, axis=1), np.roll(reached[..., 0], -1, axis=1)

@@ -98,3 +98,37 @@ def test_summary_figures_of_a_moving_target_are_settled_means() -> None:
     assert result["robot_messages"] == int(moving.sent.sum()) == 4 * int((moving.triggers != 0).sum())
     still = engine.summary(engine.run(scenario(max_steps=100)))
     assert "cerr_mean_deg" not in still and still["robot_messages"] == int(engine.run(scenario(max_steps=100)).sent.sum())
+
+
+CARRYING = '''
+import numpy as np
+from ringtrack.agents.strategy import SelfTriggered
+
+
+class Carrying(SelfTriggered):
+    name = "carrying"
+    reply_fields = 2
+
+    def reply_content(self, controller):
+        return np.stack([controller.theta, controller.theta], axis=-1)
+'''
+
+
+@pytest.mark.processes
+def test_the_engine_counts_the_bytes_of_replies_that_carry_a_strategys_content(tmp_path: Path) -> None:
+    """A reply with ``reply_fields`` floats is a CarryingReply: the engine counts its exact size, and
+    a lockstep team publishes the same bytes per robot and step (assert_equals_engine compares them)."""
+    from ringtrack.bus.messages import robot_message_bytes
+
+    path = tmp_path / "carrying.py"
+    path.write_text(CARRYING)
+    plain = engine.run(load_scenario("paper-stationary", strategy="self", max_steps=60), record_positions=False)
+    carrying = engine.run(load_scenario("paper-stationary", strategy=str(path), max_steps=60),
+                          record_positions=False)
+    assert np.array_equal(plain.triggers, carrying.triggers)  # the same rule: only the replies grow
+    assert plain.requests is not None and plain.sent_bytes is not None and carrying.sent_bytes is not None
+    extra = int(robot_message_bytes("reply", 1, 0, 1, carried=2) - robot_message_bytes("reply", 1, 0, 1))
+    assert extra == 1 + 2 * 9  # the array header of two floats, and each float 9 bytes
+    assert int(carrying.sent_bytes.sum() - plain.sent_bytes.sum()) == extra * int(plain.requests.sum())
+    _, log = lockstep_run(load_scenario("paper-stationary", strategy=str(path), max_steps=60), tmp_path)
+    assert_equals_engine(log)
