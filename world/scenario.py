@@ -246,7 +246,11 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         _check_plan(spec, label)
     # Only an estimating team needs the inscribed radius: computing it loads scipy's LP solver, which
     # would add about 42 MiB and 0.5 s of CPU (a busy 2-core machine) to every process of a known-target team.
-    if estimation.mode != "known" and estimation.margin >= (inscribed_radius := region.inner_diameter / 2.0):
+    # A margin below the vertices' mean's distance to the nearest edge (at most the inscribed radius)
+    # passes without it.
+    room = float(region.heights(region.vertices.mean(axis=0)).min())
+    if (estimation.mode != "known" and estimation.margin >= room
+            and estimation.margin >= (inscribed_radius := region.inner_diameter / 2.0)):
         raise ScenarioError(
             f"{label}: estimation.margin {estimation.margin:g} m leaves no room: the region's inscribed radius "
             f"(D_in / 2) is {inscribed_radius:.4g} m; give a margin below it (default 0.1)"
