@@ -16,7 +16,9 @@ import multiprocessing.util
 import os
 import platform
 import subprocess
+from pathlib import Path
 
+import matplotlib
 import pytest
 from hypothesis import HealthCheck, settings
 
@@ -35,6 +37,9 @@ settings.load_profile(PROFILE)
 # platform.platform() runs `uname -p` once and caches it; run it here, so that a benchmark describing
 # the machine does not count as starting a process.
 platform.platform()
+# matplotlib builds its font cache once per machine, running `fc-list`: build it here on a fresh one.
+if not list(Path(matplotlib.get_cachedir()).glob("fontlist-*.json")):
+    import matplotlib.font_manager  # noqa: F401
 
 
 @pytest.fixture(autouse=True)
