@@ -127,8 +127,8 @@ def test_the_engine_counts_the_bytes_of_replies_that_carry_a_strategys_content(t
                           record_positions=False)
     assert np.array_equal(plain.triggers, carrying.triggers)  # the same rule: only the replies grow
     assert plain.requests is not None and plain.sent_bytes is not None and carrying.sent_bytes is not None
-    extra = int(robot_message_bytes("reply", 1, 0, 1, carried=2) - robot_message_bytes("reply", 1, 0, 1))
-    assert extra == 1 + 2 * 9  # the array header of two floats, and each float 9 bytes
+    extra = int(robot_message_bytes("reply", 1, 0, 1, content=[0.5, 0.5]) - robot_message_bytes("reply", 1, 0, 1))
+    assert extra == 1 + 2 * 9  # the array header of two floats, and each float 9 bytes (angles are not whole)
     assert int(carrying.sent_bytes.sum() - plain.sent_bytes.sum()) == extra * int(plain.requests.sum())
     _, log = lockstep_run(load_scenario("paper-stationary", strategy=str(path), max_steps=60), tmp_path)
     assert_equals_engine(log)
