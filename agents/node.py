@@ -122,6 +122,7 @@ class RobotNode:
         # the neighbours it pushed to this step.
         self.heard: dict[tuple[int, int], Belief] = {}
         self.expected: set[int] = set()
+        self.lost_pushes: set[tuple[int, int]] = set()  # (neighbour, step) of pushes lost before they were awaited
         self.measured: tuple[FloatArray, list[float]] | None = None
         self.last_told: Belief | None = None
         if self.estimator is not None and self.strategy.pushes:
@@ -129,6 +130,7 @@ class RobotNode:
             self.last_told = (pack_point(mean), pack_covariance(covariance))
         self.pushed: list[int] = []
         self.pushes_sent = 0
+        self.pushes_waited_out = 0  # steps a robot heard without a push it waited for, on a timeout
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
         self.replies: dict[int, Reply] = {}
@@ -186,9 +188,11 @@ class RobotNode:
         if listening:  # hear what the neighbours told in the previous step, once the named pushes are in
             self.measured = (self.position[None, :], [measured])
             named = set(getattr(measurement, "pushed_by", ())) & {self.predecessor, self.successor}
-            self.expected = {robot for robot in named if (robot, self.step - 1) not in self.heard}
+            settled = self.heard.keys() | self.lost_pushes  # told, or known lost
+            self.expected = {robot for robot in named if (robot, self.step - 1) not in settled}
             for key in [key for key in self.heard if key[1] < self.step - 1]:
                 del self.heard[key]
+            self.lost_pushes = {key for key in self.lost_pushes if key[1] >= self.step - 1}
             return outgoing if self.expected else [*outgoing, *self._hear()]
         if self.mode == "centralized":
             self.waiting_for_estimate = True
@@ -245,8 +249,13 @@ class RobotNode:
     def _told(self, sender: int, step: int, belief: Belief) -> None:
         """Keep a belief a ring neighbour told this robot (the first of each step; steps a robot can
         still hear or may reach soon only, so a flood cannot grow the memory)."""
-        if sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS:
+        if self._hearable(sender, step):
             self.heard.setdefault((sender, step), belief)
+
+    def _hearable(self, sender: int, step: int) -> bool:
+        """Whether what ``sender`` tells of ``step`` is kept: a ring neighbour, of a step this robot
+        can still hear or may reach soon (so a flood cannot grow the memory)."""
+        return sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS
 
     def on_push(self, push: Push) -> Outgoing:
         """A neighbour's belief, told unasked: heard in the step after ``push.step``."""
@@ -256,15 +265,23 @@ class RobotNode:
         return self.on_push_lost(push.sender, push.step)
 
     def on_push_lost(self, sender: int, step: int) -> Outgoing:
-        """A push the robot waits for came, or will not come (dropped): hear once none is awaited."""
+        """A push the robot waits for came, or will not come (dropped): hear once none is awaited. A
+        push lost before the robot waits for it (it has not reached the step it hears it at) is
+        remembered as lost, so the robot will not wait for it."""
+        if self._hearable(sender, step) and step >= self.step:
+            self.lost_pushes.add((sender, step))
         if step != self.step - 1 or sender not in self.expected:
             return []
         self.expected.discard(sender)
         return [] if self.expected else self._hear()
 
     def on_pushes_late(self) -> Outgoing:
-        """The pushes the robot waits for will not come in time: hear without them."""
-        return self._hear() if self.expected else []
+        """The pushes the robot waits for will not come in time: hear without them (counted in
+        ``pushes_waited_out``; in lockstep every push comes or is known lost, so none is)."""
+        if not self.expected:
+            return []
+        self.pushes_waited_out += 1
+        return self._hear()
 
     def on_request(self, request: Request) -> Outgoing:
         if isinstance(request, BeliefRequest) and self.strategy.listens:
