@@ -18,7 +18,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.estimation import Estimator
-from ringtrack.agents.plan import PlanController, neighbour_plans
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
@@ -268,8 +267,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
              reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
              belief: bool = False, pushed: NDArray[np.bool_] | None = None,
-             request_belief: bool = False, plan_until: NDArray[np.int64] | None = None,
-             carried: int = 0) -> Exchange:
+             request_belief: bool = False, content: FloatArray | None = None) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
     :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
     robot of every trial at once: a polling robot requests both neighbours; a robot also probes
@@ -278,12 +276,12 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     (:func:`bus.faults.published_copies`), and each reply meets its own fate on arrival. Links are
     ``distance_minus``/``distance_plus`` metres long (to the predecessor, successor; default 0),
     trial t draws its fates with plan seed ``seeds[t]`` (default the plan's), replies carry a
-    belief when ``belief`` and requests when ``request_belief``; replies carry a plan when
-    ``plan_until`` gives the horizon step of the reply each robot's (predecessor, successor) would
-    send it (last axis), and ``carried`` floats of a strategy's own content (a
-    :class:`bus.messages.CarryingReply`). ``pushed`` (per side) are the beliefs robots push unasked: each is
-    published once and meets its fate on arrival, like a reply. ``plan`` may also give groups of
-    trials their own plans (one radio for all). Energy, from the same fates: every copy put on the
+    belief when ``belief`` and requests when ``request_belief``; replies carry the ``content`` of
+    a strategy (the floats each robot's replies carry, ``(T, N, fields)``; see
+    :func:`bus.messages.robot_message_bytes`).
+    ``pushed`` (per side) are the beliefs robots push unasked: each is published once and meets its
+    fate on arrival, like a reply. ``plan`` may also give groups of trials their own plans (one
+    radio for all). Energy, from the same fates: every copy put on the
     bus costs its sender transmission (a request dropped before publishing was still sent once),
     every copy delivered costs its receiver reception (:mod:`bus.radio`), with the exact encoded
     size of each message."""
@@ -312,7 +310,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     fresh = (requests > 0) & ~reply.dropped
     radio = groups[0][0].radio
     request_bytes = robot_message_bytes("request", step, robot, neighbour, request_belief)
-    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, carried, plan_until)
+    sides = None if content is None else np.stack(_to_sides(content), axis=2)  # what (predecessor, successor) carry
+    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, sides)
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
     on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
@@ -443,7 +442,7 @@ def run(
             told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry
         else:
             centres = team.measure(positions, targets)
-        neighbours = np.roll(positions, 1, axis=1), np.roll(positions, -1, axis=1)
+        neighbours = _to_sides(positions)
         lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
         reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
         reasons = controller.observe(k, positions, centres, reach)
@@ -452,8 +451,8 @@ def run(
         if watch is not None:
             watch(k, controller, positions)
         polled = reasons != 0
-        offers = neighbour_plans(controller.offer()) if isinstance(controller, PlanController) else None
-        until = None if offers is None else np.stack([offers[0].until, offers[1].until], axis=-1)
+        # What each robot's replies of this step carry, read once it has observed the step.
+        content = strategy.reply_content(controller) if strategy.reply_fields else None
         pushed = None
         if last_told is not None:
             pushing = ~polled & strategy.wants_push(told_beliefs[0], *last_told, scenario.estimation)
@@ -461,16 +460,13 @@ def run(
             telling = polled | pushing
             last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
                          np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
-        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens, until,
-                           strategy.reply_fields)
+        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens,
+                           content)
         if strategy.listens:  # told by the predecessor's message to its successor, and the other way
             reached = (outcome.requests > 0) | outcome.push_delivered
             told = np.roll(reached[..., 1], 1, axis=1), np.roll(reached[..., 0], -1, axis=1)
         pushes[row] = outcome.pushes
-        if isinstance(controller, PlanController):  # plans come from the neighbours' own controllers
-            controller.receive(*neighbours, outcome.fresh_minus, outcome.fresh_plus, plans=offers or (None, None))
-        else:
-            strategy.receive(controller, *replies(strategy, controller, neighbours, outcome))
+        strategy.receive(controller, *replies(neighbours, outcome, content))
         if team.mode == "decentralized":
             team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
             controller.recentre(centres)
@@ -513,17 +509,21 @@ def run(
     )
 
 
-def replies(strategy: Any, controller: Any, neighbours: tuple[FloatArray, FloatArray],
-            outcome: Exchange) -> tuple[Received, Received]:
+def replies(neighbours: tuple[FloatArray, FloatArray], outcome: Exchange,
+            content: FloatArray | None) -> tuple[Received, Received]:
     """What came back to every robot from its predecessor and successor in a step: their step-start
-    ``neighbours`` positions (metres) where the reply came, and what the strategy's replies carry,
-    read from each neighbour's controller after it observed the step."""
-    content = strategy.reply_content(controller) if strategy.reply_fields else None
-    sides = []
-    for position, fresh, shift in ((neighbours[0], outcome.fresh_minus, 1), (neighbours[1], outcome.fresh_plus, -1)):
-        carried = None if content is None else np.roll(content, shift, axis=1)
-        sides.append(Received(position, fresh, np.zeros(fresh.shape, dtype=np.int64), carried))
-    return sides[0], sides[1]
+    ``neighbours`` positions (metres) where the reply came, and the ``content`` every robot's
+    replies carry (``(T, N, fields)``, robots on axis 1; None: a strategy whose replies carry nothing)."""
+    carried = (None, None) if content is None else _to_sides(content)
+    return (Received(neighbours[0], outcome.fresh_minus, np.zeros(outcome.fresh_minus.shape, dtype=np.int64),
+                     carried[0]),
+            Received(neighbours[1], outcome.fresh_plus, np.zeros(outcome.fresh_plus.shape, dtype=np.int64),
+                     carried[1]))
+
+
+def _to_sides(values: NDArray) -> tuple[NDArray, NDArray]:
+    """What each robot's predecessor and successor hold of ``values`` (robots on axis 1)."""
+    return np.roll(values, 1, axis=1), np.roll(values, -1, axis=1)
 
 
 SETTLE_STEPS = 300  # moving targets: Cerr and Terr means leave out the first steps (as experiment moving)

@@ -27,7 +27,6 @@ from collections.abc import Callable
 import numpy as np
 
 from ringtrack.agents.estimation import Estimator, prior_belief
-from ringtrack.agents.plan import Plan, PlanController
 from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
@@ -41,15 +40,14 @@ from ringtrack.bus.messages import (
     Estimate,
     Measurement,
     Message,
-    PlanFields,
-    PlanReply,
     Point,
     Push,
     PushCommand,
     RangeReport,
     Reply,
     Request,
-    carries_plan,
+    carries_content,
+    compact,
 )
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.ring import ring_neighbours
@@ -78,18 +76,6 @@ def pack_covariance(matrix: FloatArray) -> Covariance:
     return (float(matrix[0, 0]), float(matrix[0, 1]), float(matrix[1, 1]))
 
 
-def pack_plan(plan: Plan) -> PlanFields:
-    return (int(plan.until), float(plan.low), float(plan.high), float(plan.shift))
-
-
-def unpack_plan(reply: Reply | None) -> Plan | None:
-    """The plan a reply carries (None: a reply without one, read by the paper's rule)."""
-    if not isinstance(reply, PlanReply) or reply.plan is None:
-        return None
-    until, low, high, shift = reply.plan
-    return Plan(np.asarray(until, dtype=np.int64), np.asarray(low), np.asarray(high), np.asarray(shift))
-
-
 def unpack_covariance(packed: Covariance) -> FloatArray:
     xx, xy, yy = packed
     return np.array([[xx, xy], [xy, yy]])
@@ -111,8 +97,6 @@ class RobotNode:
         self._nonce = nonce or (lambda: NONCE_BASE + secrets.randbits(31))  # always 5 bytes on the wire
         self.strategy = check_strategy(scenario)
         self.controller: Controller | None = None
-        self.planning = scenario.control.strategy == "plan"
-        self.offers: dict[int, PlanFields] = {}  # step -> the plan a reply of that step carries
         self.estimator = (
             Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
         )
@@ -138,6 +122,7 @@ class RobotNode:
         # the neighbours it pushed to this step.
         self.heard: dict[tuple[int, int], Belief] = {}
         self.expected: set[int] = set()
+        self.lost_pushes: set[tuple[int, int]] = set()  # (neighbour, step) of pushes lost before they were awaited
         self.measured: tuple[FloatArray, list[float]] | None = None
         self.last_told: Belief | None = None
         if self.estimator is not None and self.strategy.pushes:
@@ -145,6 +130,7 @@ class RobotNode:
             self.last_told = (pack_point(mean), pack_covariance(covariance))
         self.pushed: list[int] = []
         self.pushes_sent = 0
+        self.pushes_waited_out = 0  # steps a robot heard without a push it waited for, on a timeout
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
         self.replies: dict[int, Reply] = {}
@@ -192,8 +178,8 @@ class RobotNode:
         if self.estimator is not None and not listening:
             self.estimator.measure(self.position[None, :], [measured])
             self._keep_belief()
-        # A reply that describes the step's decision (a plan, or the strategy's carried content) waits for it.
-        if not listening and not self.strategy.reply_fields and not self.planning:
+        # A reply that describes the step's decision (the strategy's carried content) waits for it.
+        if not listening and not self.strategy.reply_fields:
             self.answerable = self.step
         outgoing = self._answer_buffered()
         self.awaiting, self.replies = {}, {}
@@ -202,9 +188,11 @@ class RobotNode:
         if listening:  # hear what the neighbours told in the previous step, once the named pushes are in
             self.measured = (self.position[None, :], [measured])
             named = set(getattr(measurement, "pushed_by", ())) & {self.predecessor, self.successor}
-            self.expected = {robot for robot in named if (robot, self.step - 1) not in self.heard}
+            settled = self.heard.keys() | self.lost_pushes  # told, or known lost
+            self.expected = {robot for robot in named if (robot, self.step - 1) not in settled}
             for key in [key for key in self.heard if key[1] < self.step - 1]:
                 del self.heard[key]
+            self.lost_pushes = {key for key in self.lost_pushes if key[1] >= self.step - 1}
             return outgoing if self.expected else [*outgoing, *self._hear()]
         if self.mode == "centralized":
             self.waiting_for_estimate = True
@@ -212,7 +200,7 @@ class RobotNode:
                                  measurement.live)
             return [*outgoing, (FUSION, report)]
         decided = self._decide()
-        return [*outgoing, *decided, *(self._answer_buffered() if self.planning else [])]
+        return [*outgoing, *decided]
 
     def on_estimate(self, estimate: Estimate) -> Outgoing:
         """Steer about the centre's estimate: at once when it is this step's and the robot waits for
@@ -261,8 +249,13 @@ class RobotNode:
     def _told(self, sender: int, step: int, belief: Belief) -> None:
         """Keep a belief a ring neighbour told this robot (the first of each step; steps a robot can
         still hear or may reach soon only, so a flood cannot grow the memory)."""
-        if sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS:
+        if self._hearable(sender, step):
             self.heard.setdefault((sender, step), belief)
+
+    def _hearable(self, sender: int, step: int) -> bool:
+        """Whether what ``sender`` tells of ``step`` is kept: a ring neighbour, of a step this robot
+        can still hear or may reach soon (so a flood cannot grow the memory)."""
+        return sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS
 
     def on_push(self, push: Push) -> Outgoing:
         """A neighbour's belief, told unasked: heard in the step after ``push.step``."""
@@ -272,15 +265,23 @@ class RobotNode:
         return self.on_push_lost(push.sender, push.step)
 
     def on_push_lost(self, sender: int, step: int) -> Outgoing:
-        """A push the robot waits for came, or will not come (dropped): hear once none is awaited."""
+        """A push the robot waits for came, or will not come (dropped): hear once none is awaited. A
+        push lost before the robot waits for it (it has not reached the step it hears it at) is
+        remembered as lost, so the robot will not wait for it."""
+        if self._hearable(sender, step) and step >= self.step:
+            self.lost_pushes.add((sender, step))
         if step != self.step - 1 or sender not in self.expected:
             return []
         self.expected.discard(sender)
         return [] if self.expected else self._hear()
 
     def on_pushes_late(self) -> Outgoing:
-        """The pushes the robot waits for will not come in time: hear without them."""
-        return self._hear() if self.expected else []
+        """The pushes the robot waits for will not come in time: hear without them (counted in
+        ``pushes_waited_out``; in lockstep every push comes or is known lost, so none is)."""
+        if not self.expected:
+            return []
+        self.pushes_waited_out += 1
+        return self._hear()
 
     def on_request(self, request: Request) -> Outgoing:
         if isinstance(request, BeliefRequest) and self.strategy.listens:
@@ -338,19 +339,8 @@ class RobotNode:
             return []
         assert self.controller is not None
         before, after = self.replies.get(self.predecessor), self.replies.get(self.successor)
-        if isinstance(self.controller, PlanController):
-            received = (
-                before.position if before else self.controller.predecessor_position,
-                after.position if after else self.controller.successor_position,
-                before is not None,
-                after is not None,
-                self.step - before.step if before else 0,
-                self.step - after.step if after else 0,
-            )
-            self.controller.receive(*received, plans=(unpack_plan(before), unpack_plan(after)))
-        else:
-            self.strategy.receive(self.controller, self._received(before, self.controller.predecessor_position),
-                                  self._received(after, self.controller.successor_position))
+        self.strategy.receive(self.controller, self._received(before, self.controller.predecessor_position),
+                              self._received(after, self.controller.successor_position))
         beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
                    if reply is not None and reply.mean is not None and reply.covariance is not None]
         if self.estimator is not None and beliefs:
@@ -384,13 +374,10 @@ class RobotNode:
         self.trigger = int(self.controller.observe(self.step, self.position, self.centre, reach))
         self.ages = (int(self.controller.predecessor_age), int(self.controller.successor_age))
         answers: Outgoing = []
-        if isinstance(self.controller, PlanController):
-            self.offers[self.step] = pack_plan(self.controller.offer())
-            self.offers.pop(self.step - KEPT_STEPS, None)
         if self.strategy.reply_fields:  # replies describe the robot once it has observed the step
             self.carried[self.step] = tuple(float(v) for v in self.strategy.reply_content(self.controller))
             self.carried.pop(self.step - KEPT_STEPS, None)
-        if self.planning or self.strategy.reply_fields:
+        if self.strategy.reply_fields:
             self.answerable = self.step
             answers = self._answer_buffered()
         neighbours = (self.predecessor, self.successor)
@@ -466,12 +453,9 @@ class RobotNode:
         mean, covariance = self.beliefs.get(step, (None, None))
         fields = (SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step], mean,
                   covariance)
-        plan = self.offers.get(step)
-        if plan and carries_plan(step, plan[0]):
-            return (robot_name(request.sender), PlanReply(*fields, plan=plan))
-        if self.strategy.reply_fields:
-            carried = self.carried.get(step, (0.0,) * self.strategy.reply_fields)
-            return (robot_name(request.sender), CarryingReply(*fields, carried=carried))
+        carried = self.carried.get(step)
+        if carried is not None and carries_content(carried):
+            return (robot_name(request.sender), CarryingReply(*fields, carried=compact(carried)))
         return (robot_name(request.sender), Reply(*fields))
 
     def _answer_buffered(self) -> Outgoing:

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.laws import Trigger, fresh_step, guarded_step, set_trigger_reasons
-from ringtrack.agents.strategy import Controller, Strategy
+from ringtrack.agents.strategy import Controller, Received, Strategy
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
@@ -66,16 +66,6 @@ def prediction_set(step: ArrayLike, since: ArrayLike, plan: Plan,
     centre = np.where(within, (low + high) / 2.0, plan.shift)
     half_width = np.where(within, (high - low) / 2.0, grown)
     return centre, half_width
-
-
-def neighbour_plans(offers: Plan) -> tuple[Plan, Plan]:
-    """The plans each robot's predecessor and successor offer, from every robot's (robots on the
-    last axis of a whole ring)."""
-    def rolled(shift: int) -> Plan:
-        return Plan(np.roll(offers.until, shift, axis=-1), np.roll(offers.low, shift, axis=-1),
-                    np.roll(offers.high, shift, axis=-1), np.roll(offers.shift, shift, axis=-1))
-
-    return rolled(1), rolled(-1)
 
 
 class Memory(NamedTuple):
@@ -328,15 +318,30 @@ def _store(ring: NDArray, slot: IntArray, where: NDArray[np.bool_], values: Arra
 
 class PlanStrategy(Strategy):
     """The self-triggered rule with plan-carrying replies (this module): its controller is a
-    :class:`PlanController`; the engine and the robot protocol exchange its plans
-    (:meth:`PlanController.offer`, :class:`bus.messages.PlanReply`) and answer a request only once
-    the replier has decided the step (whether it polls decides ``T'``)."""
+    :class:`PlanController`, its replies carry :meth:`PlanController.offer` as four floats
+    ``(T' - k, r-, r+, D)`` (steps ahead of the reply's step ``k``, then radians), all zero where
+    the replier polls (so the reply goes as a plain one and is read as the paper's rule)."""
 
     name = "plan"
     summary = "the paper's triggers; replies carry the replier's committed plan (known target)"
     estimation = "known"
+    reply_fields = 4
 
     def controller(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> Controller:
-        # Its ages and knowledge are read-only views of its records, where the protocol has plain
-        # attributes; the engine and the robot protocol hand it plans (receive(..., plans=...)).
+        # Its ages and knowledge are read-only views of its records, where the protocol has plain attributes.
         return PlanController(region, params, own_position)  # type: ignore[return-value]
+
+    def reply_content(self, controller: PlanController) -> FloatArray:
+        plan = controller.offer()
+        ahead = (plan.until - controller.step).astype(float)
+        return np.stack([ahead, plan.low, plan.high, plan.shift], axis=-1)
+
+    def receive(self, controller: PlanController, predecessor: Received, successor: Received) -> None:
+        plans = []
+        for side in (predecessor, successor):
+            assert side.content is not None
+            since = controller.step - side.age  # the step the reply describes
+            ahead = np.rint(side.content[..., 0]).astype(np.int64)
+            plans.append(Plan(since + ahead, side.content[..., 1], side.content[..., 2], side.content[..., 3]))
+        controller.receive(predecessor.position, successor.position, predecessor.fresh, successor.fresh,
+                           predecessor.age, successor.age, plans=(plans[0], plans[1]))

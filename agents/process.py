@@ -84,7 +84,7 @@ async def run_robot(
     def stats(participant: Participant, code: int) -> Stats:
         assert link is not None and claim is not None
         notes = {"polls": node.polls, "probes": node.probes, "pushes": node.pushes_sent,
-                 "ignored_replies": node.ignored_replies,
+                 "pushes_waited_out": node.pushes_waited_out, "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,
                  "id_collisions": len(claim.rivals)}
         return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes,

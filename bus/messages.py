@@ -109,26 +109,6 @@ class Reply(Message, tag=4, frozen=True):
     category: ClassVar[str] = "robot"
 
 
-PlanFields = tuple[Step, Real, Real, Real]  # (T', r-, r+, D): horizon step and radians relative to the position
-
-
-class PlanReply(Reply, tag=16, frozen=True):
-    """A :class:`Reply` of the plan strategy: also the sender's committed plan from ``step``, as
-    ``plan = (until, low, high, shift)``: its angle about the target (radians, CCW) stays within
-    ``[b + low, b + high]`` for steps ``step .. until`` and is ``b + shift`` at ``until``, where ``b``
-    is the angle of ``position``. A robot with no plan beyond the step (it polls at that step) sends a
-    plain :class:`Reply`, read as ``until = step`` and zeros (:func:`carries_plan`). A separate tag,
-    so the replies of the other strategies keep their bytes."""
-
-    plan: PlanFields | None = None
-
-
-def carries_plan(step: ArrayLike, until: ArrayLike) -> NDArray[np.bool_]:
-    """Whether a plan reply of ``step`` with horizon ``until`` is sent as a :class:`PlanReply`: only a
-    plan reaching beyond its step says more than a plain reply."""
-    return np.asarray(until) > np.asarray(step)
-
-
 class PushMeasurement(Measurement, tag=15, frozen=True):
     """A :class:`Measurement` that also names the ring neighbours that pushed their belief to this
     robot in the previous step (``pushed_by``, from their :class:`PushCommand`): in lockstep the
@@ -156,7 +136,8 @@ class BeliefRequest(Request, tag=12, frozen=True):
 
 class CarryingReply(Reply, tag=13, frozen=True):
     """A :class:`Reply` that also carries what the strategy puts in its replies (``carried``:
-    :meth:`agents.strategy.Strategy.reply_content`)."""
+    :meth:`agents.strategy.Strategy.reply_content`). A reply whose content is all zeros is sent as
+    a plain :class:`Reply` and read back as zeros (:func:`carries_content`)."""
 
     carried: Annotated[tuple[Real, ...], msgspec.Meta(max_length=32)] = ()
 
@@ -277,7 +258,7 @@ KINDS: dict[str, type[Message]] = {
                 Digest)
 }
 AnyMessage = (Measurement | PushMeasurement | Command | PushCommand | Request | BeliefRequest | Reply | CarryingReply
-              | PlanReply | Push | Tick | End | Stats | RangeReport | Estimate | FaultNotice | Digest)
+              | Push | Tick | End | Stats | RangeReport | Estimate | FaultNotice | Digest)
 RobotMessage = Request | Reply | Push  # robot-to-robot: through the fault layer
 
 _encoder = msgspec.msgpack.Encoder()
@@ -324,7 +305,9 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
         message = _decoder.decode(payload)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:
         raise Rejected("malformed", str(error)) from None
-    if len(encode(message)) != len(payload):  # decoding skips trailing fields: the sender added some
+    # Decoding skips trailing fields: a payload longer than the message re-encoded (every float in
+    # 9 bytes; compact senders send whole numbers shorter) carries some.
+    if len(payload) > len(encode(message)):
         raise Rejected("size", f"{len(payload)} bytes for a {message.kind} of {len(encode(message))}")
     if message.schema != SCHEMA:
         raise Rejected("schema", f"schema {message.schema}, expected {SCHEMA}")
@@ -404,9 +387,8 @@ def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
 
 
 @cache
-def _robot_message_base(kind: str, belief: bool, carried: int = 0, plan: bool = False) -> int:
-    """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0 (a plan reply's
-    horizon step 1)."""
+def _robot_message_base(kind: str, belief: bool, carried: int = 0) -> int:
+    """Encoded bytes of a robot-to-robot message of step 1 from robot 0 to robot 0."""
     mean, covariance = (0.0, 0.0), (0.0, 0.0, 0.0)
     if kind == "push":
         return len(encode(Push(SCHEMA, NONCE_BASE, 1, 0, 0, mean, covariance)))
@@ -415,9 +397,6 @@ def _robot_message_base(kind: str, belief: bool, carried: int = 0, plan: bool = 
             return len(encode(BeliefRequest(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, mean, covariance)))
         return len(encode(Request(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE)))
     extra = (mean, covariance) if belief else (None, None)
-    if plan:
-        return len(encode(PlanReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean=extra[0],
-                                    covariance=extra[1], plan=(1, 0.0, 0.0, 0.0))))
     if carried:
         return len(encode(CarryingReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0), mean=extra[0],
                                         covariance=extra[1], carried=(0.0,) * carried)))
@@ -425,20 +404,50 @@ def _robot_message_base(kind: str, belief: bool, carried: int = 0, plan: bool = 
 
 
 def robot_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike,
-                        belief: bool = False, carried: int = 0, plan_until: ArrayLike | None = None
-                        ) -> NDArray[np.int64]:
+                        belief: bool = False, content: ArrayLike | None = None) -> NDArray[np.int64]:
     """The exact encoded size of requests, replies or pushes (``kind``; a reply with a ``belief``
     carries a mean and covariance, a request with one is a :class:`BeliefRequest`, a reply with
-    ``carried`` floats a :class:`CarryingReply`, one with a ``plan_until`` a plan to that step, sent
-    as a :class:`PlanReply` where :func:`carries_plan`) of ``step`` from ``sender`` to ``receiver``,
-    broadcast over arrays: the size of the step-1, robot-0 message plus the extra bytes the larger
-    integers take (floats are always 9 bytes, nonces and run ids 5)."""
+    ``content``, the strategy's floats on the last axis, is a :class:`CarryingReply` where
+    :func:`carries_content`, its whole numbers sent as integers, see :func:`compact`) of ``step``
+    from ``sender`` to ``receiver``, broadcast over arrays: the size of the step-1, robot-0 message
+    plus the extra bytes the larger integers take (other floats are always 9 bytes, nonces and run
+    ids 5)."""
     extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
-    plain = _robot_message_base(kind, belief, carried) + extra
-    if plan_until is not None and kind == "reply":
-        planned = _robot_message_base(kind, belief, plan=True) + extra + uint_bytes(plan_until) - 1
-        return np.where(carries_plan(step, plan_until), planned, plain)
-    return plain
+    plain = _robot_message_base(kind, belief) + extra
+    if content is None or kind != "reply":
+        return plain
+    content = np.asarray(content, dtype=float)
+    fields = content.shape[-1]
+    carrying = _robot_message_base(kind, belief, fields) - 9 * fields + extra + number_bytes(content).sum(axis=-1)
+    return np.where(carries_content(content), carrying, plain)
+
+
+def carries_content(content: ArrayLike) -> NDArray[np.bool_]:
+    """Whether a reply whose strategy content is ``content`` (last axis: the fields) is sent as a
+    :class:`CarryingReply`: only content with a non-zero field says more than a plain reply."""
+    return np.any(np.asarray(content) != 0, axis=-1)
+
+
+WHOLE_LIMIT = 2**31  # whole numbers below this magnitude travel as msgpack integers (compact)
+
+
+def compact(values: ArrayLike) -> tuple[float | int, ...]:
+    """``values`` as a message carries them: whole numbers of magnitude below :data:`WHOLE_LIMIT`
+    as integers (1 to 5 bytes; a float field decodes them as floats, and the sign of a zero is
+    not kept), every other value as a 9-byte float (:func:`number_bytes`)."""
+    return tuple(int(value) if value.is_integer() and abs(value) < WHOLE_LIMIT else value
+                 for value in np.asarray(values, dtype=float).ravel().tolist())
+
+
+def number_bytes(values: ArrayLike) -> NDArray[np.int64]:
+    """Encoded bytes of each of ``values`` as :func:`compact` sends it: msgpack's smallest integer
+    (1 byte for -32..127, 2 for -128..255, 3 for -32768..65535, else 5) or 9 for a float."""
+    values = np.asarray(values, dtype=float)
+    whole = np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < WHOLE_LIMIT)
+    number = np.where(whole, values, 0.0)
+    integer = np.select([(number >= -32) & (number <= 127), (number >= -128) & (number <= 255),
+                         (number >= -32768) & (number <= 65535)], [1, 2, 3], 5)
+    return np.where(whole, integer, 9).astype(np.int64)
 
 
 def poll_bytes(with_belief: bool) -> int:

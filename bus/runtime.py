@@ -38,8 +38,9 @@ class Interrupts:
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def __init__(self, exit_with_parent: bool = False) -> None:
+    def __init__(self, exit_with_parent: bool = False, parent_grace_s: float = 10.0) -> None:
         self.exit_with_parent = exit_with_parent
+        self.parent_grace_s = parent_grace_s  # s: how long the process may take to stop once its parent exited
         self.participants: list[Participant] = []
         self.loop: asyncio.AbstractEventLoop | None = None
 
@@ -76,6 +77,13 @@ class Interrupts:
         if loop is not None and not loop.is_closed():
             with contextlib.suppress(RuntimeError):
                 loop.call_soon_threadsafe(self.fire, "parent exited")
+        # A process whose loop cannot act (its thread stuck in a call that never returns, as a Zenoh
+        # declaration that deadlocks) must still not outlive its parent: this daemon thread ends it.
+        time.sleep(self.parent_grace_s)
+        with contextlib.suppress(OSError):
+            os.write(sys.stderr.fileno(), f"ringtrack: the parent exited and this process did not stop within "
+                                          f"{self.parent_grace_s:g} s; exiting\n".encode())
+        os._exit(STOPPED)
 
 
 @contextlib.asynccontextmanager

@@ -59,3 +59,41 @@ def test_a_killed_spawn_takes_its_team_down_and_leaves_a_readable_log(tmp_path: 
     whole = [record for record in log.steps if record["live"] == list(range(6))]
     assert len(whole) >= 50 and log.steps[: len(whole)] == whole
     assert_equals_engine(dataclasses.replace(log, steps=whole))
+
+
+STUCK = """
+import asyncio, sys, time
+from ringtrack.bus.runtime import Interrupts
+
+async def main():
+    interrupts = Interrupts(exit_with_parent=True, parent_grace_s=0.5)
+    interrupts._install(asyncio.get_running_loop())
+    print("ready", flush=True)
+    time.sleep(120)  # the loop's thread stuck, as in a Zenoh call that never returns
+
+asyncio.run(main())
+"""
+
+
+@pytest.mark.processes
+def test_a_process_stuck_outside_its_loop_still_ends_with_its_parent() -> None:
+    """Its parent's end cannot reach a loop whose thread never comes back to it: the watcher thread
+    ends the process after the grace, with the exit code of a stopped participant and one line."""
+    import subprocess
+    import sys
+
+    from ringtrack.bus.runtime import STOPPED
+
+    child = subprocess.Popen([sys.executable, "-c", STUCK], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "ready\n"
+        assert child.stdin is not None
+        child.stdin.close()  # the parent's end, as the child sees it
+        assert child.wait(timeout=60) == STOPPED
+        assert child.stderr is not None
+        assert "ringtrack: the parent exited and this process did not stop within 0.5 s; exiting" in child.stderr.read()
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()

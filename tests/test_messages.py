@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 from ringtrack.bus.keys import Keys, robot_index
 from ringtrack.bus.messages import (
     BOUND,
+    NONCE_BASE,
     SCHEMA,
+    CarryingReply,
     Command,
     End,
     Measurement,
@@ -21,8 +23,11 @@ from ringtrack.bus.messages import (
     Request,
     Stats,
     Tick,
+    compact,
     decode,
     encode,
+    number_bytes,
+    robot_message_bytes,
 )
 from ringtrack.bus.participant import Delivery, Participant
 
@@ -120,6 +125,22 @@ def test_neighbour_messages_are_compact() -> None:
     reply = Reply(SCHEMA, RUN, 123_456, 5, 4, 2**32 - 1, (12.345678901234, -3.21))
     assert len(encode(request)) <= 20
     assert len(encode(reply)) <= 42  # 2 floats of 9 bytes; absent belief fields cost 1 byte each
+
+
+whole = st.integers(-int(BOUND), int(BOUND)).map(float)  # carried values are within BOUND
+
+
+@given(st.lists(st.one_of(whole, finite, st.sampled_from([0.0, -0.0, 127.0, 128.0, -32.0, -33.0, 65535.0])),
+                min_size=1, max_size=8), steps, robots, robots)
+def test_carried_numbers_are_counted_exactly(values: list[float], step: int, sender: int, receiver: int) -> None:
+    """A strategy's reply content travels compactly (whole numbers as msgpack integers) and
+    robot_message_bytes counts its encoded size exactly; it decodes to the same floats."""
+    assert len(msgspec.msgpack.encode(compact(values))) == 1 + int(number_bytes(values).sum())
+    reply = CarryingReply(SCHEMA, RUN, step, sender, receiver, NONCE_BASE, (1.25, -2.5), carried=compact(values))
+    wire = encode(reply)
+    if any(value != 0 for value in values):
+        assert len(wire) == int(robot_message_bytes("reply", step, sender, receiver, content=values))
+    assert decode(wire, route_of(reply), RUN, ROBOTS).carried == tuple(values)
 
 
 def test_rejection_reasons() -> None:

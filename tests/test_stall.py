@@ -1,4 +1,5 @@
-"""The stall guard counts from the first step, never start-up, and says what the run waited for."""
+"""The stall guard counts from the first step, start-up has a bound of its own, and both say what the run
+waited for."""
 
 from __future__ import annotations
 
@@ -30,6 +31,21 @@ def test_a_run_that_stops_growing_after_its_first_step_is_a_stall(tmp_path: Path
         with pytest.raises(TimeoutError) as raised:
             supervisor.wait(stall_s=0.3, watched=log, started=lambda: True)
     assert str(raised.value) == f"{log} did not grow for 0.3 s"
+
+
+@pytest.mark.processes
+def test_a_start_up_that_never_ends_is_bounded(tmp_path: Path) -> None:
+    """A participant that never comes up (a Zenoh declaration that deadlocks, seen once) must not
+    hold spawn for ever: past the start-up bound the wait ends, saying so; a long start-up within it
+    is waited out (above)."""
+    from ringtrack.tools.spawn import STALL_TIMEOUT_S, startup_limit
+
+    assert startup_limit(64) > startup_limit(8) > STALL_TIMEOUT_S  # a larger team may take longer
+    with Supervisor(tmp_path) as supervisor:
+        supervisor.start("hung", [sys.executable, "-c", "import time; time.sleep(30)"])
+        with pytest.raises(TimeoutError) as raised:
+            supervisor.wait(stall_s=60.0, watched=tmp_path / "log.jsonl", started=lambda: False, startup_s=0.3)
+    assert str(raised.value) == "the team did not reach its first step within 0.3 s of start-up"
 
 
 def test_a_stall_says_which_step_and_which_robot_it_waited_for(tmp_path: Path) -> None:

@@ -127,8 +127,36 @@ def test_the_engine_counts_the_bytes_of_replies_that_carry_a_strategys_content(t
                           record_positions=False)
     assert np.array_equal(plain.triggers, carrying.triggers)  # the same rule: only the replies grow
     assert plain.requests is not None and plain.sent_bytes is not None and carrying.sent_bytes is not None
-    extra = int(robot_message_bytes("reply", 1, 0, 1, carried=2) - robot_message_bytes("reply", 1, 0, 1))
-    assert extra == 1 + 2 * 9  # the array header of two floats, and each float 9 bytes
+    extra = int(robot_message_bytes("reply", 1, 0, 1, content=[0.5, 0.5]) - robot_message_bytes("reply", 1, 0, 1))
+    assert extra == 1 + 2 * 9  # the array header of two floats, and each float 9 bytes (angles are not whole)
     assert int(carrying.sent_bytes.sum() - plain.sent_bytes.sum()) == extra * int(plain.requests.sum())
     _, log = lockstep_run(load_scenario("paper-stationary", strategy=str(path), max_steps=60), tmp_path)
     assert_equals_engine(log)
+
+
+@pytest.mark.processes
+@pytest.mark.realtime
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize(("name", "kind"), [("plan", "reply"), ("belief", "push")])
+def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tmp_path: Path, name: str,
+                                                                            kind: str) -> None:
+    """plan (known target) and belief (moving target, decentralized) over Zenoh on the realtime
+    clock with lost and duplicated links: the run ends, every message is accounted for (the fault
+    identity, the monitor equal to the senders) and the strategy's own traffic is there (plan
+    replies longer than plain ones, pushes). What the team achieves depends on the load; what is
+    counted does not."""
+    from ringtrack.bus.messages import robot_message_bytes
+    from ringtrack.tools.spawn import spawn_team
+
+    name_of = {"plan": "paper-stationary", "belief": "authors-moving"}[name]
+    team = load_scenario(name_of, strategy=name, max_steps=150, drop=0.2, duplicate=0.1)
+    result = spawn_team(team, clock="realtime", rate=10.0, runs=tmp_path, dashboard=False)
+    assert result["exit_code"] == 0 and result["end_reason"] in ("done", "converged")
+    assert result["monitor_equals_senders"] is True
+    faults = result["faults"]
+    assert faults["dropped"] > 0 and faults["duplicated"] > 0
+    assert faults["sent"] + faults["duplicated"] == faults["delivered"] + faults["dropped"]
+    traffic = result["by_kind"][kind]
+    assert traffic["messages"] > 0
+    if name == "plan":
+        assert traffic["bytes"] > traffic["messages"] * int(robot_message_bytes("reply", 1, 0, 1))

@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from ringtrack.tools.supervisor import Supervisor
 
 STALL_TIMEOUT_S = 60.0
+STARTUP_S_PER_PROCESS = 2.0  # start-up allowance per process on top of STALL_TIMEOUT_S (startup_limit)
 LOCKSTEP_WAIT_S = LEASE_S  # a frozen robot is seen gone (liveliness) after about as long
 ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
@@ -248,7 +249,8 @@ def spawn_team(
                     view.started_all()
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
-                                started=lambda: first_step.after is not None)
+                                started=lambda: first_step.after is not None,
+                                startup_s=startup_limit(len(supervisor.children)))
         except KeyboardInterrupt:
             interrupted, stop_signal = "interrupted by the user (Ctrl-C)", signal.SIGINT  # the children say so too
         except Terminated:
@@ -346,6 +348,13 @@ def process_budget() -> int:
     except (OSError, StopIteration, ValueError):
         return MAX_PROCESSES
     return max(1, min(MAX_PROCESSES, int(0.8 * available_kib / 1024 / PROCESS_MIB)))
+
+
+def startup_limit(processes: int) -> float:
+    """Seconds a team of ``processes`` may take from the last start to its first step before spawn
+    calls the start-up hung: generous (a 64-process team took 29 s on a loaded 2-core machine), so
+    only a participant that never comes up reaches it."""
+    return STALL_TIMEOUT_S + STARTUP_S_PER_PROCESS * processes
 
 
 class FirstStep:

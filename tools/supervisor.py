@@ -90,13 +90,17 @@ class Supervisor:
 
     def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
              watched: Path | None = None, on_poll: Callable[[], None] | None = None,
-             started: Callable[[], bool] | None = None) -> None:
+             started: Callable[[], bool] | None = None, startup_s: float | None = None) -> None:
         """Wait until every child has exited; return early when a ``critical`` child fails, and raise
         TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run) once
-        ``started()`` says the run is under way (start-up, however long, is not a stall);
-        ``on_poll()`` runs at every poll."""
+        ``started()`` says the run is under way, or when it is not under way ``startup_s`` seconds
+        after this call (a start-up that hangs); ``on_poll()`` runs at every poll."""
         last_size, last_change = -1, time.monotonic()
+        waiting_since = last_change
         while self.running():
+            if (startup_s is not None and started is not None and not started()
+                    and time.monotonic() - waiting_since > startup_s):
+                raise TimeoutError(f"the team did not reach its first step within {startup_s:g} s of start-up")
             if on_poll is not None:
                 on_poll()
             if any(child.name in critical for child in self.failed()):
