@@ -46,10 +46,12 @@ def test_simulate_log_reads_back_as_the_engine_run(tmp_path: Path) -> None:
     assert np.allclose(logged.cerr_memory, twin.cerr_memory, atol=1e-9)
 
 
-def test_stationary_experiment_json_and_figure(tmp_path: Path) -> None:
+def test_stationary_experiment_json_and_figure(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     data, figure = tmp_path / "e.json", tmp_path / "e.png"
     assert main(["experiment", "stationary", "--robots", "4,6", "--trials", "5", "--seed", "2",
                  "--json", str(data), "--plot", str(figure)]) == 0
+    table = capsys.readouterr().out
+    assert "Com ÷" in table and "…" not in table  # the table fits 80 columns: nothing cut
     result = json.loads(data.read_text())
     assert len(result["rows"]) == 2 * 2 * 5
     assert {row["seed"] for row in result["rows"]} == {2, 3, 4, 5, 6}

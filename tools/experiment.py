@@ -278,8 +278,8 @@ def results_table(result: dict) -> Table:
     strategy (by default self / constant)."""
     baseline = result.get("strategies", STRATEGIES)[0]
     table = Table(title=f"stationary target, {result['trials']} trials (seeds {result['seed']}..), Ctime in steps, "
-                  f"ratios: strategy / {baseline}", title_justify="left", box=box.SIMPLE_HEAD)
-    for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime ratio", "Com ratio"):
+                  f"mean ± 1 sd; ÷: ratio to {baseline}", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
+    for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime ÷", "Com ÷"):
         table.add_column(column, justify="right", no_wrap=True)
     ratios = {(entry["robots"], entry.get("strategy", "self")): entry for entry in result["ratios"]}
     for entry in result["summary"]:
