@@ -15,6 +15,7 @@ from __future__ import annotations
 import multiprocessing.util
 import os
 import platform
+import signal
 import subprocess
 from pathlib import Path
 
@@ -37,6 +38,11 @@ settings.load_profile(PROFILE)
 # platform.platform() runs `uname -p` once and caches it; run it here, so that a benchmark describing
 # the machine does not count as starting a process.
 platform.platform()
+# Tests press Ctrl-C on their children (SIGINT). A shell that starts the suite in the background
+# without job control makes it ignore SIGINT, and an ignored signal is inherited across exec: the
+# children would ignore it too. Restore Python's own handler (children then start with the default).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 # matplotlib builds its font cache once per machine, running `fc-list`: build it here on a fresh one.
 if not list(Path(matplotlib.get_cachedir()).glob("fontlist-*.json")):
     import matplotlib.font_manager  # noqa: F401
