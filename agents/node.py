@@ -262,14 +262,17 @@ class RobotNode:
         if push.receiver != self.robot or not self.strategy.listens:
             return []
         self._told(push.sender, push.step, (push.mean, push.covariance))
-        return self.on_push_lost(push.sender, push.step)
+        return self._push_settled(push.sender, push.step)
 
     def on_push_lost(self, sender: int, step: int) -> Outgoing:
-        """A push the robot waits for came, or will not come (dropped): hear once none is awaited. A
-        push lost before the robot waits for it (it has not reached the step it hears it at) is
-        remembered as lost, so the robot will not wait for it."""
+        """A push will not come (dropped). One lost before the robot waits for it (it has not reached
+        the step it hears it at) is remembered as lost, so the robot will not wait for it."""
         if self._hearable(sender, step) and step >= self.step:
             self.lost_pushes.add((sender, step))
+        return self._push_settled(sender, step)
+
+    def _push_settled(self, sender: int, step: int) -> Outgoing:
+        """A push the robot may wait for came or was lost: hear once none is awaited."""
         if step != self.step - 1 or sender not in self.expected:
             return []
         self.expected.discard(sender)
