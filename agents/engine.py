@@ -34,6 +34,7 @@ from ringtrack.world.metrics import (
     true_cerr,
 )
 from ringtrack.world.ranges import link_distance
+from ringtrack.world.ring import predecessor_values, successor_values
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
 from ringtrack.world.state import motion_step
@@ -206,7 +207,7 @@ def ring_traffic(requests: NDArray[np.int64]) -> NDArray[np.int64]:
 def _to_neighbours(per_side: NDArray) -> NDArray:
     """Values of each robot's (predecessor, successor) sides, shape (..., T, N, 2), summed onto the
     neighbour at the other end of each link, shape (..., T, N)."""
-    return np.roll(per_side[..., 0], -1, axis=-1) + np.roll(per_side[..., 1], 1, axis=-1)
+    return successor_values(per_side[..., 0]) + predecessor_values(per_side[..., 1])
 
 
 def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
@@ -300,10 +301,13 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     of_requests = fate_counts(lost, request.copies, request.delay_s, requested)
     of_replies = reply.counts(requests)
     pushes = np.zeros(reach.shape, np.int64) if pushed is None else pushed.astype(np.int64)
-    push = (_group_fates(groups, "push", robot, neighbour, step, distance, seed, reach.shape) if pushes.any()
-            else Fates(np.zeros(reach.shape, np.int8), np.ones(reach.shape, np.int64), np.zeros(reach.shape)))
-    of_pushes = push.counts(pushes)
-    counts = {name: of_requests[name] + of_replies[name] + of_pushes[name] for name in (*FAULTS, "delivered")}
+    pushing = bool(pushes.any())
+    push = (_group_fates(groups, "push", robot, neighbour, step, distance, seed, reach.shape) if pushing
+            else _undisturbed(reach.shape))
+    counts = {name: of_requests[name] + of_replies[name] for name in (*FAULTS, "delivered")}
+    if pushing:
+        of_pushes = push.counts(pushes)
+        counts = {name: counts[name] + of_pushes[name] for name in counts}
     counts["sent"] = requested.astype(np.int64) + requests + pushes
     counts["published"] = ring_traffic(requests) + pushes.sum(axis=-1)
     faults = np.stack([counts[name].reshape(trials, -1).sum(axis=1) for name in FAULT_COLUMNS], axis=-1)
@@ -319,7 +323,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
                     of_replies["delivered"] * receive_energy(radio, reply_bits)])
     other = np.stack([requests * reply_bytes, requests * transmit_energy(radio, reply_bits, distance),
                       requests * receive_energy(radio, request_bits)])
-    if pushes.any():
+    if pushing:
         push_bytes = robot_message_bytes("push", step, robot, neighbour)
         push_bits = message_bits(radio, push_bytes)
         own = own + np.stack([pushes * push_bytes, pushes * transmit_energy(radio, push_bits, distance),
@@ -345,13 +349,22 @@ def _group_fates(groups: PlanGroups, kind: str, sender: NDArray[np.int64], recei
     if len(groups) == 1 and len(groups[0][1]) == shape[0]:
         plan = groups[0][0]
         if not plan.active:
-            return Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
+            return _undisturbed(shape)
         return plan.decide(kind, sender, receiver, step, distance, seed)
     fates = Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
     for plan, trials in groups:
         if plan.active:
             part = plan.decide(kind, sender, receiver, step, distance[trials], None if seed is None else seed[trials])
             fates.reason[trials], fates.copies[trials], fates.delay_s[trials] = part.reason, part.copies, part.delay_s
+    return fates
+
+
+@lru_cache(maxsize=16)
+def _undisturbed(shape: tuple[int, ...]) -> Fates:
+    """Fates of messages no fault touches (each delivered once, at once), read-only, by shape."""
+    fates = Fates(np.zeros(shape, np.int8), np.ones(shape, np.int64), np.zeros(shape))
+    for values in (fates.reason, fates.copies, fates.delay_s):
+        values.setflags(write=False)
     return fates
 
 
@@ -464,7 +477,7 @@ def run(
                            content)
         if strategy.listens:  # told by the predecessor's message to its successor, and the other way
             reached = (outcome.requests > 0) | outcome.push_delivered
-            told = np.roll(reached[..., 1], 1, axis=1), np.roll(reached[..., 0], -1, axis=1)
+            told = predecessor_values(reached[..., 1], axis=1), successor_values(reached[..., 0], axis=1)
         pushes[row] = outcome.pushes
         strategy.receive(controller, *replies(neighbours, outcome, content))
         if team.mode == "decentralized":
@@ -523,7 +536,7 @@ def replies(neighbours: tuple[FloatArray, FloatArray], outcome: Exchange,
 
 def _to_sides(values: NDArray) -> tuple[NDArray, NDArray]:
     """What each robot's predecessor and successor hold of ``values`` (robots on axis 1)."""
-    return np.roll(values, 1, axis=1), np.roll(values, -1, axis=1)
+    return predecessor_values(values, axis=1), successor_values(values, axis=1)
 
 
 SETTLE_STEPS = 300  # moving targets: Cerr and Terr means leave out the first steps (as experiment moving)

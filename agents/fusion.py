@@ -29,6 +29,7 @@ estimates. With two estimates this is the two-estimate closed form of that paper
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from itertools import combinations
 
@@ -121,19 +122,18 @@ def _face_candidates(
         weights = np.zeros(count)
         weights[face[0]] = 1.0
         return [weights]
-    sub = determinants[np.ix_(face, face)]
+    sub = determinants[face[:, None], face]
     if abs(np.linalg.det(sub)) < 1e-12 * max(np.abs(sub).max(), 1e-300) ** len(face):
         return []  # degenerate face: its optimum lies on a smaller face
-    a = np.linalg.solve(sub, traces[face])
-    b = np.linalg.solve(sub, np.ones(len(face)))
+    face_traces = traces[face]
+    a, b = np.linalg.solve(sub, np.stack([face_traces, np.ones(len(face))], axis=1)).T
     if criterion == "det":
         solutions = [b / b.sum()] if b.sum() != 0 else []
     else:
-        roots = np.roots([b.sum(), a.sum() - traces[face] @ b, -(traces[face] @ a)])
         solutions = []
-        for root in roots[np.isreal(roots)].real:
+        for root in _positive_roots(b.sum(), a.sum() - face_traces @ b, -(face_traces @ a)):
             scale = a.sum() + root * b.sum()
-            if root > 0 and scale != 0:
+            if scale != 0:
                 solutions.append((a + root * b) / scale)
     candidates = []
     for local in solutions:
@@ -143,3 +143,18 @@ def _face_candidates(
             weights /= weights.sum()
             candidates.append(weights)
     return candidates
+
+
+def _positive_roots(quadratic: float, linear: float, constant: float) -> list[float]:
+    """The distinct positive real roots ``L`` of ``quadratic L^2 + linear L + constant = 0`` (a
+    vanishing leading coefficient leaves the linear equation), in the cancellation-free form
+    ``q = -(linear + sign(linear) sqrt(disc)) / 2``, roots ``q / quadratic`` and ``constant / q``."""
+    if quadratic == 0.0:
+        roots = [-constant / linear] if linear != 0.0 else []
+    else:
+        discriminant = linear * linear - 4.0 * quadratic * constant
+        if discriminant < 0.0:
+            return []
+        q = -0.5 * (linear + math.copysign(math.sqrt(discriminant), linear))
+        roots = [q / quadratic] + ([constant / q] if q != 0.0 else [])
+    return sorted({float(root) for root in roots if root > 0.0})

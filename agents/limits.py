@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ringtrack.world.geometry import ConvexRegion, FloatArray
+from ringtrack.world.ring import successor_values
 
 BISECTIONS = 30
 
@@ -43,7 +44,7 @@ def boundary_stretch(region: ConvexRegion, centre: ArrayLike) -> FloatArray:
     centre = np.asarray(centre, dtype=float)
     heights = region.heights(centre)
     reach = np.linalg.norm(region.vertices - centre[..., None, :], axis=-1)
-    farther = np.maximum(reach, np.roll(reach, -1, axis=-1))
+    farther = np.maximum(reach, successor_values(reach))
     return np.max(farther**2 / heights, axis=-1)
 
 

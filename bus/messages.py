@@ -380,10 +380,14 @@ def endpoints(message: Message) -> tuple[str, str | None]:
 NONCE_BASE = 2**31  # nonces and run ids are drawn from [2^31, 2^32): always 5 bytes on the wire
 
 
+_UINT_LIMITS = np.array([128, 256, 65536])  # msgpack: positive fixint, uint 8, uint 16, uint 32
+_UINT_SIZES = np.array([1, 2, 3, 5], dtype=np.int64)
+
+
 def uint_bytes(value: ArrayLike) -> NDArray[np.int64]:
     """Bytes msgpack takes for non-negative integers below 2^32 (1, 2, 3 or 5)."""
-    value = np.asarray(value, dtype=np.int64)
-    return 1 + (value >= 128) + (value >= 256) + 2 * (value >= 65536)
+    sizes: NDArray[np.int64] = _UINT_SIZES[np.searchsorted(_UINT_LIMITS, value, side="right")]
+    return sizes
 
 
 @cache

@@ -8,6 +8,10 @@ and CI), ``thorough`` (ten times the full counts).
 Markers (registered in pyproject.toml): ``processes`` (the test starts OS processes), ``realtime``
 (it runs the realtime clock) and ``root`` (it needs root). A test without ``processes`` that starts
 a process fails at once, naming the marker, so ``pytest -m "not processes"`` is the pure suite.
+
+The suite runs on one pytest-xdist worker per core (``-n auto`` in pyproject.toml; ``-n 0`` for a
+single process), so two tests may run at once, each on a machine the other loads: every test that
+starts processes sizes its waits from what it measures, not from a quiet machine.
 """
 
 from __future__ import annotations

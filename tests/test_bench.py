@@ -11,7 +11,7 @@ import pytest
 from rich.console import Console
 
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode
-from ringtrack.tools.bench import engine_results
+from ringtrack.tools.bench import EngineProgress, engine_results
 from ringtrack.tools.cli import main
 
 pytestmark = pytest.mark.timeout(240)
@@ -71,5 +71,10 @@ def test_bench_engine_shows_its_progress_on_a_terminal_only() -> None:
                          ("sweep N = 3..3, 1 trials x 2", 6000)):
         assert re.search(rf"{re.escape(label)} .* {total}/{total}", shown), shown
     piped = Console(file=io.StringIO(), record=True, width=100, force_terminal=False)
-    engine_results(1, [3], console=piped)
+    progress = EngineProgress(3000, piped)  # what engine_results draws, fed the same way
+    with progress.bar:
+        progress.part("one run, N = 6", 1)
+        for step in range(1, 3001):
+            progress.on_step(6, "self", step)
+        progress.close()
     assert piped.export_text() == ""

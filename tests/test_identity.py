@@ -78,7 +78,10 @@ def test_an_id_collision_is_seen_by_both_processes(tmp_path: Path) -> None:
 def test_a_join_is_refused_on_the_worlds_word_before_it_links_to_the_live_robot() -> None:
     """Under load a joining process may see the world long before it has linked to r3 (gossip makes
     that link later): the world's ``reach`` token for r3 alone must refuse it, and a name the world
-    does not see alive must pass. Here the joiner can reach nobody but the world."""
+    does not see alive must pass. Here the joiner can reach nobody but the world. The world holds
+    the reach tokens before its own alive token is up, as in a run, where a robot's reach token is up
+    long before anyone joins as it: a joiner seeing the world's token then sees the reach tokens
+    declared before it (one link delivers declarations in order)."""
     async def check(seen: set[str]) -> str | None:
         loop = asyncio.get_running_loop()
         keys = Keys(0x5EED)
@@ -87,8 +90,8 @@ def test_a_join_is_refused_on_the_worlds_word_before_it_links_to_the_live_robot(
         world = Participant(world_session, keys, WORLD, 6, loop)
         tokens = ReachTokens(world)
         try:
-            world.announce("alive")
             tokens.hold(seen)
+            world.announce("alive")
             await refuse_if_alive(Participant(joiner_session, keys, "r3", 6, loop))
             return None
         except IdCollision as refusal:

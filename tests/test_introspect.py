@@ -94,10 +94,10 @@ def test_echo_and_hz_give_up_on_a_run_that_is_not_running(tmp_path: Path, capsys
     (folder / "scenario.toml").write_bytes(load_scenario("paper-stationary").to_toml())
     (folder / "run.json").write_text(json.dumps({"run": "0000abcd", "connect": ["tcp/127.0.0.1:9"]}))
     started = time.monotonic()
-    assert main(["echo", str(folder)]) == 1
-    assert "echo: nothing of run 0000abcd heard for 3 s: is it running?" in capsys.readouterr().err
-    assert main(["hz", "abcd", "--runs", str(tmp_path), "--period", "10"]) == 1
-    assert "hz: nothing of run 0000abcd heard" in capsys.readouterr().err
+    assert main(["echo", str(folder), "--give-up", "0.5"]) == 1
+    assert "echo: nothing of run 0000abcd heard for 0.5 s: is it running?" in capsys.readouterr().err
+    assert main(["hz", "abcd", "--runs", str(tmp_path), "--period", "10", "--give-up", "0.5"]) == 1
+    assert "hz: nothing of run 0000abcd heard for 0.5 s" in capsys.readouterr().err
     assert time.monotonic() - started < 30
     assert main(["list", str(folder), "--duration", "0.2"]) == 0
     listed = capsys.readouterr().out

@@ -98,6 +98,7 @@ def test_circle_check_accepts_exactly_the_circles_inside(case, fraction, angular
     room = region.heights(centre).min()
     radius = fraction * room
     circle = Circle(centre=tuple(centre), speed=radius * abs(angular_speed), angular_speed=angular_speed)
+    radius = circle.radius  # the circle as built (a subnormal angular speed rounds speed / angular_speed)
     angles = np.linspace(0.0, 2 * math.pi, 4001)
     ring = centre + radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
     deepest_miss = region.heights(ring).min()  # the circle's closest approach to the boundary

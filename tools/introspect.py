@@ -29,7 +29,7 @@ from ringtrack.tools.console import UsageError, err, out
 from ringtrack.tools.options import at_least, positive
 
 POLL_S = 0.05
-QUIET_S = 3.0  # echo and hz give up on a run heard nothing of for this long
+QUIET_S = 3.0  # echo and hz give up on a run heard nothing of for this long (default of --give-up)
 HEX_RUN = re.compile(r"^[0-9a-fA-F]{1,8}$")
 
 
@@ -50,6 +50,7 @@ def register(commands: argparse._SubParsersAction) -> None:
                       help=f"only messages of this kind ({', '.join(sorted(KINDS))}); repeatable")
     echo.add_argument("--robot", type=at_least(0), metavar="I", help="only messages from or to robot I")
     echo.add_argument("--count", type=at_least(1), metavar="N", help="stop after N messages")
+    _give_up(echo)
     echo.set_defaults(handler=run_echo)
 
     hz = commands.add_parser("hz", help="messages and bytes per second of a live run, per kind and per link",
@@ -59,7 +60,13 @@ def register(commands: argparse._SubParsersAction) -> None:
     _common(hz, run_required=True)
     hz.add_argument("--period", type=positive, default=1.0, metavar="S", help="seconds per report (default 1)")
     hz.add_argument("--reports", type=at_least(1), metavar="N", help="stop after N reports")
+    _give_up(hz)
     hz.set_defaults(handler=run_hz)
+
+
+def _give_up(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--give-up", type=positive, default=QUIET_S, metavar="S", dest="give_up_s",
+                        help=f"stop when nothing of RUN is heard for S seconds (default {QUIET_S:g})")
 
 
 def _common(parser: argparse.ArgumentParser, run_required: bool) -> None:
@@ -187,11 +194,12 @@ def _braced(names: list[str]) -> str:
 
 
 class Quiet:
-    """Ends a watch of one run: nothing of it heard for ``QUIET_S`` seconds (not running, or
+    """Ends a watch of one run: nothing of it heard for ``give_up_s`` seconds (not running, or
     unreachable), or its world withdrew its token (the run is over)."""
 
-    def __init__(self, run: int | None) -> None:
+    def __init__(self, run: int | None, give_up_s: float = QUIET_S) -> None:
         self.run = run
+        self.give_up_s = give_up_s
         self.last = time.monotonic()
         self.reason = ""
 
@@ -201,8 +209,9 @@ class Quiet:
             self.reason = "the world left: the run is over"
 
     def over(self) -> bool:
-        if not self.reason and time.monotonic() - self.last > QUIET_S:
-            self.reason = f"nothing of run {self.run:08x} heard for {QUIET_S:g} s: is it running? (ringtrack list)"
+        if not self.reason and time.monotonic() - self.last > self.give_up_s:
+            self.reason = (f"nothing of run {self.run:08x} heard for {self.give_up_s:g} s: is it running? "
+                           "(ringtrack list)")
         return bool(self.reason)
 
 
@@ -212,7 +221,7 @@ def run_echo(args: argparse.Namespace) -> int:
     kinds = set(args.kind or KINDS)
     robot = None if args.robot is None else robot_name(args.robot)
     printed = 0
-    quiet = Quiet(target.run)
+    quiet = Quiet(target.run, args.give_up_s)
     with observer(target, args.mode) as bus:
         while not quiet.over():
             for item in bus.poll():
@@ -268,7 +277,7 @@ def run_hz(args: argparse.Namespace) -> int:
         messages: Counter[tuple[str, str]] = Counter()  # (what, name) -> messages
         sizes: Counter[tuple[str, str]] = Counter()
         ended = False
-        quiet = Quiet(target.run)
+        quiet = Quiet(target.run, args.give_up_s)
         while not ended:
             if quiet.over():
                 err.print(f"hz: {quiet.reason}", highlight=False)

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
-from ringtrack.world.ring import midpoint_errors
+from ringtrack.world.ring import midpoint_errors, successor_values
 
 
 def convergence_error(offsets: ArrayLike) -> FloatArray:
@@ -124,5 +124,5 @@ def ring_order_kept(region: ConvexRegion, positions: ArrayLike) -> NDArray[np.bo
     counter-clockwise ring order on the boundary (by arc length; the order is the same seen from any
     interior centre)."""
     arc = region.arc_length(positions)
-    gaps = np.mod(np.roll(arc, -1, axis=-1) - arc, region.perimeter)
+    gaps = np.mod(successor_values(arc) - arc, region.perimeter)
     return (np.abs(gaps.sum(axis=-1) - region.perimeter) < 1e-9 * region.perimeter) & np.all(gaps > 0, axis=-1)

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ringtrack.world.geometry import ConvexRegion, FloatArray
+from ringtrack.world.ring import successor_values
 
 
 def uniform_ring(region: ConvexRegion, centre: ArrayLike, robots: int, rotation: ArrayLike = 0.0) -> FloatArray:
@@ -35,7 +36,7 @@ def link_distance(start: ArrayLike, end: ArrayLike) -> FloatArray:
 def link_lengths(positions: ArrayLike) -> FloatArray:
     """Distances (metres) from each robot to its CCW successor along axis -2 of ``positions``."""
     positions = np.asarray(positions, dtype=float)
-    return link_distance(positions, np.roll(positions, -1, axis=-2))
+    return link_distance(positions, successor_values(positions, axis=-2))
 
 
 def uniform_link_requirement(

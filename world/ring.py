@@ -9,8 +9,10 @@ leading axes (robots, trials).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.world.geometry import TWO_PI, FloatArray
 
@@ -36,16 +38,36 @@ def midpoint(m_minus: ArrayLike, theta: ArrayLike, m_plus: ArrayLike) -> FloatAr
     return (np.asarray(m_minus) + 2.0 * np.asarray(theta) + np.asarray(m_plus)) / 4.0
 
 
+def successor_values(values: ArrayLike, axis: int = -1) -> NDArray:
+    """What each robot's CCW successor holds of ``values`` (robots along ``axis``): ``np.roll(values,
+    -1, axis)``, as an indexed take, which costs a fifth of ``np.roll`` on a team's small arrays."""
+    values = np.asarray(values)
+    return np.take(values, _cyclic_index(values.shape[axis], 1), axis=axis)
+
+
+def predecessor_values(values: ArrayLike, axis: int = -1) -> NDArray:
+    """What each robot's CW predecessor holds of ``values`` (robots along ``axis``): ``np.roll(values,
+    1, axis)`` (see :func:`successor_values`)."""
+    values = np.asarray(values)
+    return np.take(values, _cyclic_index(values.shape[axis], -1), axis=axis)
+
+
+@lru_cache(maxsize=64)
+def _cyclic_index(count: int, shift: int) -> NDArray[np.intp]:
+    """Indices ``(i + shift) mod count`` of a ring of ``count`` robots."""
+    return (np.arange(count) + shift) % count
+
+
 def ring_gaps(angles: ArrayLike) -> FloatArray:
     """CCW gaps ``d_i^+ = wrap(theta_{i+1} - theta_i)`` (radians) of a whole ring along the last axis."""
     angles = np.asarray(angles, dtype=float)
-    return wrap(np.roll(angles, -1, axis=-1) - angles)
+    return wrap(successor_values(angles) - angles)
 
 
 def midpoint_errors(angles: ArrayLike) -> FloatArray:
     """``e_i = V_i - theta_i = (d_i^+ - d_i^-) / 4`` (radians) of a whole ring with exact information."""
     gaps = ring_gaps(angles)
-    return (gaps - np.roll(gaps, 1, axis=-1)) / 4.0
+    return (gaps - predecessor_values(gaps)) / 4.0
 
 
 def ring_neighbours(robot: int, alive: set[int] | frozenset[int]) -> tuple[int, int]:
