@@ -102,3 +102,44 @@ def test_echo_and_hz_give_up_on_a_run_that_is_not_running(tmp_path: Path, capsys
     assert main(["list", str(folder), "--duration", "0.2"]) == 0
     listed = capsys.readouterr().out
     assert "run 0000abcd: 8 participants, 0 alive" in listed and listed.count(" gone ") == 8
+
+
+def test_a_run_that_ends_ends_echo_and_hz_cleanly_with_what_they_heard(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The world withdrawing its token ends the watch with exit code 0; hz first reports the
+    messages it counted since its last report (none are lost), echo has printed each one."""
+    import json
+
+    from ringtrack.bus.observer import Token
+    from ringtrack.tools import introspect
+    from ringtrack.world.scenario import load_scenario
+
+    folder = tmp_path / "20261201T000000Z-paper-stationary-0000abcd"
+    folder.mkdir()
+    (folder / "scenario.toml").write_bytes(load_scenario("paper-stationary").to_toml())
+    (folder / "run.json").write_text(json.dumps({"run": "0000abcd", "connect": ["tcp/127.0.0.1:9"]}))
+    payload = encode(Request(SCHEMA, 0xABCD, 7, 1, 2, 5))
+
+    class EndingRun:
+        def __enter__(self) -> EndingRun:
+            self.batches = [[Heard(0xABCD, parse_any("ringtrack/0000abcd/r2/r1/request")[1],
+                                   "ringtrack/0000abcd/r2/r1/request", payload, time.monotonic())] * 3,
+                            [Token(0xABCD, "world", False, time.monotonic())]]
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            pass
+
+        def poll(self) -> list[Heard | Token]:
+            return self.batches.pop(0) if self.batches else []
+
+    monkeypatch.setattr(introspect, "observer", lambda target, mode: EndingRun())
+    assert main(["hz", str(folder), "--period", "60"]) == 0
+    captured = capsys.readouterr()
+    assert re.search(rf"request │ +\d+\.\d │ +\d+ │ +{len(payload)}\.0$", captured.out, re.MULTILINE), captured.out
+    assert re.search(r"r1>r2 │", captured.out), captured.out
+    assert captured.err.strip() == "hz: the world left: the run is over"
+    assert main(["echo", str(folder)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.count("request     r1>r2") == 3, captured.out
+    assert captured.err.strip() == "echo: the world left: the run is over"

@@ -202,11 +202,12 @@ class Quiet:
         self.give_up_s = give_up_s
         self.last = time.monotonic()
         self.reason = ""
+        self.run_ended = False  # the world withdrew its token: a normal end of the watch
 
     def heard(self, item: Heard | Token) -> None:
         self.last = item.at
         if isinstance(item, Token) and item.name == "world" and not item.up:
-            self.reason = "the world left: the run is over"
+            self.reason, self.run_ended = "the world left: the run is over", True
 
     def over(self) -> bool:
         if not self.reason and time.monotonic() - self.last > self.give_up_s:
@@ -240,7 +241,7 @@ def run_echo(args: argparse.Namespace) -> int:
                     return 0
             time.sleep(POLL_S)
     err.print(f"echo: {quiet.reason}", highlight=False)
-    return 1
+    return 0 if quiet.run_ended else 1
 
 
 def echo_line(heard: Heard, message: AnyMessage | None) -> str:
@@ -280,8 +281,10 @@ def run_hz(args: argparse.Namespace) -> int:
         quiet = Quiet(target.run, args.give_up_s)
         while not ended:
             if quiet.over():
+                if quiet.run_ended and messages:  # what was counted since the last report
+                    out.print(hz_table(messages, sizes, time.monotonic() - started), highlight=False)
                 err.print(f"hz: {quiet.reason}", highlight=False)
-                return 1
+                return 0 if quiet.run_ended else 1
             for item in bus.poll():
                 quiet.heard(item)
                 if isinstance(item, Heard):
