@@ -24,7 +24,15 @@ from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import convergence_error, range_information, true_offsets
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ranges import uniform_ring
-from ringtrack.world.ring import local_frame, midpoint, midpoint_errors, ring_gaps, wrap
+from ringtrack.world.ring import (
+    local_frame,
+    midpoint,
+    midpoint_errors,
+    predecessor_values,
+    ring_gaps,
+    successor_values,
+    wrap,
+)
 from tests.helpers import (
     TWO_PI,
     ccw_gaps,
@@ -444,3 +452,12 @@ def test_oracle13_non_unique_maximiser_and_two_robots():
 def test_convergence_error_is_degrees_of_l1():
     offsets = np.radians([[1.0, -2.0, 0.5], [0.0, 0.0, 0.0]])
     np.testing.assert_allclose(convergence_error(offsets), [3.5, 0.0])
+
+
+@given(shape=st.lists(st.integers(1, 5), min_size=1, max_size=3), data=st.data())
+def test_ring_neighbour_values_are_the_rolls_of_the_ring(shape: list[int], data: st.DataObject) -> None:
+    """What each robot's successor / predecessor holds, along any axis: np.roll by -1 / +1, exactly."""
+    values = np.arange(np.prod(shape), dtype=float).reshape(shape)
+    axis = data.draw(st.integers(-len(shape), len(shape) - 1))
+    np.testing.assert_array_equal(successor_values(values, axis), np.roll(values, -1, axis=axis))
+    np.testing.assert_array_equal(predecessor_values(values, axis), np.roll(values, 1, axis=axis))

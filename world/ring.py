@@ -54,8 +54,10 @@ def predecessor_values(values: ArrayLike, axis: int = -1) -> NDArray:
 
 @lru_cache(maxsize=64)
 def _cyclic_index(count: int, shift: int) -> NDArray[np.intp]:
-    """Indices ``(i + shift) mod count`` of a ring of ``count`` robots."""
-    return (np.arange(count) + shift) % count
+    """Indices ``(i + shift) mod count`` of a ring of ``count`` robots (read-only: shared by callers)."""
+    index = (np.arange(count) + shift) % count
+    index.setflags(write=False)
+    return index
 
 
 def ring_gaps(angles: ArrayLike) -> FloatArray:
