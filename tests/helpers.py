@@ -308,6 +308,12 @@ def processes_mentioning(text: str) -> list[int]:
     return found
 
 
+def command_words(pid: int) -> list[bytes]:
+    """The words of process ``pid``'s command line (a robot forked by spawn's launcher sets its
+    command line as one string, a started process has one word per NUL-separated argument)."""
+    return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").split()
+
+
 def start_spawn(runs: Path, *arguments: str) -> subprocess.Popen[bytes]:
     """``ringtrack spawn`` as a child in its own process group (so a test can signal it like a shell)."""
     return subprocess.Popen(

@@ -21,7 +21,7 @@ from ringtrack.bus.messages import SCHEMA, Command, Estimate, RangeReport, Reply
 from ringtrack.tools.runlog import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.state import WorldState
-from tests.helpers import processes_mentioning, short_sighted, start_spawn, stop_all, wait_for_steps
+from tests.helpers import command_words, processes_mentioning, short_sighted, start_spawn, stop_all, wait_for_steps
 
 RUN = 0x5EED
 SCENARIO = load_scenario("authors-moving", estimation="centralized")
@@ -160,7 +160,7 @@ def test_before_the_first_estimate_a_robot_steers_by_the_centres_prior():
 def _robot_pid(folder: Path, robot: int) -> int:
     found = []
     for pid in processes_mentioning(str(folder)):
-        command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        command = command_words(pid)
         if b"robot" in command and command[command.index(b"--id") + 1] == str(robot).encode():
             found.append(pid)
     assert len(found) == 1, found
@@ -283,7 +283,7 @@ def test_realtime_robots_do_not_wait_for_a_stalled_centre(tmp_path: Path) -> Non
     try:
         folder = wait_for_steps(runs, 50)
         fusion, = [pid for pid in processes_mentioning(str(folder))
-                   if b"fusion" in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")]
+                   if b"fusion" in command_words(pid)]
         os.kill(fusion, signal.SIGSTOP)
         time.sleep(1.0)
         os.kill(fusion, signal.SIGCONT)

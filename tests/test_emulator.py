@@ -125,7 +125,7 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
     process = start_spawn(tmp_path, "--steps", "100000")
     try:
         folder = wait_for_steps(tmp_path, 30)
-        assert len(processes_mentioning(str(folder))) == 8
+        assert len(processes_mentioning(str(folder))) == 9  # world, monitor, 6 robots, the launcher that forked them
         sent_at = time.monotonic()
         process.send_signal(stop)
         slowest_poll = 0.0  # s: how late this process got the CPU back, what the load does to the supervisor too

@@ -23,6 +23,7 @@ from ringtrack.world.scenario import load_scenario
 from tests.helpers import (
     RINGTRACK,
     assert_equals_engine,
+    command_words,
     engine_twin,
     lockstep_run,
     processes_mentioning,
@@ -148,7 +149,7 @@ to_step = 299
 
 
 def _is_robot(pid: int, robot: int) -> bool:
-    command = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    command = command_words(pid)
     return b"robot" in command and command[command.index(b"--id") + 1] == str(robot).encode()
 
 
@@ -235,7 +236,7 @@ def test_a_dead_world_stops_the_team_with_a_clear_message(tmp_path: Path) -> Non
     try:
         folder = wait_for_steps(tmp_path, 20)
         world = [pid for pid in processes_mentioning(str(folder))
-                 if b" world " in Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")]
+                 if b"world" in command_words(pid)]
         assert len(world) == 1
         os.kill(world[0], signal.SIGKILL)
         code = process.wait(timeout=30)

@@ -11,14 +11,21 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.runlog import read_log
-from tests.helpers import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
+from tests.helpers import (
+    assert_equals_engine,
+    command_words,
+    processes_mentioning,
+    start_spawn,
+    stop_all,
+    wait_for_steps,
+)
 
 pytestmark = [pytest.mark.processes, pytest.mark.timeout(120)]
 
 
 def _pid_of(folder: Path, role: str) -> int:
     (pid,) = [pid for pid in processes_mentioning(str(folder))
-              if Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[3] == role.encode()]
+              if command_words(pid)[3] == role.encode()]
     return pid
 
 

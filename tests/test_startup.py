@@ -49,18 +49,24 @@ def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_pat
     started: list[tuple[str, list[str], str]] = []
     counted_from: list[float | None] = []
 
-    def start(self, name: str, argv, stdout=None):
+    def record(name: str, argv) -> None:
         started.append((name, list(argv), console.export_text(clear=False)))
         if name == "monitor":
             counted_from.append(started_at(Path(argv[argv.index("--display-handover") + 1])))
-            raise Stop()
 
-    monkeypatch.setattr(supervisor.Supervisor, "start", start)
+    def fork(self, roles) -> None:
+        for name, argv in roles:
+            record(name, argv)
+        raise Stop()
+
+    monkeypatch.setattr(supervisor.Supervisor, "preload", lambda self: record("launcher", []))
+    monkeypatch.setattr(supervisor.Supervisor, "start", lambda self, name, argv, stdout=None: record(name, argv))
+    monkeypatch.setattr(supervisor.Supervisor, "fork", fork)
     with pytest.raises(Stop):
-        spawn_team(load_scenario("paper-stationary"), runs=tmp_path)
-    (world, world_argv, before_world), (monitor, monitor_argv, _) = started
-    assert world == "world" and monitor == "monitor"
-    # On the terminal before the world process was started: the start-up state of every participant.
+        spawn_team(load_scenario("paper-stationary"), runs=tmp_path, start="fork")
+    (launcher, _, before_world), (monitor, monitor_argv, _), (world, world_argv, _) = started
+    assert (launcher, monitor, world) == ("launcher", "monitor", "world")
+    # On the terminal before any process was started: the start-up state of every participant.
     assert "paper-stationary · 6 robots" in before_world and "starting" in before_world.splitlines()[0]
     assert "starting: 0/8 participants up" in before_world
     assert "waiting for: world monitor r0 r1 r2 r3 r4 r5" in before_world
@@ -74,17 +80,17 @@ def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_pat
 def test_no_start_up_frame_without_a_terminal(monkeypatch, tmp_path: Path) -> None:
     console = Console(file=io.StringIO(), record=True, width=100, height=30, force_terminal=False)
     monkeypatch.setattr("ringtrack.tools.spawn.out", console)
-    started: list[list[str]] = []
+    started: dict[str, list[str]] = {}
 
     def start(self, name: str, argv, stdout=None):
-        started.append(list(argv))
+        started[name] = list(argv)
         if name == "monitor":
             raise Stop()
 
     monkeypatch.setattr(supervisor.Supervisor, "start", start)
     with pytest.raises(Stop):
-        spawn_team(load_scenario("paper-stationary"), runs=tmp_path)
-    assert console.export_text() == "" and "--display-handover" not in started[1]
+        spawn_team(load_scenario("paper-stationary"), runs=tmp_path, start="exec")
+    assert console.export_text() == "" and "--display-handover" not in started["monitor"]
 
 
 def test_spawn_hands_the_terminal_over_only_when_the_monitor_is_ready(tmp_path: Path) -> None:

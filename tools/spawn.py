@@ -89,6 +89,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--all-robots", action="store_true",
                         help="list every robot and link in the end-of-run report (default: above 20, "
                         "min/median/max and the 5 busiest)")
+    parser.add_argument("--start", choices=["fork", "exec"],
+                        help="fork: robot processes are forked from one launcher that has imported their code (a "
+                        "fast start-up; Linux); exec: each is a fresh interpreter (default: fork where it works)")
     parser.add_argument("--audit", action="store_true",
                         help="the monitor receives a copy of every message and counts it itself (an independent "
                         "tally); by default, in lockstep, it takes the world's own counts of measurements and "
@@ -114,6 +117,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         lease=args.lease,
         audit=args.audit,
         settle=args.from_step,
+        start=args.start,
     )
     if args.json:
         write_json(args.json, result)
@@ -152,6 +156,7 @@ def spawn_team(
     lease: float = LEASE_S,
     audit: bool = False,
     settle: int = 300,
+    start: str | None = None,
 ) -> dict:
     """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
     ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
@@ -167,7 +172,9 @@ def spawn_team(
     process announces a liveliness ``lease`` of that many seconds. With ``audit`` the monitor
     receives a copy of every message (else, in lockstep, the world's digests account for
     measurements and commands). A moving target's summary means leave out the first ``settle``
-    steps (:func:`agents.engine.summary`)."""
+    steps (:func:`agents.engine.summary`). ``start`` "fork" forks the robot processes from one
+    launcher that has imported their code (:mod:`tools.launcher`), "exec" starts each as a fresh
+    interpreter; None picks fork where it works (Linux)."""
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -187,7 +194,11 @@ def spawn_team(
     view = startup_view(scenario, clock, handover) if not quiet and dashboard is not False and out.is_terminal \
         else None
     from ringtrack.bus.config import LOOPBACK_ANY_PORT
-    from ringtrack.tools.supervisor import Supervisor, Terminated, terminate_as_exception
+    from ringtrack.tools.supervisor import FORK_WORKS, Supervisor, Terminated, terminate_as_exception
+
+    if start == "fork" and not FORK_WORKS:
+        raise UsageError("--start fork: forking robot processes needs Linux (os.fork and pidfd); use --start exec")
+    start = start or ("fork" if FORK_WORKS else "exec")
 
     listen = secure_listen or LOOPBACK_ANY_PORT
     scenario_path = folder / "scenario.toml"
@@ -209,13 +220,14 @@ def spawn_team(
         err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
                   f"robots in {processes} processes", highlight=False)
     with Supervisor(folder) as supervisor:
+        supervisor.leader = "world"
         try:
             with terminate_as_exception(), view or contextlib.nullcontext():
+                if start == "fork":
+                    supervisor.preload()  # it imports while the world and the monitor come up
                 stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
-                supervisor.start("world", [*ROLE_COMMAND, "world", *common, *world_mode, "--clock", clock,
-                                           "--rate", str(rate), "--listen", listen,
-                                           "--announce", str(announce), "--lockstep-wait", str(lockstep_wait),
-                                           *stop_rule])
+                world = ["world", *common, *world_mode, "--clock", clock, "--rate", str(rate), "--listen", listen,
+                         "--announce", str(announce), "--lockstep-wait", str(lockstep_wait), *stop_rule]
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
                 monitor_flags += ["--all-robots"] if all_robots else []
                 monitor_flags += [] if view is None else ["--display-handover", str(handover)]
@@ -225,6 +237,10 @@ def spawn_team(
                     supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
                                                  str(announce), "--log", str(log_path), "--clock", clock,
                                                  *monitor_flags], stdout=display)
+                if start == "fork":  # the launcher's imports are those of the world too
+                    supervisor.fork([("world", world)])
+                else:
+                    supervisor.start("world", [*ROLE_COMMAND, *world])
                 endpoints = supervisor.endpoints(announce, "world")
                 listening = f"the world listens on {', '.join(endpoints)} after {time.perf_counter() - started:.1f} s"
                 if view is not None:  # said on the frame: a line above it would push its top off the screen
@@ -239,11 +255,16 @@ def spawn_team(
                                                  "reply_timeout": reply_wait, "lease_s": lease})
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
+                robots = []
                 for first in range(0, scenario.robots, robots_per_process):
                     last = min(first + robots_per_process, scenario.robots) - 1
                     ids = str(first) if first == last else f"{first}-{last}"
-                    supervisor.start(f"r{ids}", [*ROLE_COMMAND, "robot", *common, *connect, *reply_timeout,
-                                                 "--id", ids])
+                    robots.append((f"r{ids}", ["robot", *common, *connect, *reply_timeout, "--id", ids]))
+                if start == "fork":
+                    supervisor.fork(robots)
+                else:
+                    for name, argv in robots:
+                        supervisor.start(name, [*ROLE_COMMAND, *argv])
                 if view is not None:
                     say(view, "every process started; the monitor takes over this screen once it is up")
                     view.started_all()
