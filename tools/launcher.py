@@ -44,6 +44,7 @@ import ringtrack.agents.process  # noqa: F401
 import ringtrack.tools.roles  # noqa: F401
 import ringtrack.world.process  # noqa: F401
 from ringtrack.tools.cli import main as role_main
+from ringtrack.tools.supervisor import ROLE_COMMAND
 
 POLL_S = 0.5  # s: the longest the launcher waits before reaping, should a child's SIGCHLD be missed
 
@@ -63,8 +64,8 @@ def _child(request: dict, folder: Path, lifeline: int) -> int:
         for source, target in ((lifeline, 0), (stdout, 1), (stderr, 2)):
             os.dup2(source, target)
         os.closerange(3, os.sysconf("SC_OPEN_MAX"))  # the launcher's pipes are not the child's
-        sys.argv = ["ringtrack.tools.roles", *request["argv"]]
-        setproctitle.setproctitle(" ".join([sys.executable, "-m", "ringtrack.tools.roles", *request["argv"]]))
+        sys.argv = [ROLE_COMMAND[-1], *request["argv"]]
+        setproctitle.setproctitle(" ".join([*ROLE_COMMAND, *request["argv"]]))
         return role_main(list(request["argv"]), commands=("roles",))
     except SystemExit as done:  # argparse's own exits
         return done.code if isinstance(done.code, int) else 1

@@ -18,7 +18,6 @@ import contextlib
 import datetime
 import math
 import signal
-import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -45,7 +44,6 @@ if TYPE_CHECKING:
 STALL_TIMEOUT_S = 60.0
 STARTUP_S_PER_PROCESS = 2.0  # start-up allowance per process on top of STALL_TIMEOUT_S (startup_limit)
 LOCKSTEP_WAIT_S = LEASE_S  # a frozen robot is seen gone (liveliness) after about as long
-ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
 PROCESS_MIB = 80  # resident memory of one robot process (measured 55-75 MiB), for the process budget
@@ -194,7 +192,7 @@ def spawn_team(
     view = startup_view(scenario, clock, handover) if not quiet and dashboard is not False and out.is_terminal \
         else None
     from ringtrack.bus.config import LOOPBACK_ANY_PORT
-    from ringtrack.tools.supervisor import FORK_WORKS, Supervisor, Terminated, terminate_as_exception
+    from ringtrack.tools.supervisor import FORK_WORKS, ROLE_COMMAND, Supervisor, Terminated, terminate_as_exception
 
     if start == "fork" and not FORK_WORKS:
         raise UsageError("--start fork: forking robot processes needs Linux (os.fork and pidfd); use --start exec")

@@ -34,6 +34,7 @@ from ringtrack.tools.console import UsageError
 ANNOUNCE_TIMEOUT_S = 20.0
 STOP_GRACE_S = 1.5  # SIGTERM, then SIGKILL after this long; everything is gone within 2 s
 LAUNCH_TIMEOUT_S = 60.0  # the launcher's imports and one fork, on a machine as busy as CI's
+ROLE_COMMAND = [sys.executable, "-m", "ringtrack.tools.roles"]  # the role commands only: a lean start
 LAUNCHER_COMMAND = [sys.executable, "-m", "ringtrack.tools.launcher"]
 FORK_WORKS = hasattr(os, "fork") and hasattr(os, "pidfd_open")  # Linux: the launcher can be used
 
