@@ -137,13 +137,12 @@ def test_the_engine_counts_the_bytes_of_replies_that_carry_a_strategys_content(t
 @pytest.mark.processes
 @pytest.mark.realtime
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize(("name", "kind"), [("plan", "reply"), ("belief", "push")])
-def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tmp_path: Path, name: str,
-                                                                            kind: str) -> None:
+@pytest.mark.parametrize("name", ["plan", "belief"])
+def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tmp_path: Path, name: str) -> None:
     """plan (known target) and belief (moving target, decentralized) over Zenoh on the realtime
     clock with lost and duplicated links: the run ends, every message is accounted for (the fault
-    identity, the monitor equal to the senders) and the strategy's own traffic is there (plan
-    replies longer than plain ones, pushes). What the team achieves depends on the load; what is
+    identity, the monitor equal to the senders) and plan's own traffic is there (replies longer
+    than plain ones). What the team achieves depends on the load; what is
     counted does not."""
     from ringtrack.bus.messages import robot_message_bytes
     from ringtrack.tools.spawn import spawn_team
@@ -156,7 +155,8 @@ def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tm
     faults = result["faults"]
     assert faults["dropped"] > 0 and faults["duplicated"] > 0
     assert faults["sent"] + faults["duplicated"] == faults["delivered"] + faults["dropped"]
-    traffic = result["by_kind"][kind]
-    assert traffic["messages"] > 0
-    if name == "plan":
+    if name == "plan":  # a realtime team's first steps always poll; whether a belief is pushed depends on
+        # the load (tests/test_belief.py holds lockstep pushes to the engine's, message for message)
+        traffic = result["by_kind"]["reply"]
+        assert traffic["messages"] > 0
         assert traffic["bytes"] > traffic["messages"] * int(robot_message_bytes("reply", 1, 0, 1))
