@@ -134,11 +134,17 @@ class RobotLink:
         self.outside = False  # told by the world that it is not in the ring
         self.held: list[Delivery] = []  # requests that came while outside, for the step it comes back at
         self.reach = ReachTokens(participant)
+        self._reach_shown: tuple[frozenset[str], bool, frozenset[int]] | None = None
 
     def show_reach(self, alive: set[str]) -> None:
         """Hold a ``reach`` token for each participant in ``alive`` (their token is up) that the world
         needs to hear of before it re-admits a robot: every one while this robot is outside the ring,
-        else the robots outside this robot's ring."""
+        else the robots outside this robot's ring. Called after every batch of events, it does
+        nothing unless who is alive, the ring or ``outside`` changed since the last call."""
+        shown = (frozenset(alive), self.outside, frozenset(self.node.alive))
+        if shown == self._reach_shown:
+            return
+        self._reach_shown = shown
         others = alive - {self.node.name}
         if not self.outside:
             others = {name for name in others if (robot := robot_index(name)) is not None

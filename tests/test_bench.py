@@ -11,7 +11,7 @@ import pytest
 from rich.console import Console
 
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode
-from ringtrack.tools.bench import EngineProgress, engine_results
+from ringtrack.tools.bench import EngineProgress, engine_results, suite_ratios
 from ringtrack.tools.cli import main
 
 pytestmark = pytest.mark.timeout(240)
@@ -55,6 +55,10 @@ def test_engine_bench_reports_a_run_an_experiment_and_a_sweep(tmp_path: Path) ->
     result = json.loads(path.read_text())
     assert result["single_run"]["robots"] == 6 and result["single_run"]["steps"] == 3000  # control.max_steps
     assert result["single_run"]["steps_per_s"] > 0
+    protocol = result["protocol_alone"]  # the six robot protocols in one process: 12 messages a step, 4 per poll
+    assert protocol["robots"] == 6 and protocol["steps"] == 1000 and protocol["steps_per_s"] > 0
+    extra = round(protocol["messages_per_step"] * 1000) - 12 * 1000
+    assert extra > 0 and extra % 4 == 0
     assert {key: result["experiment_n6"][key] for key in ("trials", "runs", "converged")} == \
         {"trials": 2, "runs": 4, "converged": 4}
     assert {key: result["sweep"][key] for key in ("robots", "runs", "converged")} == \
@@ -78,3 +82,19 @@ def test_bench_engine_shows_its_progress_on_a_terminal_only() -> None:
             progress.on_step(6, "self", step)
         progress.close()
     assert piped.export_text() == ""
+
+
+def test_suite_ratios_are_steps_in_the_runs_own_round_trips() -> None:
+    def row(robots: int, per_process: int, steps_per_s: float, rss: float) -> dict:
+        return {"robots": robots, "robots_per_process": per_process, "steps_per_s": steps_per_s,
+                "startup_s": 2.5, "robot_process_rss_mib": rss}
+
+    results = {"latency": {"median_us": 250.0},
+               "engine": {"protocol_alone": {"steps_per_s": 800.0}},
+               "emulator": [row(6, 1, 100.0, 45.0), row(64, 1, 8.0, 46.0), row(64, 16, 20.0, 52.0)]}
+    ratios = suite_ratios(results)
+    assert ratios["round_trips_per_step"] == {"6x1": 40.0, "64x1": 500.0, "64x16": 200.0}  # 1 / (steps/s x 250 us)
+    assert ratios["protocol_alone_round_trips_per_step"] == 5.0
+    assert ratios["startup_64_s"] == 2.5
+    assert ratios["robot_process_rss_mib_1_per_process"] == 46.0
+    assert ratios["robot_process_rss_mib_16_per_process"] == 52.0

@@ -10,6 +10,7 @@ import pytest
 from ringtrack.agents import engine
 from ringtrack.agents.laws import Trigger
 from ringtrack.agents.node import RobotNode
+from ringtrack.agents.team import run_team
 from ringtrack.bus.messages import SCHEMA, Command, End, Measurement, Reply, Request
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.state import WorldState
@@ -181,26 +182,13 @@ def test_unknown_robot_id_is_refused() -> None:
 
 @pytest.mark.parametrize("strategy", ["self", "constant"])
 def test_a_team_of_nodes_equals_the_engine(strategy: str) -> None:
-    """Six nodes exchanging messages through a plain loop (any delivery order) equal the engine."""
+    """Six nodes exchanging messages in one process (any delivery order) equal the engine."""
     scenario = load_scenario("paper-stationary", strategy=strategy)
-    world = WorldState(scenario, scenario.seed, RUN, 200)
-    nodes = [RobotNode(robot, scenario, RUN) for robot in range(6)]
     rng = np.random.default_rng(3)
     steps = 200
-    triggers = np.zeros((steps, 6), dtype=int)
-    angles = []
-    for step in range(1, steps + 1):
-        angles.append(np.arctan2(*(world.positions - scenario.target).T[::-1]))
-        queue = [(f"r{robot}", world.measurement(robot)) for robot in range(6)]
-        while queue:
-            destination, message = queue.pop(int(rng.integers(len(queue))))  # any order
-            if destination == "world":
-                world.accept(message)
-                continue
-            robot = int(destination[1:])
-            queue.extend(nodes[robot].handle(message))
-        triggers[step - 1] = [node.trigger for node in nodes]
-        world.advance()
+    team = run_team(scenario, steps, RUN, pick=lambda queued: int(rng.integers(queued)))
     twin = engine.run(scenario, steps=steps)
-    assert np.array_equal(triggers, twin.triggers[:, 0])
-    assert np.max(np.abs(np.unwrap(np.array(angles), axis=0) - twin.angles[:, 0])) < 1e-9
+    assert np.array_equal(team.triggers, twin.triggers[:, 0])
+    assert np.max(np.abs(np.unwrap(team.angles, axis=0) - twin.angles[:, 0])) < 1e-9
+    polls = int(np.count_nonzero(team.triggers))
+    assert team.messages == 2 * 6 * steps + 4 * polls  # a measurement and a command each, 4 per poll

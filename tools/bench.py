@@ -29,6 +29,7 @@ from rich.progress import TaskID
 from rich.table import Table
 
 from ringtrack.agents import engine
+from ringtrack.agents.team import run_team
 from ringtrack.bus.keys import new_run_id
 from ringtrack.tools.console import UsageError, err, out, progress_bar, write_json
 from ringtrack.tools.experiment import STRATEGIES, robot_list, stationary_experiment
@@ -157,8 +158,12 @@ class EngineProgress:
             self.bar.update(self.task, completed=self.bar.tasks[self.task].total)
 
 
+PROTOCOL_STEPS = 1000  # steps of the team of robot protocols in one process (agents.team)
+
+
 def engine_results(trials: int, sizes: list[int], console: Console = err) -> dict[str, object]:
-    """One run of ``paper-stationary`` (all ``control.max_steps`` steps), the ``trials``-trial
+    """One run of ``paper-stationary`` (all ``control.max_steps`` steps), its team of robot
+    protocols in one process with no bus (:func:`agents.team.run_team`, ``PROTOCOL_STEPS``), the ``trials``-trial
     two-strategy experiment for N = 6, and the sweep over ``sizes``: steps per second, wall seconds
     and how many runs converged. Progress goes to ``console`` (:class:`EngineProgress`)."""
     if trials < 1:
@@ -171,6 +176,9 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
         history = engine.run(scenario, steps=scenario.max_steps, record_positions=False,
                              on_step=lambda step: progress.on_step(scenario.robots, "self", step))
         elapsed = time.perf_counter() - started
+        team_started = time.perf_counter()
+        team = run_team(scenario, PROTOCOL_STEPS, new_run_id())
+        team_elapsed = time.perf_counter() - team_started
         progress.part(f"experiment N = 6, {trials} trials x 2", len(STRATEGIES))
         experiment = stationary_experiment("paper-stationary", [6], trials, 0, progress.on_step)
         progress.part(f"sweep N = {sizes[0]}..{sizes[-1]}, {trials} trials x 2", len(STRATEGIES) * len(sizes))
@@ -182,6 +190,9 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
 
     return {
         "single_run": {"robots": scenario.robots, "steps": history.steps, "steps_per_s": history.steps / elapsed},
+        "protocol_alone": {"robots": scenario.robots, "steps": PROTOCOL_STEPS,
+                           "steps_per_s": PROTOCOL_STEPS / team_elapsed,
+                           "messages_per_step": team.messages / PROTOCOL_STEPS},
         "experiment_n6": {"trials": trials, "runs": 2 * trials, "converged": converged(experiment),
                           "wall_s": experiment["wall_s"]},
         "sweep": {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": trials, "runs": 2 * trials * len(sizes),
@@ -195,6 +206,9 @@ def engine_table(results: dict, cores: object) -> Table:
     table.add_column("measurement")
     table.add_column("result", justify="right")
     table.add_row(f"one run, N = {single['robots']}", f"{single['steps_per_s']:.0f} steps/s")
+    protocol = results["protocol_alone"]
+    table.add_row(f"robot protocols alone, N = {protocol['robots']} (one process, no bus)",
+                  f"{protocol['steps_per_s']:.0f} steps/s")
     for label, entry in ((f"experiment N = 6, {experiment['trials']} trials x 2 strategies", experiment),
                          (f"sweep N = {sweep['robots']}, {sweep['trials']} trials x 2", sweep)):
         table.add_row(label, f"{entry['wall_s']:.2f} s ({entry['converged']}/{entry['runs']} converged)")
@@ -457,8 +471,9 @@ RATIO_TEAMS = ((6, 1), (64, 1), (64, 16), (256, 16))
 def suite_ratios(results: dict[str, Any]) -> dict[str, Any]:
     """Figures of one suite run that machine noise largely cancels from: for each team of
     ``RATIO_TEAMS``, how many neighbour round trips (the run's own median) one lockstep step takes;
-    the start-up of 64 robots one per process (seconds); resident memory of a robot process (MiB,
-    one robot and 16 robots per process)."""
+    the same for the six robot protocols alone (:func:`agents.team.run_team`, one core and no bus:
+    the floor under the team of six); the start-up of 64 robots one per process (seconds); resident
+    memory of a robot process (MiB, one robot and 16 robots per process)."""
     round_trip_s = results["latency"]["median_us"] * 1e-6
     rows = {(row["robots"], row["robots_per_process"]): row for row in results["emulator"]}
     ratios: dict[str, Any] = {"round_trip_us": results["latency"]["median_us"], "round_trips_per_step": {}}
@@ -466,6 +481,8 @@ def suite_ratios(results: dict[str, Any]) -> dict[str, Any]:
         row = rows.get((robots, per_process))
         if row is not None:
             ratios["round_trips_per_step"][f"{robots}x{per_process}"] = 1.0 / (row["steps_per_s"] * round_trip_s)
+    protocol = results["engine"]["protocol_alone"]
+    ratios["protocol_alone_round_trips_per_step"] = 1.0 / (protocol["steps_per_s"] * round_trip_s)
     if (64, 1) in rows:
         ratios["startup_64_s"] = rows[64, 1]["startup_s"]
     for per_process in (1, 16):
@@ -483,6 +500,8 @@ def ratios_table(ratios: dict[str, Any]) -> Table:
     for team, value in ratios["round_trips_per_step"].items():
         robots, per_process = team.split("x")
         table.add_row(f"round trips per lockstep step, {robots} robots, {per_process} per process", f"{value:.1f}")
+    table.add_row("round trips per step of the 6 robot protocols alone (one process, no bus)",
+                  f"{ratios['protocol_alone_round_trips_per_step']:.1f}")
     if "startup_64_s" in ratios:
         table.add_row("start-up of 64 x 1", f"{ratios['startup_64_s']:.1f} s")
     for per_process in (1, 16):

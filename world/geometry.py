@@ -143,7 +143,7 @@ class ConvexRegion:
         """Whether ``point`` lies on the boundary within ``tolerance`` metres: inside every edge line
         up to it and on at least one."""
         heights = self.heights(point)
-        return np.all(heights >= -tolerance, axis=-1) & (np.min(np.abs(heights), axis=-1) <= tolerance)
+        return (heights.min(axis=-1) >= -tolerance) & (np.abs(heights).min(axis=-1) <= tolerance)
 
     def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""
