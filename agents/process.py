@@ -134,17 +134,12 @@ class RobotLink:
         self.outside = False  # told by the world that it is not in the ring
         self.held: list[Delivery] = []  # requests that came while outside, for the step it comes back at
         self.reach = ReachTokens(participant)
-        self._reach_shown: tuple[frozenset[str], bool, frozenset[int]] | None = None
 
     def show_reach(self, alive: set[str]) -> None:
         """Hold a ``reach`` token for each participant in ``alive`` (their token is up) that the world
         needs to hear of before it re-admits a robot: every one while this robot is outside the ring,
-        else the robots outside this robot's ring. Called after every batch of events, it does
-        nothing unless who is alive, the ring or ``outside`` changed since the last call."""
-        shown = (frozenset(alive), self.outside, frozenset(self.node.alive))
-        if shown == self._reach_shown:
-            return
-        self._reach_shown = shown
+        else the robots outside this robot's ring. Called only after a batch of events that may
+        change who is alive, the ring or ``outside`` (:func:`_may_change_reach`)."""
         others = alive - {self.node.name}
         if not self.outside:
             others = {name for name in others if (robot := robot_index(name)) is not None
@@ -234,10 +229,19 @@ def _newest_measurement_only(events: list) -> list:
                                               and event.message.step < newest)]
 
 
+def _may_change_reach(event: object) -> bool:
+    """Whether ``event`` may change whom a robot shows it reaches: a presence change, or a measurement
+    carrying the live set (the world sends it only when the ring changes or the robot is outside)."""
+    return isinstance(event, Presence) or (isinstance(event, Delivery) and isinstance(event.message, Measurement)
+                                           and event.message.live is not None)
+
+
 async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
     node = link.node
+    reach_may_change = True  # shown once at the start
     while True:
         for event in _newest_measurement_only(events):
+            reach_may_change = reach_may_change or _may_change_reach(event)
             if isinstance(event, Delivery):
                 link.deliver(event)
                 if isinstance(event.message, End):
@@ -253,7 +257,9 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
                     # The team starts whole; a robot that leaves (crash) is dropped at once. One that
                     # comes back (restart) is announced by the world with the step it rejoins at.
                     link.send(node.set_alive(node.alive - {robot}))
-        link.show_reach(roster.alive)
+        if reach_may_change:
+            link.show_reach(roster.alive)
+            reach_may_change = False
         if roster.gone_for_good(WORLD):
             return 1  # the world went away without ending the run
         events = await next_events(link.participant, roster)
