@@ -1,7 +1,8 @@
-"""An intruder for tests of secure teams: joins a running ``--secure`` team and, every 10 ms,
-publishes well-formed messages it has no right to send, following the run's current step.
+"""An intruder for tests of secure teams: joins a running ``--secure`` team and, in ROUNDS
+rounds 10 ms apart, publishes well-formed messages it has no right to send, following the run's
+current step (a count, not a duration, so what it sends does not depend on the machine's load).
 
-    python -m tests.intruder RUN_FOLDER SECONDS HOW [NAME]
+    python -m tests.intruder RUN_FOLDER ROUNDS HOW [NAME]
 
 ``HOW`` is how it joins: ``plain`` (no TLS at all, a ``tcp/`` link to the team's TLS port),
 ``foreign:DIR`` (the key and certificate of ``NAME`` from another authority's team folder DIR) or
@@ -70,7 +71,7 @@ def config(run: dict, how: str, name: str) -> BusConfig:
     return BusConfig(listen=("tls/127.0.0.1:0",), connect=endpoints, security=Security(load_team(folder), 6))
 
 
-def main(folder: Path, seconds: float, how: str, name: str = "r2") -> dict[str, object]:
+def main(folder: Path, rounds: int, how: str, name: str = "r2") -> dict[str, object]:
     run = json.loads((folder / "run.json").read_text())
     keys = Keys(int(run["run"], 16))
     region = load_scenario(str(folder / "scenario.toml")).region
@@ -82,8 +83,7 @@ def main(folder: Path, seconds: float, how: str, name: str = "r2") -> dict[str, 
     with zenoh.open(bus.to_zenoh(name if bus.security is not None else None)) as session:
         time.sleep(1.0)  # let gossip link it to every participant that accepts it
         links = len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
+        for _ in range(rounds):
             for what, (key, payload) in forgeries(keys, current_step(folder / "log.jsonl"), goal).items():
                 session.put(key, payload)
                 sent[what] += 1
@@ -93,4 +93,4 @@ def main(folder: Path, seconds: float, how: str, name: str = "r2") -> dict[str, 
 
 
 if __name__ == "__main__":
-    print(json.dumps(main(Path(sys.argv[1]), float(sys.argv[2]), *sys.argv[3:])))
+    print(json.dumps(main(Path(sys.argv[1]), int(sys.argv[2]), *sys.argv[3:])))
