@@ -85,17 +85,30 @@ class BusConfig:
 
 # One small Tokio runtime per process instead of one worker pool per runtime: a team runs many
 # processes on few cores, where idle worker threads cost more than they give (measured: CPU per
-# message round trip 160 us -> 90 us). An explicit ZENOH_RUNTIME in the environment wins.
+# message round trip 160 us -> 90 us). An explicit ZENOH_RUNTIME in the environment wins. Zenoh reads
+# it when a process opens its first session, so a process's first session decides its runtime.
 COMPACT_RUNTIME = (
     "(app: (worker_threads: 1), acc: (handover: app), rx: (handover: app), tx: (handover: app), net: (handover: app))"
 )
+# A router forwards the others' messages from its receiving tasks. On one thread, a forward that waits
+# for room in a full transmit queue (congestion control "block") holds the only thread that would
+# empty that queue: the router stalls until Zenoh closes the link (after 5 s) and what was queued is
+# lost. Seen at the end of a 256-robot run, when every robot's final statistics go through the world
+# to the monitor at once. So a router's transmit tasks keep a thread of their own.
+ROUTER_RUNTIME = "(app: (worker_threads: 1), acc: (handover: app), rx: (handover: app), net: (handover: app))"
+
+
+def zenoh_runtime(mode: Mode) -> str:
+    """The ``ZENOH_RUNTIME`` setting of a process whose session runs in ``mode``."""
+    return ROUTER_RUNTIME if mode == "router" else COMPACT_RUNTIME
 
 
 def open_session(config: BusConfig, name: str | None = None) -> zenoh.Session:
     """Open a Zenoh session for participant ``name``; close it with ``with`` or ``session.close()``
     in ``finally``. A secure participant first checks its certificate and that whatever answers at
     each ``connect`` endpoint is a secure participant of its team (else a one-line error)."""
-    os.environ.setdefault("ZENOH_RUNTIME", COMPACT_RUNTIME)
+    if os.environ.get("ZENOH_RUNTIME") in (None, COMPACT_RUNTIME, ROUTER_RUNTIME):  # not the user's own
+        os.environ["ZENOH_RUNTIME"] = zenoh_runtime(config.mode)
     if config.security is not None and name is not None:
         config.security.team.check(name)
         for endpoint in config.connect:
