@@ -11,7 +11,6 @@ import pytest
 import zenoh
 
 from ringtrack.bus.config import BusConfig, open_session
-
 from ringtrack.tools.runlog import read_log
 from ringtrack.tools.supervisor import Supervisor
 from tests.helpers import assert_equals_engine, processes_mentioning
