@@ -358,3 +358,16 @@ def test_oracle18_chebyshev_centre_is_feasible_with_two_active_edges(region):
     assert region.perimeter == pytest.approx(np.sum(np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1)), rel=1e-12)
     assert region.outer_diameter == pytest.approx(max(np.linalg.norm(a - b) for a in v for b in v), rel=1e-12)
     assert region.inner_diameter <= region.outer_diameter
+
+
+@given(regions(), st.floats(0.0, 1.0, exclude_max=True), st.floats(-4.0, 4.0), st.floats(-4.0, 4.0))
+def test_one_point_is_on_the_boundary_exactly_when_the_array_check_says_so(region, fraction, dx, dy):
+    """A goal as a message carries it (a tuple of floats, checked in plain floats) and the same point
+    as an array get the same answer, on the boundary and up to four tolerances off it."""
+    x, y = (float(value) for value in region.point_at(fraction * region.perimeter))
+    tolerance = 1e-6 * region.outer_diameter
+    moved = (x + dx * tolerance, y + dy * tolerance)
+    assert region.on_boundary((x, y), tolerance)
+    assert bool(region.on_boundary(moved, tolerance)) == bool(region.on_boundary(np.array(moved), tolerance))
+    heights = region.heights(np.array(moved))
+    assert bool(region.on_boundary(moved, tolerance)) == (heights.min() >= -tolerance and abs(heights).min() <= tolerance)

@@ -28,8 +28,10 @@ from ringtrack.world.ring import (
     local_frame,
     midpoint,
     midpoint_errors,
+    neighbours_in_ring,
     predecessor_values,
     ring_gaps,
+    ring_neighbours,
     successor_values,
     wrap,
 )
@@ -461,3 +463,16 @@ def test_ring_neighbour_values_are_the_rolls_of_the_ring(shape: list[int], data:
     axis = data.draw(st.integers(-len(shape), len(shape) - 1))
     np.testing.assert_array_equal(successor_values(values, axis), np.roll(values, -1, axis=axis))
     np.testing.assert_array_equal(predecessor_values(values, axis), np.roll(values, 1, axis=axis))
+
+
+@given(st.sets(st.integers(0, 40), max_size=40), st.integers(0, 40))
+def test_ring_neighbours_are_the_nearest_alive_ids_before_and_after_in_cyclic_order(alive, robot):
+    """The bisection over the sorted ids names the same neighbours as the definition, the robot in
+    the ring or not."""
+    others = sorted(alive - {robot})
+    expected = (robot, robot) if not others else (
+        max((other for other in others if other < robot), default=others[-1]),
+        min((other for other in others if other > robot), default=others[0]),
+    )
+    assert neighbours_in_ring(robot, sorted(alive)) == expected
+    assert ring_neighbours(robot, alive) == expected

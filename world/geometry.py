@@ -141,9 +141,21 @@ class ConvexRegion:
 
     def on_boundary(self, point: ArrayLike, tolerance: float) -> NDArray[np.bool_]:
         """Whether ``point`` lies on the boundary within ``tolerance`` metres: inside every edge line
-        up to it and on at least one."""
+        up to it and on at least one. One point given as an ``(x, y)`` tuple of floats (as a message
+        carries it) is checked in plain floats, the same operations as :meth:`heights` in the same
+        order, without numpy's cost per call (a world checks every robot's goal each step)."""
+        if isinstance(point, tuple) and len(point) == 2 and all(type(value) is float for value in point):
+            x, y = point
+            heights = [offset - (x * normal_x + y * normal_y) for offset, normal_x, normal_y in self._edge_lines]
+            return np.bool_(min(heights) >= -tolerance and min(map(abs, heights)) <= tolerance)
         heights = self.heights(point)
         return (heights.min(axis=-1) >= -tolerance) & (np.abs(heights).min(axis=-1) <= tolerance)
+
+    @cached_property
+    def _edge_lines(self) -> list[tuple[float, float, float]]:
+        """``(offset, normal x, normal y)`` of each edge line as plain floats."""
+        return [(float(offset), float(normal[0]), float(normal[1])) for offset, normal in zip(self.offsets, self.normals,
+                                                                                             strict=True)]
 
     def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""

@@ -182,7 +182,7 @@ def refuse_empty_ring(world: WorldState) -> None:
 def _publish(context: Context) -> None:
     """Publish the step: the tick to the monitor, each live robot's measurement (noted in the context)."""
     participant, world = context.participant, context.world
-    live = sorted(world.live)
+    live = list(world.ring)
     participant.send(MONITOR, world.tick(live))
     for robot in live:
         context.measurements.append((robot, participant.send(robot_name(robot), world.measurement(robot))))

@@ -12,7 +12,7 @@ from ringtrack.bus.messages import SCHEMA, Command, Measurement, PushCommand, Pu
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import converged, memory_cerr, strategy_cerr, true_cerr
 from ringtrack.world.ranges import link_distance
-from ringtrack.world.ring import ring_neighbours
+from ringtrack.world.ring import neighbours_in_ring
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
 
@@ -39,6 +39,7 @@ class WorldState:
         self.sensor = RangeSensor(sensing.range_sigma, sensing.range, seed)
         self.ranges: FloatArray = self.sensor.measure(self.positions, self.target)
         self.live: set[int] = set(range(scenario.robots))
+        self.ring: tuple[int, ...] = tuple(range(scenario.robots))  # the live ids in ascending order
         self.rejoining: set[int] = set()  # back from the next step on
         self.returned: set[int] = set()  # came back at the start of this step: everyone hears of it
         self.left: set[int] = set()  # left the ring during this step
@@ -65,14 +66,14 @@ class WorldState:
         measured = self.ranges[robot]
         fields = (SCHEMA, self.run, self.step, self.time, robot, (float(position[0]), float(position[1])),
                   None if np.isnan(measured) else float(measured), self.in_range(robot),
-                  sorted(self.live) if self.returned or self.shrunk or robot not in self.live else None,
+                  list(self.ring) if self.returned or self.shrunk or robot not in self.live else None,
                   self.neighbour_distances(robot))
         pushed_by = self.pushed_last.get(robot)
         return PushMeasurement(*fields, sorted(pushed_by)) if pushed_by else Measurement(*fields)
 
     def neighbour_distances(self, robot: int) -> list[tuple[int, float]]:
         """``(neighbour, metres)`` of the links from ``robot`` to its live ring neighbours."""
-        neighbours = sorted(set(ring_neighbours(robot, self.live | {robot})) - {robot})
+        neighbours = sorted(set(neighbours_in_ring(robot, self.ring)) - {robot})
         return [(other, float(link_distance(self.positions[robot], self.positions[other]))) for other in neighbours]
 
     def rejoin(self, robot: int) -> None:
@@ -85,19 +86,21 @@ class WorldState:
         if robot in self.live:
             self.left.add(robot)
         self.live.discard(robot)
+        self.ring = tuple(sorted(self.live))
         self.rejoining.discard(robot)
 
     def _place(self, robot: int) -> None:
         """Put a rejoining robot midway along the boundary between its live ring neighbours (as an
         operator would put it back): where it stopped may no longer lie between them, since they
         re-spread while it was gone, and the ring is ordered by id."""
-        predecessor, successor = ring_neighbours(robot, self.live | {robot})
+        predecessor, successor = neighbours_in_ring(robot, self.ring)
         if predecessor != successor:
             region = self.scenario.region
             start, end = region.arc_length(self.positions[predecessor]), region.arc_length(self.positions[successor])
             middle = start + np.mod(end - start, region.perimeter) / 2.0
             self.positions[robot] = self.goals[robot] = region.point_at(middle)
         self.live.add(robot)
+        self.ring = tuple(sorted(self.live))
 
     def in_range(self, robot: int) -> list[int] | None:
         """The other live robots within the communication range of ``robot`` (None: unlimited)."""
@@ -105,7 +108,7 @@ class WorldState:
         if limit is None:
             return None
         distances = link_distance(self.positions[robot], self.positions)
-        return [other for other in sorted(self.live) if other != robot and distances[other] <= limit]
+        return [other for other in self.ring if other != robot and distances[other] <= limit]
 
     def tick(self, live: list[int]) -> Tick:
         """The true state at the start of the step, for the monitor."""
@@ -143,7 +146,7 @@ class WorldState:
         """Whether the current step counts as converged (:func:`world.metrics.converged`) by the
         paper's Cerr: from the offsets the live robots reported for this step (self-triggered; a
         live robot that has not reported leaves it unknown) or the true positions (constant)."""
-        live = np.isin(np.arange(self.scenario.robots), sorted(self.live))
+        live = np.isin(np.arange(self.scenario.robots), self.ring)
         cerr = strategy_cerr(self.scenario.control.strategy, memory_cerr(self.offsets, live),
                              true_cerr(self.positions, self.target))
         return bool(converged(cerr, np.rad2deg(self.scenario.threshold)))
