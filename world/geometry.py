@@ -154,8 +154,8 @@ class ConvexRegion:
     @cached_property
     def _edge_lines(self) -> list[tuple[float, float, float]]:
         """``(offset, normal x, normal y)`` of each edge line as plain floats."""
-        return [(float(offset), float(normal[0]), float(normal[1])) for offset, normal in zip(self.offsets, self.normals,
-                                                                                             strict=True)]
+        pairs = zip(self.offsets, self.normals, strict=True)
+        return [(float(offset), float(normal[0]), float(normal[1])) for offset, normal in pairs]
 
     def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""
