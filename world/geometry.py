@@ -139,15 +139,16 @@ class ConvexRegion:
         all positive exactly when ``centre`` is interior."""
         return self.offsets - dot_rows(centre, self.normals)
 
-    def on_boundary(self, point: ArrayLike, tolerance: float) -> NDArray[np.bool_]:
+    def on_boundary(self, point: ArrayLike, tolerance: float) -> NDArray[np.bool_] | np.bool_:
         """Whether ``point`` lies on the boundary within ``tolerance`` metres: inside every edge line
         up to it and on at least one. One point given as an ``(x, y)`` tuple of floats (as a message
         carries it) is checked in plain floats, the same operations as :meth:`heights` in the same
         order, without numpy's cost per call (a world checks every robot's goal each step)."""
         if isinstance(point, tuple) and len(point) == 2 and all(type(value) is float for value in point):
             x, y = point
-            heights = [offset - (x * normal_x + y * normal_y) for offset, normal_x, normal_y in self._edge_lines]
-            return np.bool_(min(heights) >= -tolerance and min(map(abs, heights)) <= tolerance)
+            lines = self._edge_lines
+            edge_heights = [offset - (x * normal_x + y * normal_y) for offset, normal_x, normal_y in lines]
+            return np.bool_(min(edge_heights) >= -tolerance and min(map(abs, edge_heights)) <= tolerance)
         heights = self.heights(point)
         return (heights.min(axis=-1) >= -tolerance) & (np.abs(heights).min(axis=-1) <= tolerance)
 
