@@ -16,14 +16,17 @@ world's End, on a signal, or when the world is gone.
 from __future__ import annotations
 
 import asyncio
+from collections import deque
 from dataclasses import dataclass
 from typing import Literal
+
+import msgspec
 
 from ringtrack.agents.node import BUFFERED_LIMIT, Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
-from ringtrack.bus.messages import End, Measurement, Push, RangeReport, Reply, Request, Stats
+from ringtrack.bus.messages import Command, End, Measurement, Push, RangeReport, Reply, Request, Stats
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence
 from ringtrack.bus.reach import ReachTokens
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
@@ -154,11 +157,12 @@ class RobotLink:
         return not self.outside
 
     def send(self, outgoing: Outgoing) -> None:
-        pending = list(outgoing)
+        pending = deque(outgoing)
         while pending:
-            destination, message = pending.pop(0)
-            robot = robot_index(destination)
-            if not self.shim.send(destination, message) and robot is not None:
+            destination, message = pending.popleft()
+            if isinstance(message, Command):  # with the robot's own count of what its step put on the bus
+                message = msgspec.structs.replace(message, robot_traffic=self.shim.take_traffic(message.step))
+            if not self.shim.send(destination, message) and (robot := robot_index(destination)) is not None:
                 pending += self.node.on_lost(robot)
         if self.reply_timeout is None:
             return  # every answer and push comes, or its loss is known at once

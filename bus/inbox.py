@@ -27,6 +27,9 @@ class Inbox(Generic[Item]):
         self._loop = loop
         self._items: deque[Item] = deque()
         self._waiter: asyncio.Future[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._deadline: float | None = None  # loop time the timer is set for
+        self._expired = False  # the timer for _deadline has fired
         self._wake_pending = False
         self._eventfd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         weakref.finalize(self, os.close, self._eventfd)
@@ -46,31 +49,36 @@ class Inbox(Generic[Item]):
         except BlockingIOError:
             pass
         self._wake_pending = False
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+        self._wake()
 
     def pending(self) -> int:
         return len(self._items)
 
-    async def batch(self, timeout: float | None = None) -> list[Item]:
-        """Wait until at least one item is queued, then take everything queued; after ``timeout``
-        seconds (None: never) return what is queued, perhaps nothing. The timeout is a timer on the
-        loop, not ``asyncio.wait_for``: no task is created per wait."""
-        expired: list[bool] = []
-        timer = None if timeout is None else self._loop.call_later(timeout, self._expire, expired)
+    async def batch(self, timeout: float | None = None, until: float | None = None) -> list[Item]:
+        """Wait until at least one item is queued, then take everything queued; once ``timeout``
+        seconds have passed (or the loop's clock reached ``until``; None: never) return what is
+        queued, perhaps nothing. The timeout is one timer on the loop, kept for the next wait with
+        the same ``until`` (a lockstep world waits for a step's commands against one deadline),
+        not ``asyncio.wait_for``: no task is created per wait."""
+        if until is None and timeout is not None:
+            until = self._loop.time() + timeout
+        if until is not None and until != self._deadline:
+            if self._timer is not None:
+                self._timer.cancel()
+            self._timer, self._deadline, self._expired = self._loop.call_at(until, self._expire), until, False
         try:
-            while not self._items and not expired:
+            while not self._items and (until is None or not self._expired):
                 self._waiter = self._loop.create_future()
                 await self._waiter
         finally:
             self._waiter = None
-            if timer is not None:
-                timer.cancel()
         return self.take()
 
-    def _expire(self, expired: list[bool]) -> None:
-        expired.append(True)
+    def _expire(self) -> None:
+        self._expired = True
+        self._wake()
+
+    def _wake(self) -> None:
         waiter = self._waiter
         if waiter is not None and not waiter.done():
             waiter.set_result(None)
@@ -86,5 +94,7 @@ class Inbox(Generic[Item]):
         """Stop waking the loop (it may close afterwards); later pushes are only queued."""
         if not self._closed:
             self._closed = True
+            if self._timer is not None:
+                self._timer.cancel()
             if not self._loop.is_closed():
                 self._loop.remove_reader(self._eventfd)

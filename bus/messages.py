@@ -61,6 +61,15 @@ class Measurement(Message, tag=1, frozen=True):
     category: ClassVar[str] = "world"
 
 
+# What a robot-to-robot message of a lockstep step put on the bus, as the robot whose step it was
+# counted it: ``(kind, peer, copies, payload bytes of each copy)``, ``kind`` an index into
+# ROBOT_TRAFFIC_KINDS. A request or a push went from the robot to ``peer``; a reply came from
+# ``peer``, one for each copy of the robot's request the peer received.
+ROBOT_TRAFFIC_KINDS = ("request", "reply", "push")
+RobotTraffic = tuple[Annotated[int, msgspec.Meta(ge=0, lt=len(ROBOT_TRAFFIC_KINDS))], int,
+                     Annotated[int, msgspec.Meta(ge=1, le=2)], Count]
+
+
 class Command(Message, tag=2, frozen=True):
     """Robot -> world: where to move this step, why it polled (a Trigger mask), and its view.
 
@@ -68,7 +77,10 @@ class Command(Message, tag=2, frozen=True):
     neighbour, so its offset is no value of the ring) and ``ages`` the ages (steps) of its memory of
     its predecessor and successor, both as they were when it decided whether to poll; ``centre`` is
     the point it steers about (the known target or its estimate) with ``covariance`` when it
-    estimates.
+    estimates. ``robot_traffic`` is the robot's own count of the robot-to-robot messages its step
+    put on the bus (:data:`RobotTraffic`: its requests and pushes, and the replies to its requests
+    that came before it commanded: in lockstep, all of them); the world's lockstep digest hands it
+    to the monitor, which then needs no copy of those messages.
     """
 
     step: Step
@@ -79,6 +91,7 @@ class Command(Message, tag=2, frozen=True):
     ages: tuple[Count, Count]
     centre: Point
     covariance: Covariance | None = None
+    robot_traffic: Annotated[list[RobotTraffic], msgspec.Meta(max_length=8)] = []
     kind: ClassVar[str] = "command"
     category: ClassVar[str] = "world"
 
@@ -346,13 +359,14 @@ def robot_ids(message: Message) -> list[int]:
         return [message.robot, *(message.in_range or ()), *(message.live or ()),
                 *(robot for robot, _ in message.distances), *getattr(message, "pushed_by", ())]
     if isinstance(message, Command):
-        return [message.robot, *getattr(message, "pushed", ())]
+        return [message.robot, *getattr(message, "pushed", ()), *(row[1] for row in message.robot_traffic)]
     if isinstance(message, RangeReport):
         return [message.robot, *(message.live or ())]
     if isinstance(message, Tick):
         return list(message.live)
     if isinstance(message, Digest):
-        return [*(robot for robot, _ in message.measurements), *(command.robot for command, _ in message.commands)]
+        return [*(robot for robot, _ in message.measurements),
+                *(robot for command, _ in message.commands for robot in robot_ids(command))]
     return []
 
 

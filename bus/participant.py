@@ -151,10 +151,11 @@ class Participant:
             self.callback_failures += 1
             log.exception("liveliness callback failed")
 
-    async def events(self, timeout: float | None = None) -> list[Event]:
+    async def events(self, timeout: float | None = None, until: float | None = None) -> list[Event]:
         """Wait for and return the next batch of validated messages and presence changes (after
-        ``timeout`` seconds, None: never, perhaps an empty one)."""
-        batch = await self.inbox.batch(timeout)
+        ``timeout`` seconds, or once the loop's clock reached ``until``; None: never, perhaps an
+        empty one)."""
+        batch = await self.inbox.batch(timeout, until)
         return self.accept(batch)
 
     def accept(self, batch: list[Raw | Event]) -> list[Event]:
@@ -182,10 +183,12 @@ class Participant:
         key = self.keys.alive(self.name) if kind == "alive" else self.keys.ready(self.name)
         self._entities.append(self.session.liveliness().declare_token(key))
 
-    def send(self, destination: str, message: Message) -> int:
-        """Publish ``message`` to ``destination`` (a participant name or "all"); returns its bytes."""
+    def send(self, destination: str, message: Message, payload: bytes | None = None) -> int:
+        """Publish ``message`` to ``destination`` (a participant name or "all"); returns its bytes.
+        ``payload`` is ``message`` encoded, when the caller has it already."""
         key = self.keys.data(destination, self.name, message.kind)
-        payload = encode(message)
+        if payload is None:
+            payload = encode(message)
         publisher = self._publishers.get(key)
         if publisher is None:
             publisher = self.session.declare_publisher(

@@ -23,7 +23,7 @@ Realtime latency of a message: ``latency_s + 8 bytes / bandwidth_bps``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -89,20 +89,36 @@ def loss_probability(radio: Radio, distance: ArrayLike) -> NDArray[np.float64]:
     return (per * weights).sum(axis=-1) / weights.sum()
 
 
-def message_bits(radio: Radio, payload_bytes: ArrayLike) -> NDArray[np.int64]:
-    """Bits on the air of messages of ``payload_bytes`` (their encoded size) plus the overhead."""
-    return 8 * (np.asarray(payload_bytes, dtype=np.int64) + radio.overhead_bytes)
+Bits = TypeVar("Bits", int, NDArray[np.int64])
 
 
-def transmit_energy(radio: Radio, bits: ArrayLike, distance: ArrayLike) -> NDArray[np.float64]:
-    """``E_elec k + eps_amp k d^2`` joules to send ``k`` bits over ``d`` metres."""
-    bits = np.asarray(bits, dtype=float)
-    return radio.e_elec * bits + radio.eps_amp * bits * np.square(np.asarray(distance, dtype=float))
+def message_bits(radio: Radio, payload_bytes: Bits) -> Bits:
+    """Bits on the air of messages of ``payload_bytes`` (their encoded size, an int or an integer
+    array) plus the overhead. Plain numbers stay plain: a robot computes one message at a time, the
+    engine a whole batch, with the same operations (so the two agree to the last bit)."""
+    return 8 * (payload_bytes + radio.overhead_bytes)
 
 
-def receive_energy(radio: Radio, bits: ArrayLike) -> NDArray[np.float64]:
+@overload
+def transmit_energy(radio: Radio, bits: int, distance: float) -> float: ...
+@overload
+def transmit_energy(radio: Radio, bits: NDArray[np.int64],
+                    distance: float | NDArray[np.float64]) -> NDArray[np.floating[Any]]: ...
+def transmit_energy(radio: Radio, bits: int | NDArray[np.int64],
+                    distance: float | NDArray[np.float64]) -> float | NDArray[np.floating[Any]]:
+    """``E_elec k + eps_amp k d^2`` joules to send ``k`` bits over ``d`` metres (numbers or arrays,
+    broadcast)."""
+    energy: float | NDArray[np.floating[Any]] = radio.e_elec * bits + radio.eps_amp * bits * (distance * distance)
+    return energy
+
+
+@overload
+def receive_energy(radio: Radio, bits: int) -> float: ...
+@overload
+def receive_energy(radio: Radio, bits: NDArray[np.int64]) -> NDArray[np.floating[Any]]: ...
+def receive_energy(radio: Radio, bits: int | NDArray[np.int64]) -> float | NDArray[np.floating[Any]]:
     """``E_elec k`` joules to receive ``k`` bits."""
-    return radio.e_elec * np.asarray(bits, dtype=float)
+    return radio.e_elec * bits
 
 
 def airtime_s(radio: Radio, payload_bytes: int) -> float:

@@ -7,9 +7,22 @@ from collections.abc import Callable
 
 from ringtrack.bus.faults import DELIVERED, Fate, FaultCounter, FaultPlan, published_copies
 from ringtrack.bus.keys import MONITOR
-from ringtrack.bus.messages import SCHEMA, FaultNotice, Message, Push, Reply, Request, RobotMessage, encode
+from ringtrack.bus.messages import (
+    ROBOT_TRAFFIC_KINDS,
+    SCHEMA,
+    FaultNotice,
+    Message,
+    Push,
+    Reply,
+    Request,
+    RobotMessage,
+    RobotTraffic,
+    encode,
+)
 from ringtrack.bus.participant import Delivery, Participant
 from ringtrack.bus.radio import airtime_s, message_bits, receive_energy, transmit_energy
+
+REQUEST, REPLY, PUSH = (ROBOT_TRAFFIC_KINDS.index(kind) for kind in ("request", "reply", "push"))
 
 
 class LinkShim:
@@ -40,6 +53,11 @@ class LinkShim:
         self.realtime = realtime
         self.counter = FaultCounter()
         self.energy_j = [0.0, 0.0]
+        # What the robot's steps have put on the bus since it last commanded (take_traffic): its
+        # requests by nonce, as [step, peer, copies published, bytes, bytes of the peer's reply once
+        # one came], and its pushes as (step, row).
+        self._requests: dict[int, list[int]] = {}
+        self._pushes: list[tuple[int, RobotTraffic]] = []
 
     def _fate(self, message: RobotMessage) -> Fate:
         if isinstance(message, Request) and not self.reachable(message.receiver):
@@ -53,11 +71,11 @@ class LinkShim:
         (realtime with a disk or log-distance radio; else 0)."""
         radio = self.plan.radio
         bits = message_bits(radio, size)
-        self.energy_j[0] += copies * float(transmit_energy(radio, bits, self.distance(message.receiver, message.step)))
+        self.energy_j[0] += copies * transmit_energy(radio, bits, self.distance(message.receiver, message.step))
         return airtime_s(radio, size) if self.realtime and radio.model != "ideal" else 0.0
 
     def _receive(self, size: int, copies: int) -> None:
-        self.energy_j[1] += copies * float(receive_energy(self.plan.radio, message_bits(self.plan.radio, size)))
+        self.energy_j[1] += copies * receive_energy(self.plan.radio, message_bits(self.plan.radio, size))
 
     def send(self, destination: str, message: Message) -> bool:
         """Publish ``message``; for a request, its fate applies. Returns False if it was dropped."""
@@ -65,19 +83,25 @@ class LinkShim:
             self.participant.send(destination, message)
             return True
         fate = self._fate(message) if isinstance(message, Request) else DELIVERED
-        published = int(published_copies(fate.dropped, fate.copies))
+        # a message met by no fault is published once (the common case, spared the arrays)
+        published = 1 if fate is DELIVERED else int(published_copies(fate.dropped, fate.copies))
         self.counter.count_sent(published)
         self._settle(message, fate)
+        payload = encode(message)
+        if published and isinstance(message, Request):
+            self._requests[message.nonce] = [message.step, message.receiver, published, len(payload), 0]
+        elif isinstance(message, Push):
+            self._pushes.append((message.step, (PUSH, message.receiver, 1, len(payload))))
         # every copy on the bus is on the air; a message dropped before publishing was still sent once
-        airtime = self._transmit(message, len(encode(message)), max(published, 1))
+        airtime = self._transmit(message, len(payload), max(published, 1))
         if fate.dropped:
             return False
         for _ in range(fate.copies):
             if fate.delay_s or airtime:
                 loop = asyncio.get_running_loop()
-                loop.call_later(fate.delay_s + airtime, self.participant.send, destination, message)
+                loop.call_later(fate.delay_s + airtime, self.participant.send, destination, message, payload)
             else:
-                self.participant.send(destination, message)
+                self.participant.send(destination, message, payload)
         return True
 
     def receive(self, delivery: Delivery) -> tuple[list[Delivery], bool]:
@@ -85,6 +109,8 @@ class LinkShim:
         message = delivery.message
         if isinstance(message, (Request, Reply, Push)) and not delivery.released:
             self.counter.count_arrived()
+            if isinstance(message, Reply):
+                self._note_reply(message, delivery.size)
         if not isinstance(message, (Request, Reply, Push)) or delivery.released:
             if isinstance(message, (Request, Reply, Push)):
                 self.counter.count_delivered(1)
@@ -104,8 +130,32 @@ class LinkShim:
         self._receive(delivery.size, len(copies))
         return copies, False
 
+    def _note_reply(self, reply: Reply, size: int) -> None:
+        """Note the size of the first reply that came to an open request of this step."""
+        request = self._requests.get(reply.nonce)
+        if request is not None and request[1] == reply.sender and not request[4]:
+            request[4] = size
+
+    def take_traffic(self, step: int) -> list[RobotTraffic]:
+        """The robot-to-robot messages the robot's ``step`` has put on the bus, as the robot counted
+        them (:data:`bus.messages.RobotTraffic`): every request published, with the replies to it
+        (one per copy the peer received; none when no reply came before now), and every push.
+        Forgets them and those of earlier steps (a realtime robot may leave a step without
+        commanding): the next step starts afresh."""
+        rows: list[RobotTraffic] = []
+        for sent_in, peer, copies, size, reply_size in self._requests.values():
+            if sent_in == step:
+                rows.append((REQUEST, peer, copies, size))
+                if reply_size:
+                    rows.append((REPLY, peer, copies, reply_size))
+        rows += [row for sent_in, row in self._pushes if sent_in == step]
+        self._requests, self._pushes = {}, []
+        return rows
+
     def _settle(self, message: RobotMessage, fate: Fate) -> None:
         """Count what ``fate`` does to ``message`` and report each fault to the monitor."""
+        if fate is DELIVERED:
+            return  # nothing to count or report
         self.counter.count_fate(fate)
         for what in fate.faults:
             notice = FaultNotice(SCHEMA, self.participant.keys.run, message.step, message.kind, message.sender,

@@ -48,8 +48,10 @@ def messages() -> st.SearchStrategy:
     return st.one_of(
         st.builds(lambda s, t, r, p, z: Measurement(SCHEMA, RUN, s, t, r, p, z), steps, non_negative, robots, points,
                   st.one_of(st.none(), non_negative)),
-        st.builds(lambda s, r, g, m, o, a, c, v: Command(SCHEMA, RUN, s, r, g, m, o, a, c, v), steps, robots, points,
-                  st.integers(0, 31), finite, st.tuples(steps, steps), points, covariance),
+        st.builds(lambda s, r, g, m, o, a, c, v, t: Command(SCHEMA, RUN, s, r, g, m, o, a, c, v, t), steps, robots,
+                  points, st.integers(0, 31), finite, st.tuples(steps, steps), points, covariance,
+                  st.lists(st.tuples(st.integers(0, 2), robots, st.integers(1, 2), st.integers(0, 10**6)),
+                           max_size=8)),
         st.builds(lambda s, a, b, n: Request(SCHEMA, RUN, s, a, b, n), steps, robots, robots, nonces),
         st.builds(lambda s, a, b, n, p, m, v: Reply(SCHEMA, RUN, s, a, b, n, p, m, v), steps, robots, robots, nonces,
                   points, st.one_of(st.none(), points), covariance),
@@ -89,6 +91,13 @@ BAD_VALUES = [
     (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, float("-inf"), (0, 0), (0.0, 0.0)), "malformed"),
     (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), -1, 0.0, (0, 0), (0.0, 0.0)), "malformed"),
     (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (-1, 0), (0.0, 0.0)), "malformed"),
+    # a robot's own count of its step's robot-to-robot traffic: (kind, peer, copies, bytes)
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0), None, [(0, 6, 1, 17)]), "sender"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0), None, [(3, 2, 1, 17)]), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0), None, [(0, 2, 3, 17)]), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0), None, [(0, 2, 0, 17)]), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0), None, [(0, 2, 1, -17)]), "malformed"),
+    (Command(SCHEMA, RUN, 3, 1, (0.0, 0.0), 0, 0.0, (0, 0), (0.0, 0.0), None, [(0, 2, 1, 17)] * 9), "malformed"),
     (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), -1.0), "malformed"),  # a negative range
     (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), 1.0, [0, 9]), "sender"),  # in range of a robot 9
     (Measurement(SCHEMA, RUN, 3, 0.3, 1, (0.0, 0.0), 1.0, None, None, [(9, 2.0)]), "sender"),  # a link to robot 9

@@ -1,8 +1,10 @@
 """The monitor process: tallies every message and byte of a run live and writes its run log.
 
-It subscribes to every key of the run and counts what it receives by kind and link (the same
-:class:`bus.counting.TrafficCounter` the senders use for what they send). From the world's Ticks, the
-robots' Commands and their requests and replies it assembles one log record per step. When the
+It counts what it receives by kind and link (the same :class:`bus.counting.TrafficCounter` the
+senders use for what they send): with ``--audit`` every message of the run, by default in lockstep
+every kind but those the world's per-step digest accounts for (measurements and commands by the
+world's own counts, robot-to-robot messages by the robots' own, :func:`digested`). From the world's
+Ticks, the robots' Commands and their requests and replies it assembles one log record per step. When the
 world ends the run it waits for every sender's final statistics, checks that its totals equal what
 the senders counted, writes the end record and prints a summary.
 """
@@ -22,6 +24,7 @@ from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffi
 from ringtrack.bus.keys import MONITOR, WORLD, Keys, Route, participants, robot_index, robot_name
 from ringtrack.bus.messages import (
     KINDS,
+    ROBOT_TRAFFIC_KINDS,
     Command,
     Digest,
     End,
@@ -68,6 +71,13 @@ class PendingStep:
     traffic_messages: Counter[str] = field(default_factory=Counter)
     traffic_bytes: Counter[str] = field(default_factory=Counter)
     notices: list[FaultNotice] = field(default_factory=list)
+
+    def count_robot_message(self, sender: int, receiver: int, size: int) -> None:
+        """One robot-to-robot message of ``size`` payload bytes, ``sender -> receiver`` (robot ids)."""
+        self.sent_messages[sender] += 1
+        self.sent_bytes[sender] += size
+        self.received_messages[receiver] += 1
+        self.received_bytes[receiver] += size
 
     def complete(self) -> bool:
         """Tick and every live robot's command are in, and every robot-to-robot message its polls
@@ -141,10 +151,7 @@ class Recorder:
         elif isinstance(message, Command):
             entry.commands[message.robot] = message
         elif isinstance(message, (Request, Reply, Push)):
-            entry.sent_messages[message.sender] += 1
-            entry.sent_bytes[message.sender] += delivery.size
-            entry.received_messages[message.receiver] += 1
-            entry.received_bytes[message.receiver] += delivery.size
+            entry.count_robot_message(message.sender, message.receiver, delivery.size)
         elif isinstance(message, FaultNotice):
             entry.notices.append(message)
             self.record({"type": "event", "event": message.what, "step": message.step,
@@ -158,6 +165,15 @@ class Recorder:
             entry = self._pending(step)
             entry.traffic_messages["world"] += 1
             entry.traffic_bytes["world"] += size
+
+    def count_robot_message(self, step: int, sender: int, receiver: int, size: int) -> None:
+        """Count a robot-to-robot message of ``step`` the monitor did not receive itself but a
+        command's ``robot_traffic`` reports (in a digest)."""
+        if step >= self.next_step and self._opens(step):
+            entry = self._pending(step)
+            entry.traffic_messages["robot"] += 1
+            entry.traffic_bytes["robot"] += size
+            entry.count_robot_message(sender, receiver, size)
 
     def record(self, record: dict) -> None:
         """Write ``record`` to the log and hand it to ``on_record`` (the dashboard's model)."""
@@ -269,7 +285,8 @@ async def run_monitor(
     """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
     times per second, and once more with True when the log is complete; returns the exit code and
     the report (None when stopped before the start). With ``digests`` the monitor receives no copy of
-    the measurements and commands: it counts them from the world's digests (:func:`digested`)."""
+    the measurements, commands and robot-to-robot messages: it counts them from the world's digests
+    (:func:`digested`)."""
     keys = Keys(run)
     report: MonitorReport | None = None
     if model is not None:
@@ -315,9 +332,7 @@ async def run_monitor(
             refresh(True)
         return code
 
-    collect = tuple(keys.data("*", "*", kind) for kind in KINDS if kind not in DIGESTED) if digests \
-        else (keys.everything,)
-    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=collect,
+    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=monitored_keys(keys, digests),
                 stats=lambda participant, code: None, on_gathering=show_startup)
     code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
     return code, report
@@ -333,7 +348,7 @@ async def _watch(
 ) -> tuple[int, MonitorReport]:
     """Record until the run has ended and everything every sender says it sent has been seen (or
     nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died); with ``digests``, the world's
-    digests count for the measurements and commands the monitor does not receive."""
+    digests count for the messages the monitor does not receive (:data:`DIGESTED`)."""
     finals: dict[str, Stats] = {}
     end: End | None = None
     code = 0
@@ -396,12 +411,23 @@ async def _watch(
     return code, report
 
 
-DIGESTED = ("measurement", "command")  # the kinds a world's Digest accounts for
+# The kinds a world's Digest accounts for: measurements and commands by the world's own counts, and
+# robot-to-robot messages by the robots' own (each command's ``robot_traffic``).
+DIGESTED = ("measurement", "command", "request", "reply", "push")
+
+
+def monitored_keys(keys: Keys, digests: bool) -> tuple[str, ...]:
+    """The key expressions the monitor subscribes to: the whole run when it audits, else every kind
+    the world's digests do not account for (:data:`DIGESTED`)."""
+    if not digests:
+        return (keys.everything,)
+    return tuple(keys.data("*", "*", kind) for kind in KINDS if kind not in DIGESTED)
 
 
 def digested(participant: Participant, recorder: Recorder, digest: Digest) -> None:
-    """Count the measurements and commands ``digest`` reports as if the monitor had received them
-    (the world's own counts: what it published, what it received) and record them."""
+    """Count the messages ``digest`` reports as if the monitor had received them and record them:
+    the measurements and commands by the world's own counts (what it published, what it received),
+    the robot-to-robot messages by each commanding robot's own (:attr:`bus.messages.Command.robot_traffic`)."""
     for robot, size in digest.measurements:
         participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
         recorder.count_world_message(digest.step, size)
@@ -409,6 +435,12 @@ def digested(participant: Participant, recorder: Recorder, digest: Digest) -> No
         source = robot_name(command.robot)
         participant.counter.count_received(("command", source, WORLD), size)
         recorder.on_delivery(Delivery(command, Route(WORLD, source, "command"), size))
+        for kind, peer, copies, each in command.robot_traffic:
+            sender, receiver = (peer, command.robot) if ROBOT_TRAFFIC_KINDS[kind] == "reply" else (command.robot, peer)
+            for _ in range(copies):
+                participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
+                                                    robot_name(receiver)), each)
+                recorder.count_robot_message(command.step, sender, receiver, each)
 
 
 def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:

@@ -152,8 +152,9 @@ def bus_config(args: argparse.Namespace, names: list[str], robots: int | None, a
 
 
 def digests(args: argparse.Namespace) -> bool:
-    """Whether the world reports its own links to the monitor in digests (lockstep without
-    ``--audit``) rather than the monitor receiving a copy of every measurement and command."""
+    """Whether the world reports to the monitor in digests (lockstep without ``--audit``) its own
+    links and the robots' own counts of their robot-to-robot messages, rather than the monitor
+    receiving a copy of every measurement, command, request, reply and push."""
     return args.clock == "lockstep" and not args.audit
 
 

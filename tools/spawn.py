@@ -92,8 +92,9 @@ def register(commands: argparse._SubParsersAction) -> None:
                         "fast start-up; Linux); exec: each is a fresh interpreter (default: fork where it works)")
     parser.add_argument("--audit", action="store_true",
                         help="the monitor receives a copy of every message and counts it itself (an independent "
-                        "tally); by default, in lockstep, it takes the world's own counts of measurements and "
-                        "commands (one digest a step) and observes the rest")
+                        "tally); by default, in lockstep, it takes measurements and commands by the world's own "
+                        "counts and robot-to-robot messages by the robots' own, from one digest a step, and "
+                        "observes the rest")
     parser.set_defaults(handler=run_spawn)
 
 

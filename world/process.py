@@ -256,7 +256,7 @@ async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> 
             log.warning("lockstep step %d waits for %s", world.step,
                         ", ".join(f"r{robot}" for robot in sorted(world.live - world.commanded)))
         next_check = wait_s if noticed else min(wait_s, WAIT_NOTICE_S)
-        for event in await participant.events(max(0.01, next_check - waited)):
+        for event in await participant.events(until=started + next_check):
             _handle(event, context)
 
 
@@ -265,6 +265,6 @@ async def _realtime(context: Context, deadline: float) -> None:
     of the run plus ``step * dt / rate``, so the schedule does not drift)."""
     loop = asyncio.get_running_loop()
     _publish(context)
-    while (remaining := deadline - loop.time()) > 0:
-        for event in await context.participant.events(remaining):
+    while deadline > loop.time():
+        for event in await context.participant.events(until=deadline):
             _handle(event, context)
