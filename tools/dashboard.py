@@ -98,6 +98,9 @@ class RobotStatus:
     last_reason: int = 0
     last_reason_step: int = 0
     alive: bool = True
+    # The latest step that named a centre: the robot's position, that centre (metres) and its offset
+    # gV - theta (radians); angle, midpoint and ubd are derived from it and from ages when drawn.
+    seen: tuple[list[float], list[float], float | None] | None = None
 
 
 class TeamModel:
@@ -108,7 +111,8 @@ class TeamModel:
         self.clock = clock
         self.replay_speed = replay_speed  # shown instead of the live rate when replaying
         self.live = live  # live: the rate shown is steps per wall second
-        self.robots = [RobotStatus() for _ in range(scenario.robots)]
+        self._robots = [RobotStatus() for _ in range(scenario.robots)]
+        self._derived = True  # angle, midpoint and ubd of every robot are up to date
         self.step = 0
         self.time = 0.0
         self.steps = scenario.max_steps
@@ -138,6 +142,23 @@ class TeamModel:
             name = record["reason"] if record["event"] == "dropped" else FAULT_NAMES[record["event"]]
             self.link_faults[frozenset((record["sender"], record["receiver"]))] = (name, record["step"])
 
+    @property
+    def robots(self) -> list[RobotStatus]:
+        """Every robot as of the latest step, its angles derived now (only what is drawn is computed:
+        a monitor folds in hundreds of steps a second and draws four frames)."""
+        if not self._derived:
+            params = self.scenario.control
+            for status in self._robots:
+                if status.seen is not None:
+                    position, centre, offset = status.seen
+                    theta = float(angle_of(np.asarray(position, dtype=float), centre))
+                    status.angle = math.degrees(theta) % 360.0
+                    status.midpoint = math.nan if offset is None else math.degrees(theta + offset) % 360.0
+                if status.ages is not None:
+                    status.ubd = math.degrees(uncertainty_bound(status.ages[0], status.ages[1], params))
+            self._derived = True
+        return self._robots
+
     def _add_step(self, record: dict) -> None:
         if self.first_step_at is None:
             self.first_step_at = time.monotonic()
@@ -145,10 +166,10 @@ class TeamModel:
         self.positions = np.asarray(record["positions"], dtype=float)
         self.target = np.asarray(record["target"], dtype=float)
         self.centres = record["centre"]
-        params = self.scenario.control
         live = set(record["live"])
         self.bytes_counted = record["sent_bytes"] is not None
-        for index, status in enumerate(self.robots):
+        self._derived = False
+        for index, status in enumerate(self._robots):
             status.alive = index in live
             trigger, centre = record["trigger"][index], record["centre"][index]
             status.polled_now = bool(trigger)
@@ -160,15 +181,11 @@ class TeamModel:
             if self.bytes_counted:
                 status.sent[1] += record["sent_bytes"][index]
                 status.received[1] += record["received_bytes"][index]
-            offset = record["offset"][index]
             if centre is not None:
-                theta = float(angle_of(self.positions[index], centre))
-                status.angle = math.degrees(theta) % 360.0
-                status.midpoint = math.nan if offset is None else math.degrees(theta + offset) % 360.0
+                status.seen = (record["positions"][index], centre, record["offset"][index])
             ages = record["ages"][index]
             if ages is not None:
                 status.ages = (ages[0], ages[1])
-                status.ubd = math.degrees(uncertainty_bound(ages[0], ages[1], params))
         for category, (messages, size) in record["traffic"].items():
             self.totals[category][0] += messages
             self.totals[category][1] += size or 0

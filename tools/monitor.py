@@ -190,7 +190,10 @@ class Recorder:
         return step <= max(self.latest_tick, self.next_step) + AHEAD_STEPS and len(self.pending) < PENDING_LIMIT
 
     def _pending(self, step: int) -> PendingStep:
-        return self.pending.setdefault(step, PendingStep())
+        entry = self.pending.get(step)
+        if entry is None:  # not setdefault: that would build a PendingStep for every message
+            entry = self.pending[step] = PendingStep()
+        return entry
 
     def flush(self, through: int | None = None) -> None:
         """Write complete steps in order and overdue ones as they are; with ``through``, also every
