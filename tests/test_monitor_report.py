@@ -130,3 +130,39 @@ def test_simulate_summarises_the_polls_of_a_large_team(capsys) -> None:
     assert main(["simulate", "--robots", "25", "--steps", "5", "--all-robots"]) == 0
     polls = capsys.readouterr().out
     assert "busiest" not in polls and "Com-bar" in polls and "saved" in polls
+
+
+def test_a_digest_counts_robot_to_robot_traffic_by_the_commanding_robots_own_counts() -> None:
+    from types import SimpleNamespace
+
+    from ringtrack.bus.counting import TrafficCounter
+    from ringtrack.bus.keys import Keys
+    from ringtrack.bus.messages import Command, Digest, Tick
+    from ringtrack.tools.monitor import digested, monitored_keys
+
+    scenario = load_scenario("paper-stationary", robots=3)
+    written = Written()
+    recorder = Recorder(written, scenario)  # type: ignore[arg-type]
+    monitor = SimpleNamespace(counter=TrafficCounter())
+    tick = Tick(SCHEMA, 1, 1, 0.0, [(0.0, 0.0)] * 3, (1.0, 1.0), [0, 1, 2])
+    recorder.on_delivery(Delivery(tick, Route("monitor", "world", "tick"), 50))
+    # r1 polled both neighbours: its request to r2 went out twice (duplicated), so r2 answered twice;
+    # r0 and r2 only commanded.
+    polled = Command(SCHEMA, 1, 1, 1, (0.0, 0.0), 1, 0.0, (0, 0), (1.0, 1.0), None,
+                     [(0, 0, 1, 17), (1, 0, 1, 38), (0, 2, 2, 18), (1, 2, 2, 39)])
+    quiet = [Command(SCHEMA, 1, 1, robot, (0.0, 0.0), 0, 0.0, (3, 3), (1.0, 1.0)) for robot in (0, 2)]
+    digest = Digest(SCHEMA, 1, 1, [(0, 70), (1, 70), (2, 70)], [(polled, 90), (quiet[0], 64), (quiet[1], 64)])
+    digested(monitor, recorder, digest)  # type: ignore[arg-type]
+    recorder.flush()
+    (record,) = written
+    assert record["sent_messages"] == [1, 3, 2] and record["sent_bytes"] == [38, 17 + 2 * 18, 2 * 39]
+    assert record["received_messages"] == [1, 3, 2] and record["received_bytes"] == [17, 38 + 2 * 39, 2 * 18]
+    assert record["traffic"]["robot"] == [6, 17 + 38 + 2 * 18 + 2 * 39]
+    rows = {row[:3]: row[3:] for row in monitor.counter.received_table()}
+    assert rows[("request", "r1", "r2")] == (2, 36) and rows[("reply", "r2", "r1")] == (2, 78)
+    assert rows[("request", "r1", "r0")] == (1, 17) and rows[("reply", "r0", "r1")] == (1, 38)
+    # Fed by digests, the monitor subscribes to no kind a digest accounts for; auditing, to everything.
+    keys = Keys(1)
+    kinds = {key.rsplit("/", 1)[-1] for key in monitored_keys(keys, digests=True)}
+    assert not kinds & {"measurement", "command", "request", "reply", "push"} and {"tick", "digest", "stats"} <= kinds
+    assert monitored_keys(keys, digests=False) == (keys.everything,)
