@@ -158,22 +158,17 @@ class Recorder:
                          "subject": message.subject, "sender": message.sender, "receiver": message.receiver,
                          "reason": message.reason or None, "delay_s": message.delay_s or None})
 
-    def count_world_message(self, step: int, size: int) -> None:
-        """Count a world message of ``step`` (``size`` payload bytes) the monitor did not receive
-        itself but a :class:`~bus.messages.Digest` reports."""
+    def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None) -> None:
+        """Count a message of ``step`` (``size`` payload bytes) the monitor did not receive itself but
+        a :class:`~bus.messages.Digest` reports: a world message, or with ``robots`` (sender,
+        receiver) a robot-to-robot message a command's ``robot_traffic`` names."""
         if step >= self.next_step and self._opens(step):
             entry = self._pending(step)
-            entry.traffic_messages["world"] += 1
-            entry.traffic_bytes["world"] += size
-
-    def count_robot_message(self, step: int, sender: int, receiver: int, size: int) -> None:
-        """Count a robot-to-robot message of ``step`` the monitor did not receive itself but a
-        command's ``robot_traffic`` reports (in a digest)."""
-        if step >= self.next_step and self._opens(step):
-            entry = self._pending(step)
-            entry.traffic_messages["robot"] += 1
-            entry.traffic_bytes["robot"] += size
-            entry.count_robot_message(sender, receiver, size)
+            category = "world" if robots is None else "robot"
+            entry.traffic_messages[category] += 1
+            entry.traffic_bytes[category] += size
+            if robots is not None:
+                entry.count_robot_message(*robots, size)
 
     def record(self, record: dict) -> None:
         """Write ``record`` to the log and hand it to ``on_record`` (the dashboard's model)."""
@@ -433,7 +428,7 @@ def digested(participant: Participant, recorder: Recorder, digest: Digest) -> No
     the robot-to-robot messages by each commanding robot's own (:attr:`bus.messages.Command.robot_traffic`)."""
     for robot, size in digest.measurements:
         participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
-        recorder.count_world_message(digest.step, size)
+        recorder.count_reported(digest.step, size)
     for command, size in digest.commands:
         source = robot_name(command.robot)
         participant.counter.count_received(("command", source, WORLD), size)
@@ -443,7 +438,7 @@ def digested(participant: Participant, recorder: Recorder, digest: Digest) -> No
             for _ in range(copies):
                 participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
                                                     robot_name(receiver)), each)
-                recorder.count_robot_message(command.step, sender, receiver, each)
+                recorder.count_reported(command.step, each, (sender, receiver))
 
 
 def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:
