@@ -132,3 +132,35 @@ def test_range_bounds_square_and_triangle():
     triangle = range_bounds(ConvexRegion.from_vertices([[0, 0], [4, 0], [0, 3]]), (1.0, 1.0), 3)
     assert (triangle.inner_diameter, triangle.outer_diameter, triangle.perimeter) == pytest.approx((2.0, 5.0, 12.0), abs=1e-9)
     assert triangle.necessary_communication == pytest.approx(2.0 * math.sin(math.pi / 3), abs=1e-9)
+
+
+# ---------------------------------------------------------------------------- the world's ring links
+@settings(max_examples=examples(40), deadline=None)
+@given(st.integers(3, 12), st.data())
+def test_world_ring_links_equal_each_link_alone_to_the_bit(robots, data):
+    """A world computes every ring link of a step in one call (WorldState.ring_links); each robot's
+    (neighbour, metres) must equal link_distance of that one pair, to the bit, for robots in the ring
+    and outside it, before and after robots leave and the team moves."""
+    from ringtrack.world.ranges import link_distance
+    from ringtrack.world.ring import neighbours_in_ring
+    from ringtrack.world.scenario import load_scenario
+    from ringtrack.world.state import WorldState
+
+    world = WorldState(load_scenario("paper-stationary", robots=robots), data.draw(st.integers(0, 2**16)), 1, 10)
+
+    def one_at_a_time(robot: int) -> list[tuple[int, float]]:
+        neighbours = sorted(set(neighbours_in_ring(robot, world.ring)) - {robot})
+        return [(other, float(link_distance(world.positions[robot], world.positions[other]))) for other in neighbours]
+
+    for _ in range(3):
+        assert [world.neighbour_distances(robot) for robot in range(robots)] == \
+            [one_at_a_time(robot) for robot in range(robots)]
+        leaving = data.draw(st.sets(st.sampled_from(sorted(world.live)), max_size=max(0, len(world.live) - 1)))
+        for robot in leaving:
+            world.leave(robot)
+        assert [world.neighbour_distances(robot) for robot in range(robots)] == \
+            [one_at_a_time(robot) for robot in range(robots)]
+        world.goals = world.scenario.region.boundary_point(
+            np.asarray(data.draw(st.lists(st.floats(-np.pi, np.pi), min_size=robots, max_size=robots))),
+            world.scenario.target)
+        world.advance()

@@ -52,6 +52,8 @@ class WorldState:
         self.pushed_last: dict[int, set[int]] = {}
         self.step = 1
         self.boundary_tolerance = 1e-6 * scenario.region.outer_diameter  # metres
+        # ring_links' cache: the step and the ring it was computed for, and the links
+        self._ring_links: tuple[int, tuple[int, ...], dict[int, list[tuple[int, float]]]] | None = None
 
     @property
     def time(self) -> float:
@@ -72,9 +74,35 @@ class WorldState:
         return PushMeasurement(*fields, sorted(pushed_by)) if pushed_by else Measurement(*fields)
 
     def neighbour_distances(self, robot: int) -> list[tuple[int, float]]:
-        """``(neighbour, metres)`` of the links from ``robot`` to its live ring neighbours."""
+        """``(neighbour, metres)`` of the links from ``robot`` to its live ring neighbours, in
+        ascending id order. A robot of the ring reads them from :meth:`ring_links`, computed once for
+        the current positions and ring (the world asks for every robot each step)."""
+        links = self.ring_links()
+        if robot in links:
+            return links[robot]
         neighbours = sorted(set(neighbours_in_ring(robot, self.ring)) - {robot})
         return [(other, float(link_distance(self.positions[robot], self.positions[other]))) for other in neighbours]
+
+    def ring_links(self) -> dict[int, list[tuple[int, float]]]:
+        """Each live robot's ``(neighbour, metres)`` links to its ring neighbours, ascending by id:
+        every link's length computed in one :func:`world.ranges.link_distance` call over the ring
+        (elementwise, so the same bits as one link at a time), kept for the rest of the step while the
+        ring stays (positions change only between steps)."""
+        if self._ring_links is not None and self._ring_links[:2] == (self.step, self.ring):
+            return self._ring_links[2]
+        ring = self.ring
+        links: dict[int, list[tuple[int, float]]] = {}
+        if len(ring) == 1:
+            links[ring[0]] = []
+        elif ring:
+            members = np.asarray(ring)
+            lengths = link_distance(self.positions[members], self.positions[np.roll(members, -1)]).tolist()
+            for index, robot in enumerate(ring):  # link ``index`` joins ring[index] to its successor
+                predecessor, successor = ring[index - 1], ring[(index + 1) % len(ring)]
+                around = {predecessor: lengths[index - 1], successor: lengths[index]}
+                links[robot] = sorted(around.items())
+        self._ring_links = (self.step, ring, links)
+        return links
 
     def rejoin(self, robot: int) -> None:
         """Bring a restarted robot back into the ring from the next step on (it has no measurement
