@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import Trigger, angular_step
+from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, angular_step
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
@@ -85,7 +85,7 @@ class MidpointController:
         """
         reasons = self._reasons(step, own_position, centre)
         unknown = (~self.predecessor_known & np.asarray(reach[0])) | (~self.successor_known & np.asarray(reach[1]))
-        return np.where(unknown & ((reasons & Trigger.START) == 0), reasons | int(Trigger.UNKNOWN), reasons)
+        return np.where(unknown & ((reasons & START_BIT) == 0), reasons | UNKNOWN_BIT, reasons)
 
     def _reasons(self, step: int, own_position: ArrayLike, centre: ArrayLike) -> NDArray[np.int64]:
         if step > 1:
@@ -96,7 +96,7 @@ class MidpointController:
         self.recentre(centre)
         self._take_offset()
         if step == 1:
-            return np.full(self.theta.shape, int(Trigger.START))
+            return np.full(self.theta.shape, START_BIT)
         return self.rule(self)
 
     def _take_offset(self) -> None:

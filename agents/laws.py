@@ -36,6 +36,13 @@ class Trigger(enum.IntFlag):
     UNKNOWN = 32  # nothing is known of a reachable neighbour (it changed, or its answer was lost)
 
 
+# The bits as plain ints, for the laws evaluated every step (a flag member's lookup costs more than
+# the arithmetic it feeds).
+UNCERTAINTY_BIT, SUCCESSOR_BIT, PREDECESSOR_BIT = (int(Trigger.UNCERTAINTY), int(Trigger.SUCCESSOR),
+                                                   int(Trigger.PREDECESSOR))
+START_BIT, UNKNOWN_BIT = int(Trigger.START), int(Trigger.UNKNOWN)
+
+
 
 
 def uncertainty_bound(c_minus: ArrayLike, c_plus: ArrayLike, params: ControlParams) -> NDArray[np.float64]:
@@ -50,13 +57,13 @@ def guarded_step(offset: ArrayLike, ubd: ArrayLike, max_step: float) -> NDArray[
     while farther than ``ubd + max_step``, stop within ``ubd``. With ``ubd = 0`` it is the deadbeat law.
     """
     offset = np.asarray(offset, dtype=float)
-    return np.sign(offset) * np.clip(np.abs(offset) - ubd, 0.0, max_step)
+    return np.sign(offset) * np.minimum(np.maximum(np.abs(offset) - ubd, 0.0), max_step)  # np.clip, without its wrapper
 
 
 def fresh_step(offset: ArrayLike, params: ControlParams) -> NDArray[np.float64]:
     """Motion with exact neighbour information towards ``theta + offset`` (``offset = V - theta``)."""
     if params.law == "prop":
-        return params.dt * np.clip(offset, -params.omega_max, params.omega_max)
+        return params.dt * np.minimum(np.maximum(offset, -params.omega_max), params.omega_max)
     return guarded_step(offset, 0.0, params.max_step)
 
 
@@ -101,7 +108,7 @@ def set_trigger_reasons(
     t1 = np.asarray(ubd, dtype=float) >= np.maximum(np.abs(offset), sigma) - TIE_RAD
     t2 = np.subtract(m_plus, phi_plus) <= theta + TIE_RAD
     t3 = np.add(m_minus, phi_minus) >= theta - TIE_RAD
-    return t1 * int(Trigger.UNCERTAINTY) + t2 * int(Trigger.SUCCESSOR) + t3 * int(Trigger.PREDECESSOR)
+    return t1 * UNCERTAINTY_BIT + t2 * SUCCESSOR_BIT + t3 * PREDECESSOR_BIT
 
 
 def angular_step(

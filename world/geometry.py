@@ -196,7 +196,9 @@ class ConvexRegion:
         h_k(centre) / (n_k.u)`` and the point is ``centre + t* u``.
         """
         theta = np.asarray(theta, dtype=float)
-        direction = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+        direction = np.empty(theta.shape + (2,))  # (cos, sin) on the last axis, as np.stack would put them
+        direction[..., 0] = np.cos(theta)  # computed whole, then copied: the same bits as before
+        direction[..., 1] = np.sin(theta)
         approach = dot_rows(direction, self.normals)
         heights = self.heights(centre)
         with np.errstate(divide="ignore", over="ignore"):
