@@ -12,7 +12,7 @@ from ringtrack.bus.messages import SCHEMA, Command, Measurement, PushCommand, Pu
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import converged, memory_cerr, strategy_cerr, true_cerr
 from ringtrack.world.ranges import link_distance
-from ringtrack.world.ring import neighbours_in_ring
+from ringtrack.world.ring import neighbours_in_ring, successor_values
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensor
 
@@ -96,7 +96,7 @@ class WorldState:
             links[ring[0]] = []
         elif ring:
             members = np.asarray(ring)
-            lengths = link_distance(self.positions[members], self.positions[np.roll(members, -1)]).tolist()
+            lengths = link_distance(self.positions[members], self.positions[successor_values(members)]).tolist()
             for index, robot in enumerate(ring):  # link ``index`` joins ring[index] to its successor
                 predecessor, successor = ring[index - 1], ring[(index + 1) % len(ring)]
                 around = {predecessor: lengths[index - 1], successor: lengths[index]}
