@@ -137,6 +137,7 @@ class RobotLink:
         self.outside = False  # told by the world that it is not in the ring
         self.held: list[Delivery] = []  # requests that came while outside, for the step it comes back at
         self.reach = ReachTokens(participant)
+        self.deadlines: list[tuple[int, asyncio.TimerHandle]] = []  # (step, timer) of each armed Deadline
 
     def show_reach(self, alive: set[str]) -> None:
         """Hold a ``reach`` token for each participant in ``alive`` (their token is up) that the world
@@ -167,12 +168,26 @@ class RobotLink:
         if self.reply_timeout is None:
             return  # every answer and push comes, or its loss is known at once
         sent = {type(message) for _, message in outgoing}
-        loop = asyncio.get_running_loop()
         if Request in sent and self.node.awaiting:  # this opened a poll
-            loop.call_later(self.reply_timeout, self.participant.inbox.push, Deadline(self.node.step, "replies"))
+            self.arm(self.reply_timeout, "replies")
         if RangeReport in sent:
-            loop.call_later(ESTIMATE_SHARE * self.reply_timeout, self.participant.inbox.push,
-                            Deadline(self.node.step, "estimate"))
+            self.arm(ESTIMATE_SHARE * self.reply_timeout, "estimate")
+
+    def arm(self, delay_s: float, what: Literal["replies", "estimate", "pushes"]) -> None:
+        """Post a :class:`Deadline` for ``what`` of the current step in ``delay_s`` wall seconds."""
+        timer = asyncio.get_running_loop().call_later(delay_s, self.participant.inbox.push,
+                                                      Deadline(self.node.step, what))
+        self.deadlines.append((self.node.step, timer))
+
+    def cancel_passed_deadlines(self) -> None:
+        """Cancel the deadlines of the steps the robot has left: :meth:`deadline` would ignore them,
+        and each would wake the robot once more when it fell due (in lockstep, one per poll, seconds
+        later). One that fell due already is still ignored there."""
+        if self.deadlines and self.deadlines[0][0] < self.node.step:
+            for step, timer in self.deadlines:
+                if step < self.node.step:
+                    timer.cancel()
+            self.deadlines = [(step, timer) for step, timer in self.deadlines if step >= self.node.step]
 
     def deliver(self, delivery: Delivery) -> None:
         """Hand a message to the node through the fault layer. While outside the ring, the robot's
@@ -204,10 +219,10 @@ class RobotLink:
             self.send(self.node.on_push_lost(message.sender, message.step))
         for copy in deliveries:
             self.send(self.node.handle(copy.message))
-            if isinstance(copy.message, Measurement) and self.node.expected and self.reply_timeout is not None:
-                # the measurement opened a wait for the pushes the world named: bounded like a poll
-                asyncio.get_running_loop().call_later(self.reply_timeout, self.participant.inbox.push,
-                                                      Deadline(self.node.step, "pushes"))
+            if isinstance(copy.message, Measurement) and self.reply_timeout is not None:
+                self.cancel_passed_deadlines()
+                if self.node.expected:  # the measurement opened a wait for the pushes the world named
+                    self.arm(self.reply_timeout, "pushes")  # bounded like a poll
 
     def deadline(self, event: Deadline) -> None:
         if event.step != self.node.step:
