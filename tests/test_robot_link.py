@@ -39,21 +39,45 @@ def delivery(message: Message, source: str) -> Delivery:
     return Delivery(message, route, len(encode(message)))
 
 
+def poll_at_step_one(bus: Bus) -> tuple[RobotNode, WorldState, RobotLink, list[Request]]:
+    """Robot 2 of the constant strategy (it polls every step) with a reply timeout of 0.05 s, after
+    the first measurement."""
+    scenario = load_scenario("paper-stationary", strategy="constant")
+    counter = itertools.count(1000)
+    node = RobotNode(ROBOT, scenario, RUN, nonce=lambda: next(counter))
+    world = WorldState(scenario, 0, RUN, 100)
+    link = RobotLink(bus, node, reply_timeout=0.05)  # type: ignore[arg-type]
+    link.deliver(delivery(world.measurement(ROBOT), "world"))
+    requests = [message for _, message in bus.sent if isinstance(message, Request)]
+    assert [request.receiver for request in requests] == [1, 3]
+    return node, world, link, requests
+
+
+def test_a_poll_left_unanswered_gets_its_reply_deadline_and_commands() -> None:
+    async def scenario() -> None:
+        bus = Bus(asyncio.get_running_loop())
+        try:
+            node, _, link, _ = poll_at_step_one(bus)
+            await asyncio.sleep(0.15)  # past the deadline
+            posted = bus.inbox.take()
+            assert posted == [Deadline(1, "replies")]
+            link.deadline(posted[0])
+            assert isinstance(bus.sent[-1][1], Command) and node.awaiting == {}
+        finally:
+            bus.inbox.close()
+
+    asyncio.run(scenario())
+
+
 def test_a_polls_reply_deadline_is_cancelled_once_the_robot_leaves_its_step() -> None:
     """Every poll arms a reply deadline (in lockstep, seconds away). Once the next step's measurement
-    comes, the deadline could only be ignored, so it is cancelled: it never falls due to wake the robot."""
+    came, the deadline could only be ignored, so it is cancelled: it never falls due to wake the
+    robot (step 2's does, its replies never came)."""
 
     async def scenario() -> None:
         bus = Bus(asyncio.get_running_loop())
-        scenario = load_scenario("paper-stationary")
-        counter = itertools.count(1000)
-        node = RobotNode(ROBOT, scenario, RUN, nonce=lambda: next(counter))
-        world = WorldState(scenario, 0, RUN, 100)
-        link = RobotLink(bus, node, reply_timeout=0.05)  # type: ignore[arg-type]
         try:
-            link.deliver(delivery(world.measurement(ROBOT), "world"))  # step 1 always polls
-            requests = [message for _, message in bus.sent if isinstance(message, Request)]
-            assert [request.receiver for request in requests] == [1, 3]
+            _, world, link, requests = poll_at_step_one(bus)
             [(step, first_timer)] = link.deadlines
             assert step == 1 and not first_timer.cancelled()
             for request in requests:
@@ -62,11 +86,10 @@ def test_a_polls_reply_deadline_is_cancelled_once_the_robot_leaves_its_step() ->
                 link.deliver(delivery(reply, f"r{request.receiver}"))
             assert isinstance(bus.sent[-1][1], Command)
             world.advance()  # the team holds still: the next step is all this test needs
-            link.deliver(delivery(world.measurement(ROBOT), "world"))  # step 2
-            assert first_timer.cancelled()
-            assert all(step == 2 for step, _ in link.deadlines)
-            await asyncio.sleep(0.15)  # past the first deadline
-            assert not any(isinstance(item, Deadline) and item.step == 1 for item in bus.inbox.take())
+            link.deliver(delivery(world.measurement(ROBOT), "world"))  # step 2 polls too
+            assert first_timer.cancelled() and [step for step, _ in link.deadlines] == [2]
+            await asyncio.sleep(0.15)  # past both deadlines
+            assert bus.inbox.take() == [Deadline(2, "replies")]
         finally:
             bus.inbox.close()
 
