@@ -170,7 +170,8 @@ class Push(Message, tag=11, frozen=True):
 
 
 class Tick(Message, tag=5, frozen=True):
-    """World -> monitor: the true state at the start of ``step`` (never sent to robots)."""
+    """World -> monitor: the true state at the start of ``step`` (never sent to robots); in lockstep,
+    unless the monitor audits, carried in the step's :class:`DigestEntry` instead of sent alone."""
 
     step: Step
     time: NonNegativeReal
@@ -178,7 +179,7 @@ class Tick(Message, tag=5, frozen=True):
     target: Point
     live: list[int]
     kind: ClassVar[str] = "tick"
-    category: ClassVar[str] = "world"
+    category: ClassVar[str] = "monitoring"
 
 
 class End(Message, tag=6, frozen=True):
@@ -228,17 +229,36 @@ class FaultNotice(Message, tag=10, frozen=True):
     category: ClassVar[str] = "monitoring"
 
 
-class Digest(Message, tag=17, frozen=True):
-    """World -> monitor, once a step unless the monitor audits every message itself: the world's own
-    account of its links since its previous digest, so the monitor need not receive a copy of every
-    measurement and command. ``measurements`` are ``(robot, payload bytes)`` of the measurements it
-    published for ``step``; ``commands`` every command it received, with its payload bytes."""
+class DigestEntry(msgspec.Struct, array_like=True, frozen=True):
+    """One step of a :class:`Digest`: the step's ``tick``, ``measurements`` as ``(robot, payload
+    bytes)`` of those the world published for ``step`` and ``commands`` every command it received,
+    with its payload bytes. A step whose commands outnumber the team (forged or repeated ones) takes
+    further entries of the team's size, with no tick and no measurements."""
 
     step: Step
+    tick: Tick | None
     measurements: list[tuple[int, Count]]
     commands: list[tuple[Command | PushCommand, Count]]  # a PushCommand for strategies that push
+
+
+class Digest(Message, tag=17, frozen=True):
+    """World -> monitor in lockstep unless the monitor audits every message itself: the world's own
+    account of its links in the steps since its previous digest (oldest first), so the monitor need
+    not receive a copy of every measurement and command, nor a tick of its own each step. At most
+    :func:`digest_entries` entries."""
+
+    entries: list[DigestEntry]
     kind: ClassVar[str] = "digest"
     category: ClassVar[str] = "monitoring"
+
+
+DIGEST_ROBOT_ENTRIES = 64  # a digest carries at most this many robots' worth of step entries
+
+
+def digest_entries(robots: int) -> int:
+    """How many entries a :class:`Digest` may carry in a team of ``robots``: ten steps of six robots,
+    one step from 33 robots on (a step of 64 robots takes about 10 kB)."""
+    return max(1, DIGEST_ROBOT_ENTRIES // robots)
 
 
 class RangeReport(Message, tag=8, frozen=True):
@@ -296,7 +316,9 @@ def size_limit(kind: str, robots: int) -> int:
     """The most bytes a payload of ``kind`` can take in a team of ``robots``: generous bounds on the
     fields (a list of robot ids or positions: at most 64 bytes per robot; statistics: a traffic row
     per link) refused before decoding, so a 1 MiB payload costs nothing to drop."""
-    per_robot = {"stats": 1024, "digest": 192}.get(kind, 64)
+    if kind == "digest":  # a command (<= 128 bytes), a measurement row and a tick row per robot and entry
+        return 1024 + 224 * robots * digest_entries(robots)
+    per_robot = {"stats": 1024}.get(kind, 64)
     return 1024 + per_robot * robots
 
 
@@ -331,15 +353,33 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
     for robot in robot_ids(message):
         if not 0 <= robot < robots:
             raise Rejected("sender", f"{message.kind} names robot {robot}, not one of a team of {robots}")
-    if isinstance(message, Digest) and any((command.schema, command.run) != (SCHEMA, run)
-                                           for command, _ in message.commands):
-        raise Rejected("foreign", "a digest carrying a command of another schema or run")
-    if isinstance(message, Tick) and len(message.positions) != robots:
-        raise Rejected("malformed", f"tick with {len(message.positions)} positions for a team of {robots}")
+    if isinstance(message, Digest):
+        _check_digest(message, run, robots)
+    if isinstance(message, Tick):
+        _check_tick(message, robots)
     source, destination = endpoints(message)
     if source != route.source or destination not in (route.destination, None):
         raise Rejected("sender", f"{message.kind} from {source} to {destination} on {route}")
     return message
+
+
+def _check_tick(tick: Tick, robots: int) -> None:
+    if len(tick.positions) != robots:
+        raise Rejected("malformed", f"tick with {len(tick.positions)} positions for a team of {robots}")
+
+
+def _check_digest(digest: Digest, run: int, robots: int) -> None:
+    """What :func:`decode` checks of a digest beyond its own fields: the ticks and commands it carries."""
+    if len(digest.entries) > digest_entries(robots):
+        raise Rejected("size", f"a digest of {len(digest.entries)} entries, more than {digest_entries(robots)}")
+    for entry in digest.entries:
+        carried = [command for command, _ in entry.commands] + ([] if entry.tick is None else [entry.tick])
+        if any((message.schema, message.run) != (SCHEMA, run) for message in carried):
+            raise Rejected("foreign", "a digest carrying a message of another schema or run")
+        if entry.tick is not None:
+            if entry.tick.step != entry.step:
+                raise Rejected("malformed", f"a digest entry of step {entry.step} with the tick of {entry.tick.step}")
+            _check_tick(entry.tick, robots)
 
 
 def peek(payload: bytes) -> AnyMessage:
@@ -365,8 +405,9 @@ def robot_ids(message: Message) -> list[int]:
     if isinstance(message, Tick):
         return list(message.live)
     if isinstance(message, Digest):
-        return [*(robot for robot, _ in message.measurements),
-                *(robot for command, _ in message.commands for robot in robot_ids(command))]
+        return [robot for entry in message.entries for robot in (
+            *(robot for robot, _ in entry.measurements), *(() if entry.tick is None else entry.tick.live),
+            *(robot for command, _ in entry.commands for robot in robot_ids(command)))]
     return []
 
 

@@ -64,7 +64,7 @@ def test_a_lockstep_run_watched_by_list_echo_and_hz_equals_the_engine(tmp_path: 
         assert f"run {run}: 8 participants, 8 alive" in listed  # the observer itself is no participant
         for name in ("world", "monitor", *(f"r{robot}" for robot in range(6))):
             assert re.search(rf"^│ {name} +│ alive ", listed, re.MULTILINE), listed
-        assert f"ringtrack/{run}/monitor/world/tick" in listed
+        assert f"ringtrack/{run}/monitor/world/digest" in listed  # the ticks travel in the digests
         echoed = ringtrack("echo", str(folder), "--kind", "measurement", "--robot", "2", "--count", "5").splitlines()
         assert len(echoed) == 5
         assert all(re.match(r"measurement world>r2 +\d+ B step \d+: time=", line) for line in echoed), echoed

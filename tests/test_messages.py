@@ -16,6 +16,8 @@ from ringtrack.bus.messages import (
     SCHEMA,
     CarryingReply,
     Command,
+    Digest,
+    DigestEntry,
     End,
     Measurement,
     Rejected,
@@ -60,7 +62,22 @@ def messages() -> st.SearchStrategy:
                   st.lists(robots, max_size=ROBOTS, unique=True)),
         st.builds(lambda s, why, w: End(SCHEMA, RUN, s, why, w), st.integers(0, 10**6), st.text(max_size=20),
                   non_negative),
+        st.builds(lambda entries: Digest(SCHEMA, RUN, entries), st.lists(digest_entries(), max_size=10)),
     )
+
+
+def digest_entries() -> st.SearchStrategy:
+    """A step of a digest: its tick (or none: a continuation), measurement sizes and commands."""
+    def entry(step: int, tick: bool, t: float, positions: list, target: tuple, live: list, sizes: list,
+              commands: list) -> DigestEntry:
+        return DigestEntry(step, Tick(SCHEMA, RUN, step, t, positions, target, live) if tick else None, sizes,
+                           [(Command(SCHEMA, RUN, step, robot, goal, 0, None, (0, 0), goal), size)
+                            for robot, goal, size in commands])
+    counts = st.integers(0, 10**4)
+    return st.builds(entry, steps, st.booleans(), non_negative, st.lists(points, min_size=ROBOTS, max_size=ROBOTS),
+                     points, st.lists(robots, max_size=ROBOTS, unique=True),
+                     st.lists(st.tuples(robots, counts), max_size=ROBOTS),
+                     st.lists(st.tuples(robots, points, counts), max_size=ROBOTS))
 
 
 def route_of(message):
@@ -105,6 +122,16 @@ BAD_VALUES = [
     (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 5, (0.0, 0.0), [0, 1, 2]), "malformed"),  # 5 positions for 6
     (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0, -1]), "sender"),
     (End(SCHEMA, RUN, -1, "done", 1.0), "malformed"),
+    # a digest's entries: the tick of another step, of another run, of another team; too many entries
+    (Digest(SCHEMA, RUN, [DigestEntry(3, Tick(SCHEMA, RUN, 4, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0]), [], [])]),
+     "malformed"),
+    (Digest(SCHEMA, RUN, [DigestEntry(3, Tick(SCHEMA, RUN + 1, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0]), [], [])]),
+     "foreign"),
+    (Digest(SCHEMA, RUN, [DigestEntry(3, Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 5, (0.0, 0.0), [0]), [], [])]),
+     "malformed"),
+    (Digest(SCHEMA, RUN, [DigestEntry(3, Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0, 7]), [], [])]),
+     "sender"),
+    (Digest(SCHEMA, RUN, [DigestEntry(3, None, [(1, 70)], [])] * 11), "size"),  # 10 entries for a team of 6
 ]
 
 
@@ -112,7 +139,7 @@ BAD_VALUES = [
 def test_impossible_values_are_rejected(message, reason: str) -> None:
     route = KEYS.parse(KEYS.data(*{
         "request": ("r2", "r1"), "reply": ("r1", "r2"), "command": ("world", "r1"), "measurement": ("r1", "world"),
-        "tick": ("monitor", "world"), "end": ("all", "world"),
+        "tick": ("monitor", "world"), "end": ("all", "world"), "digest": ("monitor", "world"),
     }[message.kind], message.kind))
     with pytest.raises(Rejected) as raised:
         decode(encode(message), route, RUN, ROBOTS)

@@ -137,7 +137,7 @@ def test_a_digest_counts_robot_to_robot_traffic_by_the_commanding_robots_own_cou
 
     from ringtrack.bus.counting import TrafficCounter
     from ringtrack.bus.keys import Keys
-    from ringtrack.bus.messages import Command, Digest, Tick
+    from ringtrack.bus.messages import Command, Digest, DigestEntry, Tick
     from ringtrack.tools.monitor import digested, monitored_keys
 
     scenario = load_scenario("paper-stationary", robots=3)
@@ -145,16 +145,16 @@ def test_a_digest_counts_robot_to_robot_traffic_by_the_commanding_robots_own_cou
     recorder = Recorder(written, scenario)  # type: ignore[arg-type]
     monitor = SimpleNamespace(counter=TrafficCounter())
     tick = Tick(SCHEMA, 1, 1, 0.0, [(0.0, 0.0)] * 3, (1.0, 1.0), [0, 1, 2])
-    recorder.on_delivery(Delivery(tick, Route("monitor", "world", "tick"), 50))
     # r1 polled both neighbours: its request to r2 went out twice (duplicated), so r2 answered twice;
     # r0 and r2 only commanded.
     polled = Command(SCHEMA, 1, 1, 1, (0.0, 0.0), 1, 0.0, (0, 0), (1.0, 1.0), None,
                      [(0, 0, 1, 17), (1, 0, 1, 38), (0, 2, 2, 18), (1, 2, 2, 39)])
     quiet = [Command(SCHEMA, 1, 1, robot, (0.0, 0.0), 0, 0.0, (3, 3), (1.0, 1.0)) for robot in (0, 2)]
-    digest = Digest(SCHEMA, 1, 1, [(0, 70), (1, 70), (2, 70)], [(polled, 90), (quiet[0], 64), (quiet[1], 64)])
-    digested(monitor, recorder, digest)  # type: ignore[arg-type]
+    entry = DigestEntry(1, tick, [(0, 70), (1, 70), (2, 70)], [(polled, 90), (quiet[0], 64), (quiet[1], 64)])
+    digested(monitor, recorder, Digest(SCHEMA, 1, [entry]))  # type: ignore[arg-type]
     recorder.flush()
-    (record,) = written
+    (record,) = written  # the step's tick came in the digest
+    assert record["positions"] == [[0.0, 0.0]] * 3 and record["traffic"]["world"] == [6, 3 * 70 + 90 + 2 * 64]
     assert record["sent_messages"] == [1, 3, 2] and record["sent_bytes"] == [38, 17 + 2 * 18, 2 * 39]
     assert record["received_messages"] == [1, 3, 2] and record["received_bytes"] == [17, 38 + 2 * 39, 2 * 18]
     assert record["traffic"]["robot"] == [6, 17 + 38 + 2 * 18 + 2 * 39]

@@ -27,6 +27,7 @@ from ringtrack.bus.messages import (
     ROBOT_TRAFFIC_KINDS,
     Command,
     Digest,
+    DigestEntry,
     End,
     Estimate,
     FaultNotice,
@@ -145,9 +146,7 @@ class Recorder:
         entry.traffic_messages[message.category] += 1
         entry.traffic_bytes[message.category] += delivery.size
         if isinstance(message, Tick):
-            entry.tick = message
-            self.tick_seen_at[message.step] = time.monotonic()
-            self.latest_tick = max(self.latest_tick, message.step)
+            self._tick(entry, message)
         elif isinstance(message, Command):
             entry.commands[message.robot] = message
         elif isinstance(message, (Request, Reply, Push)):
@@ -157,6 +156,16 @@ class Recorder:
             self.record({"type": "event", "event": message.what, "step": message.step,
                          "subject": message.subject, "sender": message.sender, "receiver": message.receiver,
                          "reason": message.reason or None, "delay_s": message.delay_s or None})
+
+    def on_tick(self, tick: Tick) -> None:
+        """The true state at the start of ``tick.step``, as a :class:`~bus.messages.Digest` carries it."""
+        if tick.step >= self.next_step and self._opens(tick.step):
+            self._tick(self._pending(tick.step), tick)
+
+    def _tick(self, entry: PendingStep, tick: Tick) -> None:
+        entry.tick = tick
+        self.tick_seen_at[tick.step] = time.monotonic()
+        self.latest_tick = max(self.latest_tick, tick.step)
 
     def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None) -> None:
         """Count a message of ``step`` (``size`` payload bytes) the monitor did not receive itself but
@@ -423,13 +432,21 @@ def monitored_keys(keys: Keys, digests: bool) -> tuple[str, ...]:
 
 
 def digested(participant: Participant, recorder: Recorder, digest: Digest) -> None:
-    """Count the messages ``digest`` reports as if the monitor had received them and record them:
-    the measurements and commands by the world's own counts (what it published, what it received),
-    the robot-to-robot messages by each commanding robot's own (:attr:`bus.messages.Command.robot_traffic`)."""
-    for robot, size in digest.measurements:
+    """Record each step's tick ``digest`` carries, and count the messages it reports as if the monitor
+    had received them: the measurements and commands by the world's own counts (what it published,
+    what it received), the robot-to-robot messages by each commanding robot's own
+    (:attr:`bus.messages.Command.robot_traffic`)."""
+    for entry in digest.entries:
+        if entry.tick is not None:
+            recorder.on_tick(entry.tick)
+        _digested_entry(participant, recorder, entry)
+
+
+def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestEntry) -> None:
+    for robot, size in entry.measurements:
         participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
-        recorder.count_reported(digest.step, size)
-    for command, size in digest.commands:
+        recorder.count_reported(entry.step, size)
+    for command, size in entry.commands:
         source = robot_name(command.robot)
         participant.counter.count_received(("command", source, WORLD), size)
         recorder.on_delivery(Delivery(command, Route(WORLD, source, "command"), size))

@@ -27,7 +27,7 @@ from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
 from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index, robot_name
-from ringtrack.bus.messages import SCHEMA, Command, Digest, End
+from ringtrack.bus.messages import SCHEMA, Command, Digest, DigestEntry, End, Tick, digest_entries
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
@@ -55,10 +55,11 @@ class WorldOptions:
     announce: Path | None = None
     until_converged: bool = False
     lockstep_wait: float = 10.0  # s (--lockstep-wait); lockstep: a robot silent this long in one step is gone
-    digest: bool = False  # lockstep: send the monitor a Digest of the world's own links each step (no audit)
+    digest: bool = False  # lockstep: report to the monitor in Digests of the world's own links (no audit)
 
 
 WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
+DIGEST_PERIOD_S = 0.05  # lockstep: a step's digest entry waits at most this long for later steps to join it
 
 
 class RunStopped(Exception):
@@ -84,13 +85,14 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         period = scenario.control.dt / options.rate
         start = asyncio.get_running_loop().time()
         watch = ReachWatch(participant)
-        context = Context(participant, world, roster, admission, tokens[0])
+        digests = Digests(participant) if options.digest else None
+        context = Context(participant, world, roster, admission, tokens[0], digests)
         try:
             for index in range(options.steps):
                 context.measurements, context.commands = [], []
                 await step_once(context, start + (index + 1) * period)
-                if options.digest:
-                    send_digest(participant, world.step, context.measurements, context.commands)
+                if digests is not None:
+                    digests.add(world.step, context.tick, context.measurements, context.commands)
                 admit(context)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
@@ -102,6 +104,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
             reason, code = str(stop), STOPPED if str(stop).startswith("interrupted") else 1
         finally:
             watch.close()
+            if digests is not None:
+                digests.flush()
         wall = time.perf_counter() - began
         last = world.step - 1
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
@@ -144,8 +148,10 @@ class Context:
     roster: Roster
     admission: Admission
     tokens: ReachTokens
-    # This step's measurements published (robot, payload bytes) and commands received (with their
-    # payload bytes): what a Digest tells the monitor.
+    digests: Digests | None = None  # lockstep without audit: what the world tells the monitor, in digests
+    # This step's tick, measurements published (robot, payload bytes) and commands received (with
+    # their payload bytes): what a digest entry tells the monitor.
+    tick: Tick | None = None
     measurements: Measurements = field(default_factory=list)
     commands: list[tuple[Command, int]] = field(default_factory=list)
 
@@ -180,22 +186,55 @@ def refuse_empty_ring(world: WorldState) -> None:
 
 
 def _publish(context: Context) -> None:
-    """Publish the step: the tick to the monitor, each live robot's measurement (noted in the context)."""
+    """Publish the step: each live robot's measurement (noted in the context) and the tick, to the
+    monitor at once or, with digests, in the step's digest entry."""
     participant, world = context.participant, context.world
     live = list(world.ring)
-    participant.send(MONITOR, world.tick(live))
+    context.tick = world.tick(live)
+    if context.digests is None:
+        participant.send(MONITOR, context.tick)
     for robot in live:
         context.measurements.append((robot, participant.send(robot_name(robot), world.measurement(robot))))
 
 
-def send_digest(participant: Participant, step: int, measurements: Measurements,
-                commands: list[tuple[Command, int]]) -> None:
-    """Tell the monitor what the world published (``measurements``) and received (``commands``, with
-    their payload bytes) in ``step``, in digests of at most one command per robot of the team."""
-    chunk = participant.robots
-    participant.send(MONITOR, Digest(SCHEMA, participant.keys.run, step, measurements, commands[:chunk]))
-    for first in range(chunk, len(commands), chunk):
-        participant.send(MONITOR, Digest(SCHEMA, participant.keys.run, step, [], commands[first:first + chunk]))
+class Digests:
+    """What the world tells the monitor of its steps in lockstep: per step a :class:`DigestEntry`
+    (its tick, the measurements published, the commands received with their payload bytes), sent in
+    a :class:`Digest` once ``digest_entries`` are waiting, once the oldest has waited
+    ``DIGEST_PERIOD_S`` (checked as steps end and while one waits for commands), and before the End.
+    A team of six at hundreds of steps a second thus sends one digest every ten steps instead of a
+    tick and a digest every step; the monitor's view lags by at most ``DIGEST_PERIOD_S``."""
+
+    def __init__(self, participant: Participant) -> None:
+        self.participant = participant
+        self.limit = digest_entries(participant.robots)
+        self.pending: list[DigestEntry] = []
+        self.due: float | None = None  # loop time by which the pending entries leave
+
+    def add(self, step: int, tick: Tick | None, measurements: Measurements, commands: list[tuple[Command, int]]) \
+            -> None:
+        """The entries of ``step``: at most one command per robot of the team in each."""
+        chunk = self.participant.robots
+        self.pending.append(DigestEntry(step, tick, measurements, commands[:chunk]))
+        self.pending += [DigestEntry(step, None, [], commands[first:first + chunk])
+                         for first in range(chunk, len(commands), chunk)]
+        now = asyncio.get_running_loop().time()
+        if self.due is None:
+            self.due = now + DIGEST_PERIOD_S
+        if len(self.pending) >= self.limit or now >= self.due:
+            self.flush()
+
+    def send_due(self) -> None:
+        """Send the pending entries if the oldest has waited its time."""
+        if self.due is not None and asyncio.get_running_loop().time() >= self.due:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send every pending entry, ``limit`` to a digest."""
+        run = self.participant.keys.run
+        for first in range(0, len(self.pending), self.limit):
+            self.participant.send(MONITOR, Digest(SCHEMA, run, self.pending[first:first + self.limit]))
+        self.pending, self.due = [], None
 
 
 def _handle(event: object, context: Context) -> None:
@@ -256,8 +295,13 @@ async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> 
             log.warning("lockstep step %d waits for %s", world.step,
                         ", ".join(f"r{robot}" for robot in sorted(world.live - world.commanded)))
         next_check = wait_s if noticed else min(wait_s, WAIT_NOTICE_S)
-        for event in await participant.events(until=started + next_check):
+        digests = context.digests
+        until = started + next_check if digests is None or digests.due is None else min(started + next_check,
+                                                                                           digests.due)
+        for event in await participant.events(until=until):
             _handle(event, context)
+        if digests is not None:
+            digests.send_due()  # the monitor sees the steps before one that waits long
 
 
 async def _realtime(context: Context, deadline: float) -> None:
