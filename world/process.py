@@ -92,7 +92,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                 context.measurements, context.commands = [], []
                 await step_once(context, start + (index + 1) * period)
                 if digests is not None:
-                    digests.add(world.step, context.tick, context.measurements, context.commands)
+                    digests.add(world.step, context.tick, context.measurements, context.commands,
+                                asyncio.get_running_loop().time())
                 admit(context)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
@@ -203,7 +204,8 @@ class Digests:
     a :class:`Digest` once ``digest_entries`` are waiting, once the oldest has waited
     ``DIGEST_PERIOD_S`` (checked as steps end and while one waits for commands), and before the End.
     A team of six at hundreds of steps a second thus sends one digest every ten steps instead of a
-    tick and a digest every step; the monitor's view lags by at most ``DIGEST_PERIOD_S``."""
+    tick and a digest every step; the monitor's view lags by at most ``DIGEST_PERIOD_S``. Times
+    (``now``) are the event loop's clock, in seconds."""
 
     def __init__(self, participant: Participant) -> None:
         self.participant = participant
@@ -211,22 +213,22 @@ class Digests:
         self.pending: list[DigestEntry] = []
         self.due: float | None = None  # loop time by which the pending entries leave
 
-    def add(self, step: int, tick: Tick | None, measurements: Measurements, commands: list[tuple[Command, int]]) \
-            -> None:
-        """The entries of ``step``: at most one command per robot of the team in each."""
+    def add(self, step: int, tick: Tick | None, measurements: Measurements, commands: list[tuple[Command, int]],
+            now: float) -> None:
+        """The entries of ``step``, ended at ``now``: at most one command per robot of the team in each."""
         chunk = self.participant.robots
         self.pending.append(DigestEntry(step, tick, measurements, commands[:chunk]))
         self.pending += [DigestEntry(step, None, [], commands[first:first + chunk])
                          for first in range(chunk, len(commands), chunk)]
-        now = asyncio.get_running_loop().time()
         if self.due is None:
             self.due = now + DIGEST_PERIOD_S
-        if len(self.pending) >= self.limit or now >= self.due:
+        if len(self.pending) >= self.limit:
             self.flush()
+        self.send_due(now)
 
-    def send_due(self) -> None:
-        """Send the pending entries if the oldest has waited its time."""
-        if self.due is not None and asyncio.get_running_loop().time() >= self.due:
+    def send_due(self, now: float) -> None:
+        """Send the pending entries if the oldest has waited its time by ``now``."""
+        if self.due is not None and now >= self.due:
             self.flush()
 
     def flush(self) -> None:
@@ -301,7 +303,7 @@ async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> 
         for event in await participant.events(until=until):
             _handle(event, context)
         if digests is not None:
-            digests.send_due()  # the monitor sees the steps before one that waits long
+            digests.send_due(loop.time())  # the monitor sees the steps before one that waits long
 
 
 async def _realtime(context: Context, deadline: float) -> None:
