@@ -73,6 +73,9 @@ class BusConfig:
             "scouting/multicast/enabled": False,
             "transport/link/tx/lease": self.lease_ms,
             "adminspace/enabled": self.admin_space,
+            # No shared memory: Zenoh would copy every payload of 3 kB or more (a digest, a large
+            # team's statistics) into a 16 MiB pool mapped by sender and receiver alike.
+            "transport/shared_memory/enabled": False,
             **self.extra,
         }
         if self.security is not None:

@@ -19,6 +19,7 @@ def test_the_embedded_default_is_a_loopback_peer_with_scouting_off() -> None:
     assert setting(config, "scouting/multicast/enabled") is False
     assert setting(config, "listen/endpoints") == ["tcp/127.0.0.1:0"]  # loopback only, a free port
     assert setting(config, "connect/endpoints") == []
+    assert setting(config, "transport/shared_memory/enabled") is False  # no 16 MiB pool for a 3 kB digest
 
 
 def test_a_client_listens_nowhere_and_a_router_listens_where_told() -> None:
