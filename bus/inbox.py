@@ -1,10 +1,12 @@
 """Handing samples from Zenoh's callback threads to an asyncio event loop.
 
 Zenoh-Python has no asyncio API and calls callbacks on its own threads, where calling Zenoh again
-is unsafe. The callback only appends to a deque and, when no wake-up is pending, writes to an
-eventfd the loop watches (one wake-up per burst rather than per sample); the loop drains whole
-batches. An eventfd costs the callback thread less than ``call_soon_threadsafe`` (measured: CPU per
-neighbour round trip 69 -> 60 us): no handle is queued, and the loop wakes straight into the reader.
+is unsafe. The callback only appends to a deque and, when no wake-up is pending, rings the loop's
+doorbell: an eventfd the loop watches, one per loop whatever the number of inboxes on it (the
+robots packed into one process share it), written once per burst rather than per sample; the loop
+drains whole batches. An eventfd costs the callback thread less than ``call_soon_threadsafe``
+(measured: CPU per neighbour round trip 69 -> 60 us): no handle is queued, and the loop wakes
+straight into the reader.
 """
 
 from __future__ import annotations
@@ -13,15 +15,67 @@ import asyncio
 import os
 import weakref
 from collections import deque
-from typing import Generic, TypeVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 Item = TypeVar("Item")
 
 
+class Doorbell:
+    """The eventfd that wakes one event loop for all its inboxes. ``ring(inbox)`` (any thread) queues
+    the inbox and writes the eventfd unless a ring is already pending; the loop's reader then wakes
+    every queued inbox. Made by :meth:`of` with the loop's first open inbox, and taken off the loop
+    when its last inbox closes; the eventfd itself is closed only when the doorbell is garbage, so a
+    callback still in flight can never write into a reused descriptor."""
+
+    _of_loop: ClassVar[weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Doorbell]] = weakref.WeakKeyDictionary()
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._ready: deque[Inbox[Any]] = deque()
+        self._rang = False
+        self._inboxes = 0
+        self._eventfd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        weakref.finalize(self, os.close, self._eventfd)
+        loop.add_reader(self._eventfd, self._rung)
+
+    @classmethod
+    def of(cls, loop: asyncio.AbstractEventLoop) -> Doorbell:
+        """The doorbell of ``loop``, counting one more inbox on it."""
+        doorbell = cls._of_loop.get(loop)
+        if doorbell is None:
+            doorbell = cls._of_loop[loop] = cls(loop)
+        doorbell._inboxes += 1
+        return doorbell
+
+    def ring(self, inbox: Inbox[Any]) -> None:
+        """Wake ``inbox`` on the loop; safe from any thread."""
+        self._ready.append(inbox)
+        if not self._rang:
+            self._rang = True
+            os.eventfd_write(self._eventfd, 1)
+
+    def _rung(self) -> None:
+        try:
+            os.eventfd_read(self._eventfd)
+        except BlockingIOError:
+            pass
+        self._rang = False  # a ring from here on writes again; one before it is in _ready already
+        while self._ready:
+            self._ready.popleft()._woken()
+
+    def release(self) -> None:
+        """One inbox of the loop closed; the last takes the doorbell off the loop."""
+        self._inboxes -= 1
+        if self._inboxes == 0:
+            if self._of_loop.get(self._loop) is self:
+                del self._of_loop[self._loop]
+            if not self._loop.is_closed():
+                self._loop.remove_reader(self._eventfd)
+
+
 class Inbox(Generic[Item]):
     """A many-producer (any thread), single-consumer (the loop) queue; ``close()`` it before the loop
-    ends. The eventfd itself is closed only when the inbox is garbage, so a callback still in flight
-    can never write into a reused descriptor."""
+    ends. It wakes the loop through the loop's :class:`Doorbell`."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
@@ -31,9 +85,7 @@ class Inbox(Generic[Item]):
         self._deadline: float | None = None  # loop time the timer is set for
         self._expired = False  # the timer for _deadline has fired
         self._wake_pending = False
-        self._eventfd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        weakref.finalize(self, os.close, self._eventfd)
-        loop.add_reader(self._eventfd, self._woken)
+        self._doorbell = Doorbell.of(loop)
         self._closed = False
 
     def push(self, item: Item) -> None:
@@ -41,13 +93,9 @@ class Inbox(Generic[Item]):
         self._items.append(item)
         if not self._wake_pending and not self._closed:
             self._wake_pending = True
-            os.eventfd_write(self._eventfd, 1)
+            self._doorbell.ring(self)
 
     def _woken(self) -> None:
-        try:
-            os.eventfd_read(self._eventfd)
-        except BlockingIOError:
-            pass
         self._wake_pending = False
         self._wake()
 
@@ -96,5 +144,4 @@ class Inbox(Generic[Item]):
             self._closed = True
             if self._timer is not None:
                 self._timer.cancel()
-            if not self._loop.is_closed():
-                self._loop.remove_reader(self._eventfd)
+            self._doorbell.release()
