@@ -23,6 +23,7 @@ from ringtrack.bus.counting import TrafficCounter
 from ringtrack.bus.inbox import Inbox
 from ringtrack.bus.keys import Keys, Route
 from ringtrack.bus.messages import SCHEMA, AnyMessage, Message, Rejected, Stats, decode, encode
+from ringtrack.bus.outbox import Outbox
 
 log = logging.getLogger(__name__)
 
@@ -123,6 +124,8 @@ class Participant:
         self.counter = TrafficCounter()
         self.inbox: Inbox[Raw | Event] = Inbox(loop)
         self._publishers: dict[str, zenoh.Publisher] = {}
+        self._outbox = Outbox.of(loop)
+        self._open = True
         self._entities: list[object] = []
         self._channels: list[zenoh.Handler[zenoh.Sample]] = []
         self.callback_failures = 0
@@ -220,7 +223,7 @@ class Participant:
                 priority=zenoh.Priority.INTERACTIVE_HIGH if message.kind in CONTROL_KINDS else zenoh.Priority.DATA,
             )
             self._publishers[key] = publisher
-        publisher.put(payload)
+        self._outbox.put(publisher, payload)
         self.counter.count_sent((message.kind, self.name, destination), len(payload))
         return len(payload)
 
@@ -243,7 +246,11 @@ class Participant:
         )
 
     def close(self) -> None:
-        """Undeclare every entity (call before the event loop ends; the session is closed by its owner)."""
+        """Put what the loop's outbox holds, then undeclare every entity (call before the event loop
+        ends; the session is closed by its owner)."""
+        if self._open:
+            self._open = False
+            self._outbox.release()
         for entity in [*self._publishers.values(), *reversed(self._entities)]:
             try:
                 entity.undeclare()  # type: ignore[attr-defined]

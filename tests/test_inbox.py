@@ -1,4 +1,5 @@
-"""The inboxes of one event loop (bus.inbox): pushes from any thread, one doorbell per loop."""
+"""The inboxes and the outbox of one event loop (bus.inbox, bus.outbox): pushes from any thread and one
+doorbell per loop; puts held to the end of the loop iteration when the loop hosts several participants."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import os
 import threading
 
 from ringtrack.bus.inbox import Doorbell, Inbox
+from ringtrack.bus.outbox import Outbox
 
 INBOXES = 16  # the robots of a packed process
 
@@ -45,3 +47,48 @@ def test_a_push_while_the_loop_takes_a_batch_wakes_it_again() -> None:
         return taken
 
     assert asyncio.run(run()) == [[0], [1], [2]]
+
+
+class Publisher:
+    """A Zenoh publisher that records what it puts in ``puts``, shared by several."""
+
+    def __init__(self, name: str, puts: list[tuple[str, bytes]]) -> None:
+        self.name, self.puts = name, puts
+
+    def put(self, payload: bytes) -> None:
+        self.puts.append((self.name, payload))
+
+
+def test_a_loop_with_one_participant_puts_at_once() -> None:
+    async def run() -> list[tuple[str, bytes]]:
+        outbox = Outbox.of(asyncio.get_running_loop())
+        puts: list[tuple[str, bytes]] = []
+        outbox.put(Publisher("r0", puts), b"now")  # type: ignore[arg-type]
+        seen = list(puts)
+        outbox.release()
+        return seen
+
+    assert asyncio.run(run()) == [("r0", b"now")]
+
+
+def test_a_loop_with_several_participants_puts_once_the_iteration_is_over_in_order() -> None:
+    async def run() -> tuple[list, list, list]:
+        loop = asyncio.get_running_loop()
+        outboxes = [Outbox.of(loop) for _ in range(INBOXES)]  # one per robot of a packed process
+        assert all(outbox is outboxes[0] for outbox in outboxes)
+        puts: list[tuple[str, bytes]] = []
+        publishers = [Publisher(f"r{robot}", puts) for robot in range(2)]
+        for index in range(3):
+            outboxes[index].put(publishers[index % 2], b"%d" % index)  # type: ignore[arg-type]
+        during = list(puts)
+        await asyncio.sleep(0)  # the iteration ends: the held puts go, in order
+        after = list(puts)
+        outboxes[0].put(publishers[0], b"last")  # type: ignore[arg-type]
+        for outbox in outboxes:
+            outbox.release()  # the first release puts what is held
+        return during, after, puts
+
+    during, after, puts = asyncio.run(run())
+    assert during == []
+    assert after == [("r0", b"0"), ("r1", b"1"), ("r0", b"2")]
+    assert puts == [*after, ("r0", b"last")]

@@ -1,0 +1,68 @@
+"""Putting on the bus the samples of the participants that share one event loop.
+
+A process that hosts several participants (robots packed into one process) runs them on one loop,
+and a burst of samples wakes several of them in one loop iteration. Their puts are held until that
+iteration is over and then made back to back: Zenoh's thread is woken once for the burst rather
+than once a put, and the Python thread does not trade the interpreter lock with Zenoh's thread at
+every put (a put releases the lock while Zenoh queues the sample, and Zenoh's thread takes it to
+run a callback). A loop with a single participant puts at once: it has nothing to batch, and
+holding a put would only delay it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import weakref
+from typing import ClassVar
+
+import zenoh
+
+log = logging.getLogger(__name__)
+
+
+class Outbox:
+    """The puts of the participants of one event loop (see the module's text). Made by :meth:`of`
+    with the loop's first participant; :meth:`release` as each closes, which puts what is held."""
+
+    _of_loop: ClassVar[weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Outbox]] = weakref.WeakKeyDictionary()
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._held: list[tuple[zenoh.Publisher, bytes]] = []
+        self._participants = 0
+
+    @classmethod
+    def of(cls, loop: asyncio.AbstractEventLoop) -> Outbox:
+        """The outbox of ``loop``, counting one more participant on it."""
+        outbox = cls._of_loop.get(loop)
+        if outbox is None:
+            outbox = cls._of_loop[loop] = cls(loop)
+        outbox._participants += 1
+        return outbox
+
+    def put(self, publisher: zenoh.Publisher, payload: bytes) -> None:
+        """Put ``payload`` with ``publisher``: at once when the loop has one participant, else once
+        the loop's current iteration is over (in the order of the calls)."""
+        if self._participants < 2:
+            publisher.put(payload)
+            return
+        self._held.append((publisher, payload))
+        if len(self._held) == 1:
+            self._loop.call_soon(self.flush)
+
+    def flush(self) -> None:
+        """Put everything held, in order; a put that fails is logged and the others still go."""
+        held, self._held = self._held, []
+        for publisher, payload in held:
+            try:
+                publisher.put(payload)
+            except Exception:  # pragma: no cover - a closed session; the rest must not be lost
+                log.exception("a held put failed")
+
+    def release(self) -> None:
+        """A participant of the loop closes: put what is held (its publishers are still declared)."""
+        self.flush()
+        self._participants -= 1
+        if self._participants == 0 and self._of_loop.get(self._loop) is self:
+            del self._of_loop[self._loop]
