@@ -12,6 +12,9 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --upgrade pip
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	@# The package's bytecode, written once: where PYTHONDONTWRITEBYTECODE is set, every process
+	@# would otherwise compile every module it imports as it starts.
+	$(BIN)/python -m compileall -q agents bus world tools scenarios __main__.py
 	touch $(STAMP)
 
 run: $(STAMP)
