@@ -174,7 +174,8 @@ class WorldState:
         """Whether the current step counts as converged (:func:`world.metrics.converged`) by the
         paper's Cerr: from the offsets the live robots reported for this step (self-triggered; a
         live robot that has not reported leaves it unknown) or the true positions (constant)."""
-        live = np.isin(np.arange(self.scenario.robots), self.ring)
+        live = np.zeros(self.scenario.robots, dtype=bool)
+        live[list(self.ring)] = True
         cerr = strategy_cerr(self.scenario.control.strategy, memory_cerr(self.offsets, live),
                              true_cerr(self.positions, self.target))
         return bool(converged(cerr, np.rad2deg(self.scenario.threshold)))
