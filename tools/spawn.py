@@ -93,7 +93,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--audit", action="store_true",
                         help="the monitor receives a copy of every message and counts it itself (an independent "
                         "tally); by default, in lockstep, it takes measurements and commands by the world's own "
-                        "counts and robot-to-robot messages by the robots' own, from one digest a step, and "
+                        "counts and robot-to-robot messages by the robots' own, from the world's digests, and "
                         "observes the rest")
     parser.set_defaults(handler=run_spawn)
 
