@@ -15,37 +15,27 @@ import asyncio
 import os
 import weakref
 from collections import deque
-from typing import Any, ClassVar, Generic, TypeVar
+from typing import Any, Generic, TypeVar
+
+from ringtrack.bus.perloop import PerLoop
 
 Item = TypeVar("Item")
 
 
-class Doorbell:
-    """The eventfd that wakes one event loop for all its inboxes. ``ring(inbox)`` (any thread) queues
-    the inbox and writes the eventfd unless a ring is already pending; the loop's reader then wakes
-    every queued inbox. Made by :meth:`of` with the loop's first open inbox, and taken off the loop
-    when its last inbox closes; the eventfd itself is closed only when the doorbell is garbage, so a
-    callback still in flight can never write into a reused descriptor."""
-
-    _of_loop: ClassVar[weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Doorbell]] = weakref.WeakKeyDictionary()
+class Doorbell(PerLoop):
+    """The eventfd that wakes one event loop for all its inboxes (one per loop, :meth:`PerLoop.of`).
+    ``ring(inbox)`` (any thread) queues the inbox and writes the eventfd unless a ring is already
+    pending; the loop's reader then wakes every queued inbox. Taken off the loop when its last inbox
+    closes; the eventfd itself is closed only when the doorbell is garbage, so a callback still in
+    flight can never write into a reused descriptor."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
+        super().__init__(loop)
         self._ready: deque[Inbox[Any]] = deque()
         self._rang = False
-        self._inboxes = 0
         self._eventfd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         weakref.finalize(self, os.close, self._eventfd)
         loop.add_reader(self._eventfd, self._rung)
-
-    @classmethod
-    def of(cls, loop: asyncio.AbstractEventLoop) -> Doorbell:
-        """The doorbell of ``loop``, counting one more inbox on it."""
-        doorbell = cls._of_loop.get(loop)
-        if doorbell is None:
-            doorbell = cls._of_loop[loop] = cls(loop)
-        doorbell._inboxes += 1
-        return doorbell
 
     def ring(self, inbox: Inbox[Any]) -> None:
         """Wake ``inbox`` on the loop; safe from any thread."""
@@ -63,14 +53,12 @@ class Doorbell:
         while self._ready:
             self._ready.popleft()._woken()
 
-    def release(self) -> None:
+    def release(self) -> bool:
         """One inbox of the loop closed; the last takes the doorbell off the loop."""
-        self._inboxes -= 1
-        if self._inboxes == 0:
-            if self._of_loop.get(self._loop) is self:
-                del self._of_loop[self._loop]
-            if not self._loop.is_closed():
-                self._loop.remove_reader(self._eventfd)
+        last = super().release()
+        if last and not self._loop.is_closed():
+            self._loop.remove_reader(self._eventfd)
+        return last
 
 
 class Inbox(Generic[Item]):

@@ -13,38 +13,26 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import weakref
-from typing import ClassVar
 
 import zenoh
+
+from ringtrack.bus.perloop import PerLoop
 
 log = logging.getLogger(__name__)
 
 
-class Outbox:
-    """The puts of the participants of one event loop (see the module's text). Made by :meth:`of`
-    with the loop's first participant; :meth:`release` as each closes, which puts what is held."""
-
-    _of_loop: ClassVar[weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Outbox]] = weakref.WeakKeyDictionary()
+class Outbox(PerLoop):
+    """The puts of the participants of one event loop (see the module's text; one per loop,
+    :meth:`PerLoop.of`, each participant a user); :meth:`release` as each closes puts what is held."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
+        super().__init__(loop)
         self._held: list[tuple[zenoh.Publisher, bytes]] = []
-        self._participants = 0
-
-    @classmethod
-    def of(cls, loop: asyncio.AbstractEventLoop) -> Outbox:
-        """The outbox of ``loop``, counting one more participant on it."""
-        outbox = cls._of_loop.get(loop)
-        if outbox is None:
-            outbox = cls._of_loop[loop] = cls(loop)
-        outbox._participants += 1
-        return outbox
 
     def put(self, publisher: zenoh.Publisher, payload: bytes) -> None:
         """Put ``payload`` with ``publisher``: at once when the loop has one participant, else once
         the loop's current iteration is over (in the order of the calls)."""
-        if self._participants < 2:
+        if self.users < 2:
             publisher.put(payload)
             return
         self._held.append((publisher, payload))
@@ -60,9 +48,7 @@ class Outbox:
             except Exception:  # pragma: no cover - a closed session; the rest must not be lost
                 log.exception("a held put failed")
 
-    def release(self) -> None:
+    def release(self) -> bool:
         """A participant of the loop closes: put what is held (its publishers are still declared)."""
         self.flush()
-        self._participants -= 1
-        if self._participants == 0 and self._of_loop.get(self._loop) is self:
-            del self._of_loop[self._loop]
+        return super().release()

@@ -92,3 +92,17 @@ def test_a_loop_with_several_participants_puts_once_the_iteration_is_over_in_ord
     assert during == []
     assert after == [("r0", b"0"), ("r1", b"1"), ("r0", b"2")]
     assert puts == [*after, ("r0", b"last")]
+
+
+def test_each_loop_has_its_own_doorbell_and_outbox_until_its_last_user_releases_it() -> None:
+    loops = [asyncio.new_event_loop() for _ in range(2)]
+    try:
+        first, second = (Outbox.of(loop) for loop in loops)
+        assert first is not second and Outbox.of(loops[0]) is first and first.users == 2
+        assert [first.release(), first.release()] == [False, True]
+        assert Outbox.of(loops[0]) is not first  # forgotten after its last user: a new one
+        doorbells = [Doorbell.of(loop) for loop in loops]
+        assert doorbells[0] is not doorbells[1] and all(doorbell.release() for doorbell in doorbells)
+    finally:
+        for loop in loops:
+            loop.close()
