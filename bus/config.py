@@ -118,18 +118,18 @@ def network_threads_yield() -> Iterator[None]:
     put took 90-100 us of wall time for 12-15 us of CPU) and the two traded the interpreter lock.
     A new thread inherits its creator's policy, so this thread takes the policy for the block and
     gives it back; where the policy cannot be set (not Linux, or refused), nothing changes."""
-    batch = getattr(os, "SCHED_BATCH", None)
-    try:
-        previous = os.sched_getscheduler(0)
-        if batch is not None:
-            os.sched_setscheduler(0, batch, os.sched_param(0))
-    except OSError:
-        batch = None
+    previous: tuple[int, os.sched_param] | None = None
+    if hasattr(os, "SCHED_BATCH"):
+        try:
+            previous = os.sched_getscheduler(0), os.sched_getparam(0)
+            os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+        except OSError:
+            previous = None
     try:
         yield
     finally:
-        if batch is not None:
-            os.sched_setscheduler(0, previous, os.sched_param(0))
+        if previous is not None:
+            os.sched_setscheduler(0, *previous)
 
 
 def open_session(config: BusConfig, name: str | None = None) -> zenoh.Session:
