@@ -297,13 +297,13 @@ async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> 
             log.warning("lockstep step %d waits for %s", world.step,
                         ", ".join(f"r{robot}" for robot in sorted(world.live - world.commanded)))
         next_check = wait_s if noticed else min(wait_s, WAIT_NOTICE_S)
-        digests = context.digests
-        until = started + next_check if digests is None or digests.due is None else min(started + next_check,
-                                                                                           digests.due)
+        until, digests = started + next_check, context.digests
+        if digests is not None and digests.due is not None:
+            until = min(until, digests.due)  # the monitor sees the steps before one that waits long
         for event in await participant.events(until=until):
             _handle(event, context)
         if digests is not None:
-            digests.send_due(loop.time())  # the monitor sees the steps before one that waits long
+            digests.send_due(loop.time())
 
 
 async def _realtime(context: Context, deadline: float) -> None:
