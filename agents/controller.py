@@ -2,7 +2,8 @@
 
 One :class:`MidpointController` holds the memory of any number of robots as arrays with a common
 leading shape ``S``: ``()`` for the single robot of a robot process, ``(N,)`` for a team, ``(T, N)``
-for a batch of trials in the engine. Both call the same methods in the same order every step::
+for a batch of trials in the engine (a single robot's memory is numpy scalars, not 0-d arrays:
+their arithmetic skips numpy's cost per call). Both call the same methods in the same order every step::
 
     reasons = controller.observe(step, own_position, centre)   # age the memory, evaluate the trigger
     # ... where reasons != 0: ask both neighbours for their step-start positions ...
@@ -23,8 +24,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, angular_step
+from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
+from ringtrack.world.elementwise import SCALARS, choose, scalar
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
@@ -47,7 +49,7 @@ class MidpointController:
     """
 
     def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike,
-                 rule: Callable[[Any], NDArray[np.int64]] | None = None) -> None:
+                 rule: Callable[[Any], Mask] | None = None) -> None:
         self.region = region
         self.params = params
         if rule is None:  # the trigger rule of the strategy the parameters name
@@ -59,22 +61,22 @@ class MidpointController:
         self.predecessor_position: FloatArray = self.own_position.copy()
         self.successor_position: FloatArray = self.own_position.copy()
         shape = self.own_position.shape[:-1]
-        self.predecessor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
-        self.successor_age: NDArray[np.int64] = np.zeros(shape, dtype=np.int64)
-        self.guaranteed_offset: FloatArray = np.zeros(shape)
-        self.offset_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
+        self.predecessor_age: NDArray[np.int64] = scalar(np.zeros(shape, dtype=np.int64))
+        self.successor_age: NDArray[np.int64] = scalar(np.zeros(shape, dtype=np.int64))
+        self.guaranteed_offset: FloatArray = scalar(np.zeros(shape))
+        self.offset_known: NDArray[np.bool_] = scalar(np.zeros(shape, dtype=bool))
         # Whether anything is known of each neighbour: not before the first exchange, nor after the
         # neighbour changed until it answers; a robot polls (UNKNOWN) and holds still meanwhile.
-        self.predecessor_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
-        self.successor_known: NDArray[np.bool_] = np.zeros(shape, dtype=bool)
+        self.predecessor_known: NDArray[np.bool_] = scalar(np.zeros(shape, dtype=bool))
+        self.successor_known: NDArray[np.bool_] = scalar(np.zeros(shape, dtype=bool))
         self.centre: FloatArray = np.zeros(2)
-        self.theta: FloatArray = np.zeros(shape)
-        self.m_minus: FloatArray = np.zeros(shape)
-        self.m_plus: FloatArray = np.zeros(shape)
+        self.theta: FloatArray = scalar(np.zeros(shape))
+        self.m_minus: FloatArray = scalar(np.zeros(shape))
+        self.m_plus: FloatArray = scalar(np.zeros(shape))
         self.step = 0
 
     def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike,
-                reach: tuple[ArrayLike, ArrayLike] = (True, True)) -> NDArray[np.int64]:
+                reach: tuple[ArrayLike, ArrayLike] = (True, True)) -> Mask:
         """Start step ``step`` (1-based) at ``own_position`` seen from ``centre``: age the memory and
         return the :class:`Trigger` mask.
 
@@ -84,10 +86,18 @@ class MidpointController:
         known of a neighbour that is within ``reach`` (predecessor, successor) (``UNKNOWN``).
         """
         reasons = self._reasons(step, own_position, centre)
-        unknown = (~self.predecessor_known & np.asarray(reach[0])) | (~self.successor_known & np.asarray(reach[1]))
-        return np.where(unknown & ((reasons & START_BIT) == 0), reasons | UNKNOWN_BIT, reasons)
+        unknown = self._unknown(*reach)
+        return choose(unknown & ((reasons & START_BIT) == 0), reasons | UNKNOWN_BIT, reasons)
 
-    def _reasons(self, step: int, own_position: ArrayLike, centre: ArrayLike) -> NDArray[np.int64]:
+    def _unknown(self, reach_minus: ArrayLike, reach_plus: ArrayLike) -> NDArray[np.bool_]:
+        """Where nothing is known of a neighbour within reach (predecessor, successor)."""
+        if isinstance(reach_minus, SCALARS) and isinstance(self.predecessor_known, SCALARS):  # one robot
+            return ((not self.predecessor_known and bool(reach_minus))
+                    or (not self.successor_known and bool(reach_plus)))
+        reach_minus, reach_plus = np.asarray(reach_minus), np.asarray(reach_plus)
+        return (~self.predecessor_known & reach_minus) | (~self.successor_known & reach_plus)
+
+    def _reasons(self, step: int, own_position: ArrayLike, centre: ArrayLike) -> Mask:
         if step > 1:
             self.predecessor_age += step - self.step
             self.successor_age += step - self.step
@@ -129,6 +139,12 @@ class MidpointController:
             ("predecessor", predecessor_position, predecessor_fresh, predecessor_age),
             ("successor", successor_position, successor_fresh, successor_age),
         ):
+            if isinstance(fresh, SCALARS):  # one robot
+                if fresh:
+                    setattr(self, f"{side}_position", np.asarray(position, dtype=float))
+                    setattr(self, f"{side}_age", scalar(np.asarray(age, dtype=np.int64)))
+                    setattr(self, f"{side}_known", np.True_)
+                continue
             fresh = np.asarray(fresh, dtype=bool)
             setattr(self, f"{side}_position", np.where(fresh[..., None], position, getattr(self, f"{side}_position")))
             setattr(self, f"{side}_age", np.where(fresh, age, getattr(self, f"{side}_age")))
@@ -158,8 +174,7 @@ class MidpointController:
             self.theta, self.m_minus, self.m_plus, self.predecessor_age, self.successor_age, fresh, self.params
         )
         reach_minus, reach_plus = (True, True) if reach is None else reach
-        unknown = (~self.predecessor_known & np.asarray(reach_minus)) | (~self.successor_known & np.asarray(reach_plus))
-        step = np.where(unknown, 0.0, step)
+        step = choose(self._unknown(reach_minus, reach_plus), 0.0, step)
         if communication_range is not None and reach is not None:
             step = range_limited_step(step, reach_minus, reach_plus, self.params.max_step)
             per_step = boundary_stretch(self.region, self.centre) * self.params.max_step

@@ -458,7 +458,7 @@ def run(
         neighbours = _to_sides(positions)
         lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
         reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
-        reasons = controller.observe(k, positions, centres, reach)
+        reasons = np.asarray(controller.observe(k, positions, centres, reach))  # a team: an array
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         if watch is not None:

@@ -1,7 +1,8 @@
 """The constant and the self-triggered midpoint laws (docs/algorithms.md sections 3 and 4).
 
 Pure functions of numpy arrays that broadcast over robots and trials: the in-process engine calls
-them for a whole team at once, a robot process for itself. Angles are radians (robot ``i``'s local
+them for a whole team at once, a robot process for itself with scalars (:mod:`world.elementwise`:
+the same bits, without numpy's cost per call). Angles are radians (robot ``i``'s local
 frame, see :mod:`world.ring`), ``omega_max`` is rad/s, ``dt`` and ages in seconds are
 ``age_steps * dt``; ages are kept as integer step counts so that trigger ties do not drift.
 
@@ -13,10 +14,12 @@ Symbols: ``theta`` own angle; ``m_minus``/``m_plus`` remembered predecessor/succ
 from __future__ import annotations
 
 import enum
+from typing import TypeAlias
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
+from ringtrack.world.elementwise import SCALARS, Values, clip
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import midpoint
 
@@ -36,6 +39,9 @@ class Trigger(enum.IntFlag):
     UNKNOWN = 32  # nothing is known of a reachable neighbour (it changed, or its answer was lost)
 
 
+# A Trigger mask per robot: an int array, or one robot's int.
+Mask: TypeAlias = NDArray[np.int64] | int
+
 # The bits as plain ints, for the laws evaluated every step (a flag member's lookup costs more than
 # the arithmetic it feeds).
 UNCERTAINTY_BIT, SUCCESSOR_BIT, PREDECESSOR_BIT = (int(Trigger.UNCERTAINTY), int(Trigger.SUCCESSOR),
@@ -45,36 +51,35 @@ START_BIT, UNKNOWN_BIT = int(Trigger.START), int(Trigger.UNKNOWN)
 
 
 
-def uncertainty_bound(c_minus: ArrayLike, c_plus: ArrayLike, params: ControlParams) -> NDArray[np.float64]:
+def uncertainty_bound(c_minus: Values, c_plus: Values, params: ControlParams) -> Values:
     """``ubd = omega_max (tau_minus + tau_plus) / 4`` (radians), ``tau = c * dt``."""
-    return params.omega_max * (np.asarray(c_minus) + np.asarray(c_plus)) * params.dt / 4.0
+    return params.omega_max * (c_minus + c_plus) * params.dt / 4.0
 
 
-def guarded_step(offset: ArrayLike, ubd: ArrayLike, max_step: float) -> NDArray[np.float64]:
+def guarded_step(offset: Values, ubd: Values, max_step: float) -> Values:
     """Non-triggered motion towards ``theta + offset`` (``offset = gV - theta``, radians).
 
     Moves ``|offset| - ubd`` clipped to ``[0, max_step]`` in the direction of ``offset``: full speed
     while farther than ``ubd + max_step``, stop within ``ubd``. With ``ubd = 0`` it is the deadbeat law.
     """
-    offset = np.asarray(offset, dtype=float)
-    return np.sign(offset) * np.minimum(np.maximum(np.abs(offset) - ubd, 0.0), max_step)  # np.clip, without its wrapper
+    return np.sign(offset) * clip(np.abs(offset) - ubd, 0.0, max_step)
 
 
-def fresh_step(offset: ArrayLike, params: ControlParams) -> NDArray[np.float64]:
+def fresh_step(offset: Values, params: ControlParams) -> Values:
     """Motion with exact neighbour information towards ``theta + offset`` (``offset = V - theta``)."""
     if params.law == "prop":
-        return params.dt * np.minimum(np.maximum(offset, -params.omega_max), params.omega_max)
+        return params.dt * clip(offset, -params.omega_max, params.omega_max)
     return guarded_step(offset, 0.0, params.max_step)
 
 
 def trigger_reasons(
-    theta: ArrayLike,
-    m_minus: ArrayLike,
-    m_plus: ArrayLike,
-    c_minus: ArrayLike,
-    c_plus: ArrayLike,
+    theta: Values,
+    m_minus: Values,
+    m_plus: Values,
+    c_minus: Values,
+    c_plus: Values,
     params: ControlParams,
-) -> NDArray[np.int64]:
+) -> Mask:
     """Evaluate the self-triggered rule at the start of a step, before moving.
 
     Returns a :class:`Trigger` mask per robot: T1 ``ubd >= max(|gV - theta|, sigma)``,
@@ -84,48 +89,48 @@ def trigger_reasons(
     at coarse settings (e.g. dt 0.5 s, omega_max 1 deg/s, sigma 0.1 deg: every quantity is a multiple
     of 1/8 degree, exact in degrees but not in radians).
     """
-    reach_minus = params.omega_max * np.asarray(c_minus) * params.dt
-    reach_plus = params.omega_max * np.asarray(c_plus) * params.dt
+    reach_minus = params.omega_max * c_minus * params.dt
+    reach_plus = params.omega_max * c_plus * params.dt
     ubd = uncertainty_bound(c_minus, c_plus, params)
     return set_trigger_reasons(theta, m_minus, m_plus, reach_minus, reach_plus, ubd, params.sigma)
 
 
 def set_trigger_reasons(
-    theta: ArrayLike,
-    m_minus: ArrayLike,
-    m_plus: ArrayLike,
-    phi_minus: ArrayLike,
-    phi_plus: ArrayLike,
-    ubd: ArrayLike,
+    theta: Values,
+    m_minus: Values,
+    m_plus: Values,
+    phi_minus: Values,
+    phi_plus: Values,
+    ubd: Values,
     sigma: float,
-) -> NDArray[np.int64]:
+) -> Mask:
     """T1-T3 of :func:`trigger_reasons` for neighbours known to lie in the prediction sets
     ``[m_- - phi_-, m_- + phi_-]`` and ``[m_+ - phi_+, m_+ + phi_+]`` (radians, robot-local frame),
     with ``ubd`` the bound on ``|V - gV|``: T1 ``ubd >= max(|gV - theta|, sigma)``,
     T2 ``m_+ - phi_+ <= theta``, T3 ``m_- + phi_- >= theta``, each tie-robust within ``TIE_RAD``."""
-    theta = np.asarray(theta, dtype=float)
     offset = midpoint(m_minus, theta, m_plus) - theta
-    t1 = np.asarray(ubd, dtype=float) >= np.maximum(np.abs(offset), sigma) - TIE_RAD
-    t2 = np.subtract(m_plus, phi_plus) <= theta + TIE_RAD
-    t3 = np.add(m_minus, phi_minus) >= theta - TIE_RAD
+    t1 = ubd >= clip(np.abs(offset), sigma) - TIE_RAD
+    t2 = m_plus - phi_plus <= theta + TIE_RAD
+    t3 = m_minus + phi_minus >= theta - TIE_RAD
     return t1 * UNCERTAINTY_BIT + t2 * SUCCESSOR_BIT + t3 * PREDECESSOR_BIT
 
 
 def angular_step(
-    theta: ArrayLike,
-    m_minus: ArrayLike,
-    m_plus: ArrayLike,
-    c_minus: ArrayLike,
-    c_plus: ArrayLike,
-    fresh: ArrayLike,
+    theta: Values,
+    m_minus: Values,
+    m_plus: Values,
+    c_minus: Values,
+    c_plus: Values,
+    fresh: Values,
     params: ControlParams,
-) -> NDArray[np.float64]:
+) -> Values:
     """The step ``Delta theta`` (radians, CCW positive) a robot applies this step.
 
     Where ``fresh`` (its memory was just refreshed, ages 0) the fresh-information law moves towards
     the exact midpoint; elsewhere the guarded law moves towards ``gV`` and stops within ``ubd``.
     """
-    theta = np.asarray(theta, dtype=float)
     offset = midpoint(m_minus, theta, m_plus) - theta
-    guarded = guarded_step(offset, uncertainty_bound(c_minus, c_plus, params), params.max_step)
-    return np.where(fresh, fresh_step(offset, params), guarded)
+    ubd = uncertainty_bound(c_minus, c_plus, params)
+    if isinstance(fresh, SCALARS):  # one robot: only the law that applies
+        return fresh_step(offset, params) if fresh else guarded_step(offset, ubd, params.max_step)
+    return np.where(fresh, fresh_step(offset, params), guarded_step(offset, ubd, params.max_step))

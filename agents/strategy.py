@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import Trigger, trigger_reasons
+from ringtrack.agents.laws import Mask, Trigger, trigger_reasons
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import ControlParams, EstimationParams, Mode
 
@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from ringtrack.agents.estimation import Estimator
     from ringtrack.world.scenario import Scenario
 
-Reasons = NDArray[np.int64]  # a Trigger mask per robot (0: does not poll)
+Reasons = Mask  # a Trigger mask per robot (0: does not poll)
 
 
 class Controller(Protocol):

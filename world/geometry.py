@@ -38,7 +38,12 @@ def dot_rows(vectors: ArrayLike, rows: FloatArray) -> FloatArray:
 
 
 def angle_of(point: ArrayLike, centre: ArrayLike) -> FloatArray:
-    """``phi_centre(point)``: the angle (radians, CCW, in (-pi, pi]) of ``point`` seen from ``centre``."""
+    """``phi_centre(point)``: the angle (radians, CCW, in (-pi, pi]) of ``point`` seen from ``centre``.
+    One point about one centre (both arrays of shape ``(2,)``, a robot's own view) is differenced in
+    floats: the same bits, without numpy's cost per call."""
+    if isinstance(point, np.ndarray) and isinstance(centre, np.ndarray) and point.shape == centre.shape == (2,):
+        (x, y), (centre_x, centre_y) = point.tolist(), centre.tolist()
+        return np.arctan2(y - centre_y, x - centre_x)
     delta = np.asarray(point, dtype=float) - np.asarray(centre, dtype=float)
     return np.arctan2(delta[..., 1], delta[..., 0])
 
@@ -194,7 +199,13 @@ class ConvexRegion:
         ``theta`` (radians) of shape ``S`` and ``centre`` of shape ``(..., 2)`` broadcast; the result has
         shape ``S + (2,)``. With ``u = (cos theta, sin theta)``, ``t* = min over n_k.u > 0 of
         h_k(centre) / (n_k.u)`` and the point is ``centre + t* u``.
+
+        One angle (a float) about one centre (shape ``(2,)``), a robot's goal each step, is done in
+        plain floats: the same operations in the same order, so the same bits, without numpy's cost
+        per call.
         """
+        if isinstance(theta, float) and isinstance(centre, np.ndarray) and centre.shape == (2,):
+            return self._boundary_point_of_one(theta, centre)
         theta = np.asarray(theta, dtype=float)
         direction = np.empty(theta.shape + (2,))  # (cos, sin) on the last axis, as np.stack would put them
         direction[..., 0] = np.cos(theta)  # computed whole, then copied: the same bits as before
@@ -204,6 +215,17 @@ class ConvexRegion:
         with np.errstate(divide="ignore", over="ignore"):
             reach = np.where(approach > 0, heights / approach, np.inf)
         return np.asarray(centre, dtype=float) + reach.min(axis=-1)[..., None] * direction
+
+    def _boundary_point_of_one(self, theta: float, centre: FloatArray) -> FloatArray:
+        """:meth:`boundary_point` of one angle (radians) about one centre (metres, ``(2,)``)."""
+        cos, sin = float(np.cos(theta)), float(np.sin(theta))
+        centre_x, centre_y = centre.tolist()
+        reach = np.inf
+        for offset, normal_x, normal_y in self._edge_lines:
+            approach = cos * normal_x + sin * normal_y
+            if approach > 0:
+                reach = min(reach, (offset - (centre_x * normal_x + centre_y * normal_y)) / approach)
+        return np.array((centre_x + reach * cos, centre_y + reach * sin))
 
     def arc_length(self, point: ArrayLike) -> FloatArray:
         """Arc length ``s`` (metres, CCW from vertex 0, in ``[0, L)``) of a boundary point."""
