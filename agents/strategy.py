@@ -88,11 +88,12 @@ class Received:
     """What came back from one side (predecessor or successor) of every robot of a step: the
     replied ``position`` (metres, ``S + (2,)``; the old memory where nothing came), whether it came
     (``fresh``, ``S``), the age of what it describes (steps, ``S``: 0 for the current step) and the
-    strategy's ``content`` (``S + (reply_fields,)``, or None for a strategy whose replies carry nothing)."""
+    strategy's ``content`` (``S + (reply_fields,)``, or None for a strategy whose replies carry nothing).
+    A robot process's ``fresh`` and ``age`` are numpy scalars (``S = ()``)."""
 
     position: FloatArray
-    fresh: NDArray[np.bool_]
-    age: NDArray[np.int64]
+    fresh: NDArray[np.bool_] | np.bool_
+    age: NDArray[np.int64] | np.int64
     content: FloatArray | None = None
 
 

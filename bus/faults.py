@@ -124,10 +124,12 @@ def fate_counts(dropped: ArrayLike, copies: ArrayLike, delay_s: ArrayLike,
 DELIVERED = Fate()
 
 
-def published_copies(dropped: ArrayLike, copies: ArrayLike) -> NDArray[np.int64]:
+def published_copies(dropped: ArrayLike, copies: ArrayLike) -> NDArray[np.int64] | int:
     """Copies of requests put on the bus, given their fates (elementwise): every copy, none for a
     request dropped before sending (:class:`bus.shim.LinkShim` settles a request's fate on the way
-    out and a reply's on the way in, after it was published)."""
+    out and a reply's on the way in, after it was published). One fate's (``dropped`` a bool) is an int."""
+    if isinstance(dropped, bool):
+        return 0 if dropped else int(copies)
     return np.where(dropped, 0, np.asarray(copies, dtype=np.int64))
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -11,7 +12,7 @@ from ringtrack.agents import engine
 from ringtrack.agents.laws import Trigger
 from ringtrack.agents.node import RobotNode
 from ringtrack.agents.team import run_team
-from ringtrack.bus.messages import SCHEMA, Command, End, Measurement, Reply, Request
+from ringtrack.bus.messages import NONCE_BASE, SCHEMA, Command, End, Measurement, Reply, Request
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.state import WorldState
 
@@ -27,6 +28,15 @@ def make_node(robot: int = 2, **overrides: object) -> tuple[RobotNode, WorldStat
 def reply_to(request: Request, world: WorldState) -> Reply:
     position = tuple(float(v) for v in world.positions[request.receiver])
     return Reply(SCHEMA, RUN, request.step, request.receiver, request.sender, request.nonce, position)
+
+
+def test_default_nonces_are_five_bytes_and_differ_between_robots() -> None:
+    """Each robot draws its nonces from a generator of its own, seeded from the OS."""
+    scenario = load_scenario("paper-stationary")
+    drawn = [[node._nonce() for _ in range(200)] for node in (RobotNode(robot, scenario, RUN) for robot in (0, 0, 1))]
+    assert all(NONCE_BASE <= nonce < NONCE_BASE + 2**31 for nonces in drawn for nonce in nonces)
+    assert all(len(msgspec.msgpack.encode(nonce)) == 5 for nonce in drawn[0])
+    assert len({nonce for nonces in drawn for nonce in nonces}) == 600
 
 
 def test_a_poll_sends_two_requests_and_commands_after_both_replies() -> None:
