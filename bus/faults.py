@@ -263,7 +263,7 @@ class FaultCounter:
 
     def count_fate(self, fate: Fate) -> None:
         """What ``fate`` did to one message: dropped (and why), extra copies, delayed."""
-        if fate == DELIVERED:
+        if fate is DELIVERED or fate == DELIVERED:
             return  # nothing to count: the common case, spared the arrays of fate_counts
         counts = fate_counts(fate.dropped, fate.copies, fate.delay_s)
         for what in FAULTS:

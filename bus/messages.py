@@ -350,9 +350,10 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
         raise Rejected("foreign", f"run {message.run:#x} on {route}")
     if route.kind != message.kind:
         raise Rejected("route", f"{message.kind} sent as {route.kind}")
-    for robot in robot_ids(message):
-        if not 0 <= robot < robots:
-            raise Rejected("sender", f"{message.kind} names robot {robot}, not one of a team of {robots}")
+    named = robot_ids(message)
+    if named and not (min(named) >= 0 and max(named) < robots):
+        robot = next(robot for robot in named if not 0 <= robot < robots)
+        raise Rejected("sender", f"{message.kind} names robot {robot}, not one of a team of {robots}")
     if isinstance(message, Digest):
         _check_digest(message, run, robots)
     if isinstance(message, Tick):

@@ -40,10 +40,12 @@ class Presence:
     up: bool
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Delivery:
     """A validated message with the route its key named and its payload size in bytes; ``released``
-    once a fault layer has settled its fate (a delayed or duplicated copy)."""
+    once a fault layer has settled its fate (a delayed or duplicated copy). One is made for every
+    message received, so it is not frozen (a frozen dataclass sets each field through
+    ``object.__setattr__``: 3.5 x the cost); nothing changes one after it is made."""
 
     message: AnyMessage
     route: Route
