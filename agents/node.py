@@ -24,6 +24,7 @@ from __future__ import annotations
 import random
 import secrets
 from collections.abc import Callable
+from collections.abc import Set as AbstractSet
 
 import numpy as np
 
@@ -139,7 +140,8 @@ class RobotNode:
         self.buffered: list[Request] = []
         self.awaiting: dict[int, int] = {}  # neighbour -> nonce of the open request
         self.replies: dict[int, Reply] = {}
-        self.alive: set[int] = set(range(scenario.robots))
+        self.alive: frozenset[int] = frozenset(range(scenario.robots))  # replaced, never changed in place
+        self._ring_of: frozenset[int] | None = None  # the live set the ring neighbours were last taken from
         self.in_range: set[int] | None = None
         self.polls = 0
         self.probes = 0
@@ -321,11 +323,11 @@ class RobotNode:
         del self.awaiting[neighbour]
         return self._settle()
 
-    def set_alive(self, alive: set[int]) -> Outgoing:
+    def set_alive(self, alive: AbstractSet[int]) -> Outgoing:
         """The live robots changed (one crashed or came back): re-form the ring around the gap. A
         neighbour that left while its reply was awaited counts as lost; a side whose neighbour
         changed is forgotten, so the robot polls its new neighbour at its next step."""
-        self.alive = set(alive)
+        self.alive = frozenset(alive)
         outgoing: Outgoing = []
         for neighbour in [n for n in self.awaiting if n not in self.alive]:
             outgoing += self.on_lost(neighbour)
@@ -334,7 +336,11 @@ class RobotNode:
         return outgoing
 
     def _reform_ring(self) -> None:
-        """Take the neighbours the live set implies, forgetting a side whose neighbour changed."""
+        """Take the neighbours the live set implies, forgetting a side whose neighbour changed (once
+        per live set: a robot re-forms after every poll, and the set rarely changes)."""
+        if self._ring_of is self.alive:
+            return
+        self._ring_of = self.alive
         predecessor, successor = ring_neighbours(self.robot, self.alive | {self.robot})
         changed = (predecessor != self.predecessor, successor != self.successor)
         if self.controller is not None and any(changed):
@@ -375,7 +381,7 @@ class RobotNode:
         self.pushed = []
         if self.controller is None:
             self.controller = self.strategy.controller(self.scenario.region, self.scenario.control, self.position)
-        if len(self.alive | {self.robot}) < 3:
+        if len(self.alive) + (self.robot not in self.alive) < 3:
             self.trigger = 0  # no ring to spread on: hold position until robots come back
             return [self._command(hold=True)]
         reach = (self.reachable(self.predecessor), self.reachable(self.successor))
