@@ -39,7 +39,8 @@ class Trigger(enum.IntFlag):
     UNKNOWN = 32  # nothing is known of a reachable neighbour (it changed, or its answer was lost)
 
 
-# A Trigger mask per robot: an int array, or one robot's int.
+# A Trigger mask per robot: an int array, or one robot's integer (a numpy integer, which a type
+# checker knows only as an int).
 Mask: TypeAlias = NDArray[np.int64] | int
 
 # The bits as plain ints, for the laws evaluated every step (a flag member's lookup costs more than
