@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
-from ringtrack.world.elementwise import SCALARS, choose, scalar
+from ringtrack.world.elementwise import choose, scalar
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
@@ -61,6 +61,7 @@ class MidpointController:
         self.predecessor_position: FloatArray = self.own_position.copy()
         self.successor_position: FloatArray = self.own_position.copy()
         shape = self.own_position.shape[:-1]
+        self._one_robot = shape == ()  # a robot process's memory: scalars, decided in plain Python
         self.predecessor_age: NDArray[np.int64] = scalar(np.zeros(shape, dtype=np.int64))
         self.successor_age: NDArray[np.int64] = scalar(np.zeros(shape, dtype=np.int64))
         self.guaranteed_offset: FloatArray = scalar(np.zeros(shape))
@@ -89,9 +90,9 @@ class MidpointController:
         unknown = self._unknown(*reach)
         return choose(unknown & ((reasons & START_BIT) == 0), reasons | UNKNOWN_BIT, reasons)
 
-    def _unknown(self, reach_minus: ArrayLike, reach_plus: ArrayLike) -> NDArray[np.bool_]:
+    def _unknown(self, reach_minus: ArrayLike, reach_plus: ArrayLike) -> NDArray[np.bool_] | bool:
         """Where nothing is known of a neighbour within reach (predecessor, successor)."""
-        if isinstance(reach_minus, SCALARS) and isinstance(self.predecessor_known, SCALARS):  # one robot
+        if self._one_robot:
             return ((not self.predecessor_known and bool(reach_minus))
                     or (not self.successor_known and bool(reach_plus)))
         reach_minus, reach_plus = np.asarray(reach_minus), np.asarray(reach_plus)
@@ -139,7 +140,7 @@ class MidpointController:
             ("predecessor", predecessor_position, predecessor_fresh, predecessor_age),
             ("successor", successor_position, successor_fresh, successor_age),
         ):
-            if isinstance(fresh, SCALARS):  # one robot
+            if self._one_robot:
                 if fresh:
                     setattr(self, f"{side}_position", np.asarray(position, dtype=float))
                     setattr(self, f"{side}_age", scalar(np.asarray(age, dtype=np.int64)))

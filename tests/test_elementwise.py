@@ -128,3 +128,16 @@ def test_a_robot_controller_equals_a_team_controller(steps: list, law: str) -> N
         for name in ("theta", "m_minus", "m_plus", "guaranteed_offset", "predecessor_age", "successor_age"):
             assert same(getattr(one, name), getattr(team, name), 1), name
         assert bits(one.goal()) == bits(team.goal()[1])
+
+
+def test_a_team_controller_keeps_its_arrays_when_told_by_scalars() -> None:
+    """Which path a controller takes depends on its own shape, not on its arguments': a team given
+    the default ``fresh=True`` and age 0 keeps one age and one flag per robot."""
+    centre = REGION.chebyshev_centre[0]
+    positions = REGION.boundary_point(np.array([0.5, 2.5, 4.5]), centre)
+    team = MidpointController(REGION, params(), positions)
+    team.observe(1, positions, centre)
+    team.receive(np.roll(positions, 1, axis=0), np.roll(positions, -1, axis=0))
+    assert team.predecessor_age.shape == team.successor_age.shape == (3,)
+    assert team.predecessor_known.shape == (3,) and bool(np.all(team.successor_known))
+    assert team.goal().shape == (3, 2)
