@@ -24,13 +24,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step
+from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step, trigger_reasons
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
 from ringtrack.world.elementwise import choose, scalar
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
 
+
+def self_triggered_rule(controller: MidpointController) -> Mask:
+    """The self-triggered rule (T1-T3) from a controller's view (``theta``, ``m_minus``, ``m_plus``
+    radians, ages in steps): the trigger rule of a controller given none."""
+    return trigger_reasons(controller.theta, controller.m_minus, controller.m_plus, controller.predecessor_age,
+                           controller.successor_age, controller.params)
 
 class MidpointController:
     """Memory and decisions of the midpoint strategies; ``rule(controller)`` is the trigger rule of
@@ -52,11 +58,7 @@ class MidpointController:
                  rule: Callable[[Any], Mask] | None = None) -> None:
         self.region = region
         self.params = params
-        if rule is None:  # the trigger rule of the strategy the parameters name
-            from ringtrack.agents.strategy import strategy_for
-
-            rule = strategy_for(params.strategy).triggers
-        self.rule = rule
+        self.rule = rule or self_triggered_rule
         self.own_position: FloatArray = np.array(own_position, dtype=float)
         self.predecessor_position: FloatArray = self.own_position.copy()
         self.successor_position: FloatArray = self.own_position.copy()

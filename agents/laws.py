@@ -135,3 +135,19 @@ def angular_step(
     if isinstance(fresh, SCALARS):  # one robot: only the law that applies
         return fresh_step(offset, params) if fresh else guarded_step(offset, ubd, params.max_step)
     return np.where(fresh, fresh_step(offset, params), guarded_step(offset, ubd, params.max_step))
+
+
+REASONS = {  # short codes, explained in the legend line
+    Trigger.START: "start",
+    Trigger.SCHEDULE: "every",
+    Trigger.UNCERTAINTY: "T1",
+    Trigger.SUCCESSOR: "T2",
+    Trigger.PREDECESSOR: "T3",
+    Trigger.UNKNOWN: "unk",
+}
+
+
+def reason_text(mask: int) -> str:
+    """Short codes of the trigger conditions in a mask, joined by "+" ("-" for none)."""
+    names = [name for flag, name in REASONS.items() if mask & flag]
+    return "+".join(names) if names else "-"

@@ -43,7 +43,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import Mask, Trigger, trigger_reasons
+from ringtrack.agents.controller import MidpointController, self_triggered_rule
+from ringtrack.agents.laws import Mask, Trigger
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import ControlParams, EstimationParams, Mode
 
@@ -121,16 +122,13 @@ class Strategy:
 
     def controller(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> Controller:
         """A new memory for robots at ``own_position`` (metres, ``S + (2,)``)."""
-        from ringtrack.agents.controller import MidpointController
-
         return MidpointController(region, params, own_position, rule=self.triggers)
 
     def triggers(self, controller: Any) -> Reasons:
         """For a step after the first: the :class:`~agents.laws.Trigger` mask of every robot, from
         its controller's view (``theta``, ``m_minus``, ``m_plus`` radians, ages in steps). The
         default is the self-triggered rule (T1-T3)."""
-        return trigger_reasons(controller.theta, controller.m_minus, controller.m_plus, controller.predecessor_age,
-                               controller.successor_age, controller.params)
+        return self_triggered_rule(controller)
 
     def reply_content(self, controller: Any) -> FloatArray:
         """The ``reply_fields`` floats a reply of each robot carries (``S + (reply_fields,)``), read

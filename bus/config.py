@@ -14,18 +14,32 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal, Protocol
 
 import zenoh
-
-if TYPE_CHECKING:  # bus.security needs the cryptography library: imported only by secure roles
-    from ringtrack.bus.security import Security
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
 LEASE_S = 10.0  # Zenoh's default link lease: a frozen peer is seen gone after about as long
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(\[[0-9a-fA-F:.]+\]|[^/:\s]+):\d{1,5}$")
 
 Mode = Literal["peer", "router", "client"]
+
+
+class Secured(Protocol):
+    """What a secure participant brings to its bus (:class:`bus.security.Security`, which needs the
+    cryptography library and is made only by secure roles): its Zenoh settings and its checks."""
+
+    def settings(self, name: str, mode: str) -> dict[str, object]:
+        """Zenoh settings (``path: value``) of participant ``name`` in ``mode``."""
+        ...
+
+    def check(self, name: str) -> None:
+        """Raise a :class:`BusError` unless ``name`` may join with this team's certificates."""
+        ...
+
+    def probe(self, name: str, endpoint: str) -> None:
+        """Raise a :class:`BusError` unless whatever answers at ``endpoint`` is of this team."""
+        ...
 
 
 class BusError(ValueError):
@@ -46,7 +60,7 @@ class BusConfig:
     lease_ms: int = round(LEASE_S * 1000)
     admin_space: bool = False  # needed to read back the locators a session bound (see listening_locators)
     extra: dict[str, object] = field(default_factory=dict)  # further "path": value JSON5 settings
-    security: Security | None = None  # --secure: mutual TLS and access control (bus.security)
+    security: Secured | None = None  # --secure: mutual TLS and access control (bus.security)
 
     def __post_init__(self) -> None:
         for flag, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
@@ -140,7 +154,7 @@ def open_session(config: BusConfig, name: str | None = None) -> zenoh.Session:
     if os.environ.get("ZENOH_RUNTIME") in (None, COMPACT_RUNTIME, ROUTER_RUNTIME):  # not the user's own
         os.environ["ZENOH_RUNTIME"] = zenoh_runtime(config.mode)
     if config.security is not None and name is not None:
-        config.security.team.check(name)
+        config.security.check(name)
         for endpoint in config.connect:
             config.security.probe(name, endpoint)
     try:

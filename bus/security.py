@@ -357,6 +357,10 @@ class Security:
             settings["access_control"] = access_policy(self.robots, routers=mode == "router")
         return settings
 
+    def check(self, name: str) -> None:
+        """Raise :class:`SecurityError` unless participant ``name`` can use the team folder (:meth:`Team.check`)."""
+        self.team.check(name)
+
     def probe(self, name: str, endpoint: str) -> None:
         """Raise :class:`SecurityError` when whatever answers at ``endpoint`` (a ``tls/`` endpoint this
         participant connects to) is not a participant of this team: a plain one, or one whose

@@ -38,8 +38,8 @@ from hypothesis import strategies as st
 
 from ringtrack.agents import engine
 from ringtrack.agents.engine import History
-from ringtrack.tools.runlog import RunLog, history_from_log, read_log
-from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.runlog.log import RunLog, history_from_log, read_log
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.geometry import ConvexRegion
 from ringtrack.world.scenario import Scenario, load_scenario, parse_scenario, resolve
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.console import OutputError, write_json
-from ringtrack.tools.runlog import LogWriteError, LogWriter, read_log
+from ringtrack.tools.output.console import OutputError, write_json
+from ringtrack.tools.runlog.log import LogWriteError, LogWriter, read_log
 from tests.helpers import RINGTRACK, processes_mentioning
 
 

@@ -16,7 +16,7 @@ import pytest
 
 from ringtrack.bus.counting import per_link, robot_link_totals, totals_by_category
 from ringtrack.bus.faults import FAULT_COUNTERS
-from ringtrack.tools.runlog import RunLog, read_log
+from ringtrack.tools.runlog.log import RunLog, read_log
 from tests.helpers import RINGTRACK
 
 pytestmark = [pytest.mark.processes, pytest.mark.timeout(300)]

@@ -13,8 +13,8 @@ import pytest
 from ringtrack.agents import engine
 from ringtrack.agents.belief import mahalanobis_squared
 from ringtrack.bus.faults import FAULT_COUNTERS
-from ringtrack.tools.gates import with_gate
-from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.tools.runlog.log import history_from_log, read_log
+from ringtrack.tools.studies.gates import with_gate
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK, engine_twin, lockstep_run
 from tests.test_accounting import assert_one_count, robot_links

@@ -11,7 +11,7 @@ import pytest
 from rich.console import Console
 
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode
-from ringtrack.tools.bench import EngineProgress, engine_results, suite_ratios
+from ringtrack.tools.bench.bench import EngineProgress, engine_results, suite_ratios
 from ringtrack.tools.cli import main
 
 pytestmark = pytest.mark.timeout(240)

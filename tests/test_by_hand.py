@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.agents import engine
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK
 

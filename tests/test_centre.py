@@ -18,7 +18,7 @@ from ringtrack.agents.estimation import Estimator
 from ringtrack.agents.node import RobotNode
 from ringtrack.bus.keys import FUSION, WORLD
 from ringtrack.bus.messages import SCHEMA, Command, Estimate, RangeReport, Reply, Request
-from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.state import WorldState
 from tests.helpers import command_words, processes_mentioning, short_sighted, start_spawn, stop_all, wait_for_steps

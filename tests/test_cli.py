@@ -12,7 +12,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
-from ringtrack.tools.runlog import history_from_log, read_log
+from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 
 

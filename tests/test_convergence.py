@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from ringtrack.bus.messages import SCHEMA, Command
-from ringtrack.tools.runlog import history_from_log, read_log, write_engine_log
-from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.runlog.log import history_from_log, read_log, write_engine_log
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.metrics import converged, convergence_step, memory_cerr, true_cerr
 from ringtrack.world.state import WorldState
 from tests.helpers import scenario

@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from ringtrack.agents.laws import Trigger
+from ringtrack.agents.laws import Trigger, reason_text
 from ringtrack.bus.counting import totals_by_category
 from ringtrack.tools.cli import main
-from ringtrack.tools.dashboard import Dashboard, TeamModel, reason_text, sparkline
-from ringtrack.tools.plot import PANELS, plot_run
-from ringtrack.tools.runlog import LogWriter, RunLog, read_log
-from ringtrack.tools.spawn import spawn_team
-from ringtrack.tools.views import LiveView
+from ringtrack.tools.dashboard.dashboard import Dashboard, sparkline
+from ringtrack.tools.dashboard.views import LiveView
+from ringtrack.tools.monitor.state import TeamModel
+from ringtrack.tools.runlog.log import LogWriter, RunLog, read_log
+from ringtrack.tools.runlog.plot import PANELS, plot_run
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import lockstep_run
 
@@ -331,7 +332,7 @@ def test_replay_of_a_killed_run_and_bad_logs(tmp_path: Path, capsys: pytest.Capt
 def engine_model(scenario_name: str, robots: int, steps: int, **overrides: object) -> TeamModel:
     """A dashboard model fed with an engine run's step records."""
     from ringtrack.agents import engine
-    from ringtrack.tools.runlog import history_from_log, write_engine_log
+    from ringtrack.tools.runlog.log import history_from_log, write_engine_log
 
     scenario = load_scenario(scenario_name, robots=robots, max_steps=steps, **overrides)
     path = Path(f"/tmp/ringtrack-dashboard-{scenario_name}-{robots}-{steps}-{id(scenario)}.jsonl")

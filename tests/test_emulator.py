@@ -13,7 +13,7 @@ import pytest
 from ringtrack.agents.engine import History, robot_to_robot_sent
 from ringtrack.bus.counting import per_link, totals_by_category
 from ringtrack.bus.messages import digest_entries
-from ringtrack.tools.runlog import RunLog, history_from_log, read_log
+from ringtrack.tools.runlog.log import RunLog, history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import (
     SENSING_RANGE,
@@ -163,7 +163,7 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
 
 def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
     from ringtrack.agents import engine
-    from ringtrack.tools.spawn import spawn_team
+    from ringtrack.tools.team.spawn import spawn_team
 
     team = scenario(robots=5, seed=4, max_steps=2000, omega_max_deg=3.0)
     result = spawn_team(team, runs=tmp_path, dashboard=False, until_converged=True)
@@ -175,7 +175,7 @@ def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
 
 @pytest.mark.realtime
 def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
-    from ringtrack.tools.spawn import spawn_team
+    from ringtrack.tools.team.spawn import spawn_team
 
     result = spawn_team(scenario(max_steps=200), clock="realtime", rate=10.0, runs=tmp_path, dashboard=False)
     assert result["exit_code"] == 0 and result["end_reason"] == "done"

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.cli import main
-from ringtrack.tools.experiment import MOVING_COLUMNS
-from ringtrack.tools.export import LINK_COLUMNS, STEP_COLUMNS
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.export import LINK_COLUMNS, STEP_COLUMNS
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.studies.experiment import MOVING_COLUMNS
 from ringtrack.world.geometry import angle_of
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.bus.faults import FAULT_COUNTERS, FaultPlan, LinkRates, Outage, link
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import ring_order_kept
 from ringtrack.world.ranges import link_lengths
@@ -361,7 +361,7 @@ def test_duplicates_and_delays_leave_a_lockstep_run_unchanged_and_are_logged(tmp
 def test_realtime_polls_settle_by_timeout_when_replies_are_late(tmp_path: Path) -> None:
     late = tmp_path / "late.toml"
     late.write_text(FAST_RING.replace("max_steps = 100000", "max_steps = 150") + "\n[faults]\ndelay_ms = 60.0\n")
-    from ringtrack.tools.spawn import spawn_team
+    from ringtrack.tools.team.spawn import spawn_team
 
     result = spawn_team(load_scenario(str(late)), clock="realtime", rate=5.0, runs=tmp_path / "runs", quiet=True)
     assert result["exit_code"] == 0 and result["end_reason"] == "done"

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.runlog import RunLog, read_log
+from ringtrack.tools.runlog.log import RunLog, read_log
 from tests.helpers import assert_equals_engine, processes_mentioning, start_spawn, stop_all, wait_for_steps
 from tests.test_centre import _robot_pid
 

@@ -14,8 +14,8 @@ from ringtrack.bus.config import BusConfig, open_session
 from ringtrack.bus.keys import BROADCAST, WORLD, Keys, Route
 from ringtrack.bus.messages import SCHEMA, End, Rejected, Reply, Request, decode, encode
 from ringtrack.bus.participant import Delivery
-from ringtrack.tools.monitor import AHEAD_STEPS, PENDING_LIMIT, Recorder
-from ringtrack.tools.runlog import LogWriter
+from ringtrack.tools.monitor.monitor import AHEAD_STEPS, PENDING_LIMIT, Recorder
+from ringtrack.tools.runlog.log import LogWriter
 from tests.helpers import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
 from tests.test_node import RUN, make_node
 

@@ -16,7 +16,7 @@ from ringtrack.bus.identity import IdClaim, IdCollision, refuse_if_alive
 from ringtrack.bus.keys import WORLD, Keys
 from ringtrack.bus.participant import Participant
 from ringtrack.bus.reach import ReachTokens
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from tests.helpers import RINGTRACK, assert_equals_engine, start_spawn, stop_all, wait_for_steps
 
 

@@ -14,8 +14,8 @@ from ringtrack.bus.keys import Route, parse_any
 from ringtrack.bus.messages import SCHEMA, Rejected, Request, encode, peek
 from ringtrack.bus.observer import Heard
 from ringtrack.tools.cli import main
-from ringtrack.tools.introspect import echo_line
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.introspect.watch import echo_line
+from ringtrack.tools.runlog.log import read_log
 from tests.helpers import RINGTRACK, assert_equals_engine, processes_mentioning, start_spawn, stop_all
 
 pytestmark = pytest.mark.timeout(240)
@@ -111,7 +111,7 @@ def test_a_run_that_ends_ends_echo_and_hz_cleanly_with_what_they_heard(
     import json
 
     from ringtrack.bus.observer import Token
-    from ringtrack.tools import introspect
+    from ringtrack.tools.cli import introspect
     from ringtrack.world.scenario import load_scenario
 
     folder = tmp_path / "20261201T000000Z-paper-stationary-0000abcd"

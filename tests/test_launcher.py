@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.runlog import read_log
-from ringtrack.tools.spawn import spawn_team
-from ringtrack.tools.supervisor import Supervisor
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.spawn import spawn_team
+from ringtrack.tools.team.supervisor import Supervisor
 from tests.helpers import assert_equals_engine, command_words, processes_mentioning, scenario
 
 pytestmark = [pytest.mark.processes, pytest.mark.timeout(180)]
@@ -44,7 +44,7 @@ def test_a_forked_role_reports_its_own_exit_code_and_error_and_shows_its_command
         bad, good = supervisor.fork([("r0", silent), ("r1", patient)])
         assert bad.process.wait(60) == 2
         assert "missing.toml" in bad.stderr_tail()
-        assert b"ringtrack.tools.roles" in command_words(good.pid) and b"deadbeef" in command_words(good.pid)
+        assert b"ringtrack.tools.cli" in command_words(good.pid) and b"deadbeef" in command_words(good.pid)
         assert good.process.poll() is None
         supervisor.stop()
         assert good.process.returncode is not None and good.name in supervisor.ended
@@ -62,7 +62,7 @@ def test_the_children_of_a_launcher_whose_supervisor_died_end_on_their_own(tmp_p
     script.write_text(f"""
 import json, sys, time
 from pathlib import Path
-from ringtrack.tools.supervisor import Supervisor
+from ringtrack.tools.team.supervisor import Supervisor
 supervisor = Supervisor(Path({str(tmp_path)!r}))
 children = supervisor.fork([(f"r{{i}}", ["robot", {str(waiting)!r}, "--run", "deadbeef", "--exit-with-parent",
                                          "--id", str(i), "--connect", "tcp/127.0.0.1:9"]) for i in range(3)])

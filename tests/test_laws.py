@@ -20,6 +20,7 @@ from ringtrack.agents.laws import (
     trigger_reasons,
     uncertainty_bound,
 )
+from ringtrack.agents.strategy import strategy_for
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import convergence_error, range_information, true_offsets
 from ringtrack.world.params import ControlParams
@@ -55,8 +56,9 @@ sigmas_deg = st.sampled_from([0.0, 0.01, 0.05, 0.06, 0.1, 0.2, 0.5, 1.0, 5.0])
 
 
 def new_controller(region, params, positions) -> MidpointController:
-    """A team controller that, like the engine's, starts knowing nothing but its own positions."""
-    return MidpointController(region, params, positions)
+    """A team controller that, like the engine's, starts knowing nothing but its own positions (with
+    the trigger rule of the strategy ``params`` name)."""
+    return strategy_for(params.strategy).controller(region, params, positions)
 
 
 def exchange(controller: MidpointController, reasons, positions) -> None:

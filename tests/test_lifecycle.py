@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from tests.helpers import (
     assert_equals_engine,
     command_words,

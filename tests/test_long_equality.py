@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from ringtrack.agents import engine
-from ringtrack.tools.runlog import history_from_log, read_log
-from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.runlog.log import history_from_log, read_log
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from ringtrack.tools.dashboard import TeamModel
-from ringtrack.tools.runlog import read_log
-from ringtrack.tools.views import LiveView
+from ringtrack.tools.dashboard.views import LiveView
+from ringtrack.tools.monitor.state import TeamModel
+from ringtrack.tools.runlog.log import read_log
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK, stop_all
 from tests.test_dashboard import prepared_records

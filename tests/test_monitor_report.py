@@ -10,9 +10,9 @@ from rich.console import Console
 from ringtrack.bus.keys import Route
 from ringtrack.bus.messages import SCHEMA, FaultNotice
 from ringtrack.bus.participant import Delivery
-from ringtrack.tools.dashboard import TeamModel
-from ringtrack.tools.monitor import MonitorReport, Recorder
-from ringtrack.tools.views import print_report
+from ringtrack.tools.dashboard.views import print_report
+from ringtrack.tools.monitor.monitor import MonitorReport, Recorder
+from ringtrack.tools.monitor.state import TeamModel
 from ringtrack.world.scenario import load_scenario
 
 # What three robots of a ring sent: requests and replies on four links, world and estimation traffic.
@@ -94,7 +94,7 @@ def test_the_recorder_hands_fault_events_to_the_dashboard() -> None:
 
 
 def test_reports_of_large_teams_are_summarised_unless_all_robots() -> None:
-    from ringtrack.tools.views import per_link_table, per_robot_table
+    from ringtrack.tools.dashboard.views import per_link_table, per_robot_table
 
     robots = 30
     rows = [("request", f"r{robot}", f"r{(robot + 1) % robots}", robot + 1, 18 * (robot + 1))
@@ -138,7 +138,7 @@ def test_a_digest_counts_robot_to_robot_traffic_by_the_commanding_robots_own_cou
     from ringtrack.bus.counting import TrafficCounter
     from ringtrack.bus.keys import Keys
     from ringtrack.bus.messages import Command, Digest, DigestEntry, Tick
-    from ringtrack.tools.monitor import digested, monitored_keys
+    from ringtrack.tools.monitor.monitor import digested, monitored_keys
 
     scenario = load_scenario("paper-stationary", robots=3)
     written = Written()

@@ -27,7 +27,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.bus.security import create_team
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from tests.helpers import assert_equals_engine
 
 pytestmark = [
@@ -81,7 +81,7 @@ class Hosts:
         sh("ip", "netns", "exec", self.names["a"], "sysctl", "-qw", "net.ipv4.ip_forward=1")
 
     def start(self, host: str, *arguments: str) -> subprocess.Popen[bytes]:
-        command = ["ip", "netns", "exec", self.names[host], sys.executable, "-m", "ringtrack.tools.roles"]
+        command = ["ip", "netns", "exec", self.names[host], sys.executable, "-m", "ringtrack.tools.cli"]
         process = subprocess.Popen([*command, *arguments], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                    cwd=Path(__file__).parents[1])
         self.processes.append(process)

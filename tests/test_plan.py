@@ -31,8 +31,8 @@ from ringtrack.bus.messages import (
     encode,
     robot_message_bytes,
 )
-from ringtrack.tools.runlog import read_log
-from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import ring_order_kept
 from ringtrack.world.scenario import Scenario, ScenarioError, load_scenario, resolve

@@ -241,7 +241,8 @@ def test_check_prints_each_ring_link_loss_probability(tmp_path: Path) -> None:
 def test_dashboard_shows_the_team_energy_from_the_end_record() -> None:
     from rich.console import Console
 
-    from ringtrack.tools.dashboard import Dashboard, TeamModel
+    from ringtrack.tools.dashboard.dashboard import Dashboard
+    from ringtrack.tools.monitor.state import TeamModel
     from tests.test_dashboard import prepared_records
 
     model = TeamModel(load_scenario("paper-stationary", robots=4), "lockstep")

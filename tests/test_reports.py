@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.bus.counting import totals_by_category
-from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.team.spawn import spawn_team
 from tests.helpers import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ringtrack.agents import engine
-from ringtrack.tools.robustness import Cell, faults_experiment
+from ringtrack.tools.studies.robustness import Cell, faults_experiment
 from ringtrack.world.ranges import link_distance
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK, assert_equals_engine, lockstep_run

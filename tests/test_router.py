@@ -11,13 +11,13 @@ import pytest
 import zenoh
 
 from ringtrack.bus.config import BusConfig, open_session
-from ringtrack.tools.runlog import read_log
-from ringtrack.tools.supervisor import Supervisor
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.supervisor import Supervisor
 from tests.helpers import assert_equals_engine, processes_mentioning
 
 pytestmark = [pytest.mark.processes, pytest.mark.timeout(180)]
 
-ROLES = [sys.executable, "-m", "ringtrack.tools.roles"]
+ROLES = [sys.executable, "-m", "ringtrack.tools.cli"]
 
 
 def test_a_team_through_a_standalone_router_equals_the_engine(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.cli import main
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from tests.helpers import RINGTRACK
 
 pytestmark = pytest.mark.timeout(60)

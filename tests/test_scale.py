@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.runlog import read_log
-from ringtrack.tools.spawn import spawn_team
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.spawn import spawn_team
 from tests.helpers import assert_equals_engine, processes_mentioning, scenario
 
 pytestmark = pytest.mark.timeout(300)
@@ -50,7 +50,7 @@ def test_robots_packed_per_process_keep_their_own_identity_and_counts(tmp_path: 
 
 
 def test_robots_per_process_must_be_positive(tmp_path: Path) -> None:
-    from ringtrack.tools.console import UsageError
+    from ringtrack.tools.output.console import UsageError
 
     with pytest.raises(UsageError, match=r"--robots-per-process 0: give at least 1"):
         spawn_team(scenario(max_steps=5), clock="lockstep", runs=tmp_path, dashboard=False, robots_per_process=0)

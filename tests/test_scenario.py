@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ringtrack.tools.cli import build_parser
-from ringtrack.tools.options import flag, scenario_from_arguments
+from ringtrack.tools.cli.options import flag, scenario_from_arguments
 from ringtrack.world.scenario import (
     OverrideError,
     ScenarioError,

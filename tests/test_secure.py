@@ -35,7 +35,7 @@ from ringtrack.bus.security import (
     load_team,
     team_names,
 )
-from ringtrack.tools.runlog import read_log
+from ringtrack.tools.runlog.log import read_log
 from tests.helpers import RINGTRACK, assert_equals_engine, scenario, start_spawn, stop_all, wait_for_steps
 
 CONVERGED_AT = 712  # paper-stationary's worked example
@@ -198,7 +198,7 @@ def wait_for_listener(port: int, timeout_s: float = 30.0) -> None:
 @pytest.mark.processes
 @pytest.mark.timeout(300)
 def test_a_secure_lockstep_team_of_six_converges_and_equals_the_engine(team: Path, tmp_path: Path) -> None:
-    from ringtrack.tools.spawn import spawn_team
+    from ringtrack.tools.team.spawn import spawn_team
 
     result = spawn_team(scenario(), clock="lockstep", runs=tmp_path, dashboard=False, until_converged=True,
                         secure=team)
@@ -286,7 +286,7 @@ def test_a_security_config_is_tls_only_and_carries_the_policy_for_peers_not_clie
 @pytest.mark.processes
 @pytest.mark.timeout(300)
 def test_the_benchmark_compares_plain_and_secure_runs(tmp_path: Path) -> None:
-    from ringtrack.tools.bench import isolation_works
+    from ringtrack.tools.bench.bench import isolation_works
     from ringtrack.tools.cli import main
 
     path = tmp_path / "bench.json"

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.spawn import stalled_at
-from ringtrack.tools.supervisor import Supervisor
+from ringtrack.tools.team.spawn import stalled_at
+from ringtrack.tools.team.supervisor import Supervisor
 
 
 @pytest.mark.processes
@@ -38,7 +38,7 @@ def test_a_start_up_that_never_ends_is_bounded(tmp_path: Path) -> None:
     """A participant that never comes up (a Zenoh declaration that deadlocks, seen once) must not
     hold spawn for ever: past the start-up bound the wait ends, saying so; a long start-up within it
     is waited out (above)."""
-    from ringtrack.tools.spawn import STALL_TIMEOUT_S, startup_limit
+    from ringtrack.tools.team.spawn import STALL_TIMEOUT_S, startup_limit
 
     assert startup_limit(64) > startup_limit(8) > STALL_TIMEOUT_S  # a larger team may take longer
     with Supervisor(tmp_path) as supervisor:

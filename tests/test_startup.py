@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from ringtrack.tools import supervisor
-from ringtrack.tools.dashboard import TeamModel, startup_names
-from ringtrack.tools.spawn import spawn_team
-from ringtrack.tools.startup import READY, StartupView, started_at, take_over
-from ringtrack.tools.views import LiveView
+from ringtrack.tools.dashboard.startup import READY, StartupView, started_at, take_over
+from ringtrack.tools.dashboard.views import LiveView
+from ringtrack.tools.monitor.state import TeamModel, startup_names
+from ringtrack.tools.team import supervisor
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
@@ -45,7 +45,7 @@ class Stop(Exception):
 
 def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_path: Path) -> None:
     console = terminal()
-    monkeypatch.setattr("ringtrack.tools.spawn.out", console)
+    monkeypatch.setattr("ringtrack.tools.team.spawn.out", console)
     started: list[tuple[str, list[str], str]] = []
     counted_from: list[float | None] = []
 
@@ -79,7 +79,7 @@ def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_pat
 
 def test_no_start_up_frame_without_a_terminal(monkeypatch, tmp_path: Path) -> None:
     console = Console(file=io.StringIO(), record=True, width=100, height=30, force_terminal=False)
-    monkeypatch.setattr("ringtrack.tools.spawn.out", console)
+    monkeypatch.setattr("ringtrack.tools.team.spawn.out", console)
     started: dict[str, list[str]] = {}
 
     def start(self, name: str, argv, stdout=None):

@@ -145,7 +145,7 @@ def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tm
     than plain ones). What the team achieves depends on the load; what is
     counted does not."""
     from ringtrack.bus.messages import robot_message_bytes
-    from ringtrack.tools.spawn import spawn_team
+    from ringtrack.tools.team.spawn import spawn_team
 
     name_of = {"plan": "paper-stationary", "belief": "authors-moving"}[name]
     team = load_scenario(name_of, strategy=name, max_steps=150, drop=0.2, duplicate=0.1)

@@ -1,0 +1,79 @@
+"""Run one team inside a private network namespace and count the bytes its loopback carried while it
+stepped (from its first logged step to its end): every packet of every link (Zenoh frames, TLS
+records, TCP/IP headers, acknowledgements), and nothing of any other process on the machine. The
+start-up (sessions, TLS handshakes, gossip, declarations) is left out: it does not grow with the
+run.
+
+    unshare --net --map-root-user -- python -m ringtrack.tools.bench.wire OUT.json SCENARIO.toml RUNS [SECURE_DIR]
+
+writes the summary of :func:`ringtrack.tools.team.spawn.spawn_team` plus ``wire_bytes`` (while stepping)
+and ``startup_wire_bytes`` (before the first step) to ``OUT.json``.
+``ringtrack bench emulator`` starts it; it needs ``unshare`` (util-linux) and either root or
+unprivileged user namespaces.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import socket
+import struct
+import sys
+import threading
+from pathlib import Path
+
+from ringtrack.tools.output.console import write_json
+from ringtrack.tools.team.spawn import spawn_team
+from ringtrack.world.scenario import load_scenario
+
+NETWORK_DEVICES = Path("/proc/self/net/dev")  # this namespace's counters (/sys shows the mounter's)
+SIOCGIFFLAGS, SIOCSIFFLAGS, IFF_UP = 0x8913, 0x8914, 0x1
+UNSHARE = ["unshare", "--net", "--map-root-user", "--"]
+
+
+def loopback_up() -> None:
+    """Bring up ``lo`` (down in a new network namespace)."""
+    with socket.socket() as handle:
+        request = struct.pack("16sh", b"lo", 0)
+        flags = struct.unpack("16sh", fcntl.ioctl(handle, SIOCGIFFLAGS, request))[1]
+        fcntl.ioctl(handle, SIOCSIFFLAGS, struct.pack("16sh", b"lo", flags | IFF_UP))
+
+
+def transmitted() -> int:
+    """Bytes ``lo`` has sent in this network namespace (every packet crosses it once)."""
+    for line in NETWORK_DEVICES.read_text().splitlines():
+        device, _, counters = line.partition(":")
+        if device.strip() == "lo":
+            return int(counters.split()[8])
+    raise RuntimeError("no loopback device in /proc/self/net/dev")
+
+
+def main(out: Path, scenario_path: str, runs: Path, secure: Path | None) -> None:
+    loopback_up()
+    before = transmitted()
+    at_first_step: list[int] = []
+    log_path = runs / f"wire-{os.getpid()}.jsonl"
+    stop = threading.Event()
+
+    def watch() -> None:
+        while not stop.wait(0.005):
+            if log_path.exists() and b'"type":"step"' in log_path.read_bytes()[:65536]:
+                at_first_step.append(transmitted())
+                return
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        result = spawn_team(load_scenario(scenario_path), clock="lockstep", runs=runs, log_path=log_path,
+                            dashboard=False, quiet=True, secure=secure)
+    finally:
+        stop.set()
+        watcher.join()
+    start = at_first_step[0] if at_first_step else before
+    result["startup_wire_bytes"] = start - before
+    result["wire_bytes"] = transmitted() - start
+    write_json(out, result)
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]), sys.argv[2], Path(sys.argv[3]), Path(sys.argv[4]) if len(sys.argv) > 4 else None)

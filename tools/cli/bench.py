@@ -1,0 +1,230 @@
+"""``ringtrack bench engine|emulator|latency|suite``: how fast the engine, a team and a round trip run."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from rich.table import Table
+
+from ringtrack.tools.bench.bench import (
+    MESSAGE_KINDS,
+    SUITE_TEAMS,
+    BenchFailed,
+    emulator_row,
+    engine_results,
+    machine,
+    neighbour_round_trip,
+    suite_ratios,
+)
+from ringtrack.tools.cli.experiment import robot_list
+from ringtrack.tools.cli.options import JSON_FILE, at_least
+from ringtrack.tools.output.console import UsageError, err, out, write_json
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser("bench", help="measure speed (engine, emulator, latency, suite)")
+    kinds = parser.add_subparsers(dest="bench", required=True, metavar="BENCHMARK")
+    engine_parser = kinds.add_parser(
+        "engine",
+        help="in-process engine: one run, the 30-trial N = 6 experiment, the N = 3..30 sweep",
+    )
+    engine_parser.add_argument("--trials", type=at_least(1), default=30, help="trials per batch (default 30)")
+    engine_parser.add_argument("--sweep", type=str, default="3-30", help="team sizes of the sweep, e.g. 3-30")
+    engine_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
+    engine_parser.set_defaults(handler=run_engine_bench)
+
+    emulator_parser = kinds.add_parser(
+        "emulator",
+        help="lockstep steps per second of a multi-process team over Zenoh, start-up, bytes per message, memory",
+    )
+    emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
+    emulator_parser.add_argument("--steps", type=at_least(1), default=1000, help="steps per run (default 1000)")
+    emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self",
+                                 help="communication strategy (default self)")
+    emulator_parser.add_argument("--repeat", type=at_least(1), default=1,
+                                 help="runs per configuration; medians reported")
+    emulator_parser.add_argument("--robots-per-process", type=at_least(1), default=1, metavar="K",
+                                 help="host K robots per process (each its own Zenoh participant)")
+    emulator_parser.add_argument("--topology", choices=["mesh", "star"], help="as for spawn (default: by size)")
+    emulator_parser.add_argument("--dashboard", choices=["off", "on", "compare"], default="off",
+                                 help="draw the dashboard (to RUN_FOLDER/monitor.stdout), or alternate runs "
+                                 "without and with it to measure what it costs")
+    emulator_parser.add_argument("--secure", choices=["off", "on", "compare"], default="off",
+                                 help="run secure teams (mutual TLS, access control; certificates made in a "
+                                 "temporary folder), or alternate plain and secure runs to measure the cost; compare "
+                                 "runs each team in a private network namespace when it can, to count the bytes "
+                                 "on the wire")
+    emulator_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR",
+                                 help="parent of the run folders (default runs)")
+    emulator_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
+    emulator_parser.set_defaults(handler=run_emulator_bench)
+
+    latency_parser = kinds.add_parser(
+        "latency",
+        help="neighbour round trip (request and reply between two robot processes): median, p99, CPU",
+    )
+    latency_parser.add_argument("--rounds", type=at_least(1), default=5000,
+                                help="timed round trips (default 5000)")
+    latency_parser.add_argument("--warmup", type=at_least(0), default=500,
+                                help="untimed round trips first (default 500)")
+    latency_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
+    latency_parser.set_defaults(handler=run_latency_bench)
+
+    suite_parser = kinds.add_parser(
+        "suite",
+        help="engine, neighbour latency and the emulator for N = 6, 24, 64 and 256 (16 per process)",
+    )
+    suite_parser.add_argument("--runs", type=Path, default=Path("runs"), metavar="DIR",
+                              help="parent of the run folders (default runs)")
+    suite_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
+    suite_parser.set_defaults(handler=run_suite)
+
+
+def parse_range(text: str) -> list[int]:
+    """``3-30`` or ``6``: the team sizes of a sweep."""
+    try:
+        first, _, last = text.partition("-")
+        sizes = list(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise UsageError(f"--sweep {text!r}: give team sizes like 3-30 or 6") from None
+    if not sizes or sizes[0] < 3:
+        raise UsageError(f"--sweep {text!r}: every team needs at least 3 robots")
+    return sizes
+
+
+def engine_table(results: dict, cores: object) -> Table:
+    single, experiment, sweep = results["single_run"], results["experiment_n6"], results["sweep"]
+    table = Table(title=f"engine ({cores} cores)")
+    table.add_column("measurement")
+    table.add_column("result", justify="right")
+    table.add_row(f"one run, N = {single['robots']}", f"{single['steps_per_s']:.0f} steps/s")
+    protocol = results["protocol_alone"]
+    table.add_row(f"robot protocols alone, N = {protocol['robots']} (one process, no bus)",
+                  f"{protocol['steps_per_s']:.0f} steps/s")
+    for label, entry in ((f"experiment N = 6, {experiment['trials']} trials x 2 strategies", experiment),
+                         (f"sweep N = {sweep['robots']}, {sweep['trials']} trials x 2", sweep)):
+        table.add_row(label, f"{entry['wall_s']:.2f} s ({entry['converged']}/{entry['runs']} converged)")
+    return table
+
+
+def run_engine_bench(args: argparse.Namespace) -> int:
+    results: dict[str, Any] = {"benchmark": "engine", "machine": machine(),
+                               **engine_results(args.trials, parse_range(args.sweep))}
+    out.print(engine_table(results, results["machine"]["cores"]))
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+def emulator_table(rows: list[dict], title: str) -> Table:
+    compare = any("dashboard_cost" in row for row in rows)
+    secure = any("security_cost" in row for row in rows)
+    table = Table(title=title)
+    columns = ["robots", "per process", "steps/s", "start-up s", *(f"{kind} B" for kind in MESSAGE_KINDS),
+               "robot process MiB"]
+    extra = (["with dashboard", "cost"] if compare else []) + (
+        ["secure steps/s", "cost", "wire B/msg plain", "wire B/msg secure"] if secure else [])
+    for column in columns + extra:
+        table.add_column(column, justify="right")
+    for row in rows:
+        size = row["bytes_per_message"]
+        table.add_row(
+            str(row["robots"]),
+            str(row["robots_per_process"]),
+            f"{row['steps_per_s']:.0f}",
+            f"{row['startup_s']:.1f}" if row["startup_s"] is not None else "-",
+            *(f"{size.get(kind, 0):.1f}" for kind in MESSAGE_KINDS),
+            f"{row['robot_process_rss_mib']:.1f}" if row["robot_process_rss_mib"] else "-",
+            *([f"{row['steps_per_s_with_dashboard']:.0f}", f"{row['dashboard_cost']:+.1%}"] if compare else []),
+            *(security_cells(row) if secure else []),
+        )
+    return table
+
+
+def security_cells(row: dict) -> list[str]:
+    wire = row.get("wire_bytes_per_message") or {}
+    return [f"{row['steps_per_s_secure']:.0f}", f"{row['security_cost']:+.1%}",
+            *(f"{wire[way]:.1f}" if way in wire else "-" for way in ("plain", "secure"))]
+
+
+def run_emulator_bench(args: argparse.Namespace) -> int:
+    try:
+        rows = [emulator_row(robots, args.steps, args.strategy, args.repeat, args.dashboard, args.runs,
+                             args.robots_per_process, args.topology, args.secure) for robots in args.robots]
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
+    results: dict[str, Any] = {"benchmark": "emulator", "machine": machine(), "strategy": args.strategy,
+                                  "rows": rows}
+    if len(rows) == 1:
+        results["steps_per_s"] = rows[0]["steps_per_s"]
+    cores = results["machine"]["cores"]
+    out.print(emulator_table(rows, f"lockstep emulator ({cores} cores, {args.strategy} strategy)"))
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+def latency_table(result: dict, cores: object) -> Table:
+    table = Table(title=f"neighbour round trip ({cores} cores, {result['rounds']} rounds)")
+    for column in ("median us", "p99 us", "mean us", "CPU us requester", "CPU us responder"):
+        table.add_column(column, justify="right")
+    cpu = result["cpu_us_per_round_trip"]
+    table.add_row(*(f"{value:.0f}" for value in (result["median_us"], result["p99_us"], result["mean_us"],
+                                                 cpu["requester"], cpu["responder"])))
+    return table
+
+
+def run_latency_bench(args: argparse.Namespace) -> int:
+    try:
+        result = neighbour_round_trip(args.rounds, args.warmup)
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
+    results: dict[str, Any] = {"benchmark": "latency", "machine": machine(), **result}
+    out.print(latency_table(result, results["machine"]["cores"]))
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+def ratios_table(ratios: dict[str, Any]) -> Table:
+    table = Table(title=f"relative to this run's neighbour round trip ({ratios['round_trip_us']:.0f} us)")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for team, value in ratios["round_trips_per_step"].items():
+        robots, per_process = team.split("x")
+        table.add_row(f"round trips per lockstep step, {robots} robots, {per_process} per process", f"{value:.1f}")
+    table.add_row("round trips per step of the 6 robot protocols alone (one process, no bus)",
+                  f"{ratios['protocol_alone_round_trips_per_step']:.1f}")
+    if "startup_64_s" in ratios:
+        table.add_row("start-up of 64 x 1", f"{ratios['startup_64_s']:.1f} s")
+    for per_process in (1, 16):
+        key = f"robot_process_rss_mib_{per_process}_per_process"
+        if key in ratios:
+            table.add_row(f"robot process RSS, {per_process} per process", f"{ratios[key]:.1f} MiB")
+    return table
+
+
+def run_suite(args: argparse.Namespace) -> int:
+    results: dict[str, Any] = {"benchmark": "suite", "machine": machine()}
+    cores = results["machine"]["cores"]
+    try:
+        results["engine"] = engine_results(30, parse_range("3-30"))
+        results["latency"] = neighbour_round_trip(5000, 500)
+        results["emulator"] = [emulator_row(robots, steps, repeat=repeat, runs=args.runs,
+                                            robots_per_process=per_process)
+                               for robots, per_process, steps, repeat in SUITE_TEAMS]
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
+    out.print(engine_table(results["engine"], cores))
+    out.print(latency_table(results["latency"], cores))
+    out.print(emulator_table(results["emulator"], f"lockstep emulator ({cores} cores, self strategy)"))
+    results["ratios"] = suite_ratios(results)
+    out.print(ratios_table(results["ratios"]))
+    if args.json:
+        write_json(args.json, results)
+    return 0

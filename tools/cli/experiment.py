@@ -1,0 +1,233 @@
+"""``ringtrack experiment stationary|moving|faults|gates``: the paper's experiments and our sweeps, as
+tables, JSON, CSV and figures."""
+
+from __future__ import annotations
+
+import argparse
+
+from rich import box
+from rich.table import Table
+
+from ringtrack.agents.strategy import StrategyError, strategy_for
+from ringtrack.tools.cli import experiment_faults, experiment_gates
+from ringtrack.tools.cli.options import CSV_FILE, FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, strategy_argument
+from ringtrack.tools.output.console import err, out, progress_bar, write_csv, write_json
+from ringtrack.tools.studies.experiment import (
+    MAIN_STRATEGIES,
+    MOVING_COLUMNS,
+    STATIONARY_COLUMNS,
+    STRATEGIES,
+    VELOCITY_SETTINGS,
+    VELOCITY_STRATEGIES,
+    circle_of,
+    moving_experiment,
+    moving_scenario,
+    moving_variants,
+    random_start_scenarios,
+    run_label,
+    stationary_experiment,
+)
+from ringtrack.tools.studies.figures import moving_comparison, moving_velocities, stationary_comparison
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser("experiment", help="run the paper's experiments")
+    kinds = parser.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    stationary = kinds.add_parser(
+        "stationary",
+        help="constant vs self-triggered (or --strategies) on the same random starts (Ctime, Com-bar)",
+        description="Run the strategies on the same seeded random starts (trial t uses seed S + t) "
+        "and compare Ctime and Com-bar; --robots 3,6,10,20 sweeps team sizes; --strategies self,plan compares "
+        "others (ratios against the first).",
+    )
+    stationary.add_argument("scenario", nargs="?", default="paper-stationary", help="base scenario")
+    stationary.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 3,6,10,20")
+    stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
+                            help="strategies to compare, registered names or .py files, the first the ratios' "
+                            "baseline (default constant,self; e.g. self,plan)")
+    stationary.add_argument("--plan-horizon", type=at_least(0), metavar="H",
+                            help="plan strategy: the most steps ahead a reply's plan describes")
+    stationary.add_argument("--trials", type=at_least(1), default=30, help="random starts per team size (default 30)")
+    stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
+    stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
+    stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
+    stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
+    stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
+    stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
+                            help="draw the comparison figure")
+    stationary.add_argument("--csv", type=CSV_FILE, metavar="PATH",
+                            help="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
+    stationary.set_defaults(handler=run_stationary)
+
+    moving = kinds.add_parser(
+        "moving",
+        help="moving target: constant/self-triggered with centralized/decentralized EKFs (Cerr, Terr)",
+        description="The paper's moving-target comparison on a circling target: constant + centralized, "
+        "self-triggered + centralized and self-triggered + decentralized at the scenario's circle (gazebo-moving: "
+        "v = 1.0 m/s, w = 0.6 rad/s), then constant + centralized against self-triggered + decentralized at "
+        "(v, w) = (0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8). --plot PNG also writes PNG-velocities.png.",
+    )
+    moving.add_argument("scenario", nargs="?", default="gazebo-moving", help="base scenario (a circling target)")
+    moving.add_argument("--trials", type=at_least(1), default=5, help="random starts per run (default 5)")
+    moving.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
+    moving.add_argument("--steps", type=at_least(1), help="steps per run (default: control.max_steps)")
+    moving.add_argument("--settle", type=at_least(0), default=300,
+                        help="means are taken from this step on (default 300)")
+    moving.add_argument("--fusion", choices=["ci", "sequential"], help="decentralized fusion (default: scenario's)")
+    moving.add_argument("--no-velocities", action="store_true", help="only the comparison at the scenario's circle")
+    moving.add_argument("--strategies", type=strategy_list, metavar="A,B",
+                        help="strategies to compare, each with a centralized and a decentralized EKF (one that needs "
+                        "a mode: that one), e.g. self,belief (default: the paper's three runs)")
+    moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
+    moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
+    moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
+                        help="write the per-trial rows as CSV (setting, strategy, estimation, trial, seed, Cerr and "
+                        "Terr means, polls, messages, ...)")
+    moving.set_defaults(handler=run_moving)
+    experiment_faults.register(kinds)
+    experiment_gates.register(kinds)
+
+
+def strategy_list(text: str) -> list[str]:
+    """Parse ``self,belief`` (registered names or .py files) into the strategies' scenario values."""
+    values = [strategy_argument(part.strip()) or "" for part in text.split(",") if part.strip()]
+    if not values:
+        raise argparse.ArgumentTypeError(f"--strategies {text!r}: give names like self,belief")
+    for value in values:
+        try:
+            strategy_for(value)
+        except StrategyError as error:
+            raise argparse.ArgumentTypeError(f"--strategies {text!r}: {error}") from None
+    return values
+
+
+
+
+def robot_list(text: str) -> list[int]:
+    """Parse ``6`` or ``3,6,10,20`` into team sizes of at least 3."""
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--robots {text!r}: give integers like 6 or 3,6,10,20") from None
+    if not sizes or min(sizes) < 3:
+        raise argparse.ArgumentTypeError(f"--robots {text!r}: every team needs at least 3 robots")
+    return sizes
+
+
+def run_stationary(args: argparse.Namespace) -> int:
+    overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
+                 "plan_horizon": args.plan_horizon}
+    # Validate the scenario and flags before showing any progress.
+    probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
+    names, limit = list(probe), next(iter(probe.values())).max_steps
+    with progress_bar() as progress:
+        tasks = {
+            (size, strategy): progress.add_task(f"N={size:<3} {strategy:<8}", total=limit)
+            for size in args.robots
+            for strategy in names
+        }
+
+        def on_step(size: int, strategy: str, step: int) -> None:
+            if step % 50 == 0:
+                progress.update(tasks[size, strategy], completed=step)
+
+        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, args.strategies,
+                                       **overrides)
+        for task in tasks.values():
+            progress.update(task, completed=limit)
+    out.print(results_table(result))
+    if args.json:
+        write_json(args.json, result)
+    if args.csv:
+        write_csv(args.csv, result["rows"], STATIONARY_COLUMNS)
+    if args.plot:
+        stationary_comparison(result, args.plot)
+    failed = [entry for entry in result["summary"] if entry["converged"] < entry["trials"]]
+    for entry in failed:
+        err.print(
+            f"warning: {entry['trials'] - entry['converged']} of {entry['trials']} {entry['strategy']} trials "
+            f"with {entry['robots']} robots did not converge within the step limit",
+            highlight=False,
+        )
+    return 1 if failed else 0
+
+
+def results_table(result: dict) -> Table:
+    """Mean +- std of Ctime and Com-bar per team size and strategy, with the ratios to the first
+    strategy (by default self / constant)."""
+    baseline = result.get("strategies", STRATEGIES)[0]
+    table = Table(title=f"stationary target, {result['trials']} trials (seeds {result['seed']}..), Ctime in steps, "
+                  f"mean ± 1 sd; ÷: ratio to {baseline}", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
+    for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime ÷", "Com ÷"):
+        table.add_column(column, justify="right", no_wrap=True)
+    ratios = {(entry["robots"], entry.get("strategy", "self")): entry for entry in result["ratios"]}
+    for entry in result["summary"]:
+        ratio = ratios.get((entry["robots"], entry["strategy"]))
+        table.add_row(
+            str(entry["robots"]),
+            entry["strategy"],
+            f"{entry['converged']}/{entry['trials']}",
+            _mean_std(entry["ctime_mean"], entry["ctime_std"], ".1f"),
+            _mean_std(entry["com_bar_mean"], entry["com_bar_std"], ".3f"),
+            f"{ratio['ctime_ratio']:.3f}" if ratio else "",
+            f"{ratio['com_bar_ratio']:.3f}" if ratio else "",
+        )
+    return table
+
+
+def _mean_std(mean: float | None, std: float | None, spec: str) -> str:
+    return "-" if mean is None else f"{mean:{spec}} ± {std:{spec}}"
+
+
+def run_moving(args: argparse.Namespace) -> int:
+    main = circle_of(args.scenario)
+    steps = moving_scenario(args.scenario, "self", "decentralized", *main, args.steps).max_steps
+    settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
+    variants = moving_variants(args.strategies) if args.strategies else None
+    distinct = (len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES) if variants is None
+                else len(variants) * (1 + len(settings)))
+    with progress_bar() as progress:
+        task = progress.add_task("moving-target runs", total=distinct * steps)
+        done: dict[str, int] = {}
+
+        def on_step(label: str, step: int) -> None:
+            done[label] = step
+            if step % 50 == 0 or step == steps:
+                progress.update(task, completed=sum(done.values()), description=label)
+
+        result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step,
+                                   velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies)
+    out.print(moving_table(result))
+    if args.json:
+        write_json(args.json, result)
+    if args.csv:
+        write_csv(args.csv, result["rows"], MOVING_COLUMNS)
+    if args.plot:
+        moving_comparison(result, args.plot)
+        if not args.no_velocities:
+            moving_velocities(result, args.plot.with_name(f"{args.plot.stem}-velocities{args.plot.suffix}"))
+    return 0
+
+
+def moving_table(result: dict) -> Table:
+    """Means from step ``settle`` on, per run (the velocity setting equal to the main one is shown once)."""
+    table = Table(title=f"moving target, {result['trials']} trials, means from step {result['settle']} of "
+                  f"{result['steps']}; msg and B: robot-to-robot traffic (per step: over all steps)",
+                  title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "msg/rs", "B/step"):
+        table.add_column(column, justify="right", no_wrap=True)
+    main = {(run["speed"], run["angular_speed"]) for run in result["runs"] if run["group"] == "comparison"}
+    for run in result["runs"]:
+        if run["group"] == "velocities" and (run["speed"], run["angular_speed"]) in main:
+            continue
+        table.add_row(
+            f"{run['speed']:g}, {run['angular_speed']:g}",
+            run_label(run["strategy"], run["estimation"]),
+            f"{run['cerr_mean_deg']:.1f}",
+            f"{run['terr_mean']:.3f}",
+            f"{run['poll_rate']:.3f}",
+            f"{run['robot_messages_per_step']:.2f}",
+            f"{run['robot_messages_per_robot_step']:.3f}",
+            f"{run['robot_bytes_per_step']:.0f}",
+        )
+    return table

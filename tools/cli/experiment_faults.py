@@ -1,0 +1,176 @@
+"""``ringtrack experiment faults``: Cerr, Terr, Ctime and energy against drop rate, partitions and range."""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from rich import box
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from ringtrack.tools.cli.options import CSV_FILE, FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.output.console import UsageError, err, out, write_csv, write_json
+from ringtrack.tools.studies.figures import robustness_curves
+from ringtrack.tools.studies.robustness import (
+    OUTAGE_START,
+    Cell,
+    _run_label,
+    base_spec,
+    cell_scenario,
+    faults_experiment,
+    variants,
+    verify,
+)
+
+
+def register(kinds: argparse._SubParsersAction) -> None:
+    parser = kinds.add_parser(
+        "faults",
+        help="robustness curves: Ctime, Com-bar, messages, energy (Cerr, Terr) against drop, outage, range",
+        description="Sweep the drop rate (--drop), a partition outage's length (--outage-steps) and the "
+        "communication range (--communication-range) in the in-process engine, for both strategies (and "
+        "each estimation mode of a moving target) on the same seeded random starts; mean and sd over the "
+        "trials of every cell. --verify K re-runs K runs chosen by the seed as lockstep teams over Zenoh "
+        "and checks they equal the engine.",
+    )
+    parser.add_argument("scenario", nargs="?", default="paper-stationary", help="base scenario")
+    parser.add_argument("--drop", type=number_list("--drop", probability), default=[0.0],
+                        help="drop probabilities, e.g. 0,0.1,0.2,0.3,0.5 (default 0)")
+    parser.add_argument("--outage-steps", type=number_list("--outage-steps", steps_count), default=[0],
+                        help=f"lengths (steps) of a partition from step {OUTAGE_START}, e.g. 0,100,200 (default 0)")
+    parser.add_argument("--communication-range", type=number_list("--communication-range", metres), default=None,
+                        help="r_c values in metres, 'none' for unlimited, e.g. none,8,6 (default: the scenario's)")
+    parser.add_argument("--trials", type=at_least(1), default=30, help="random starts per cell (default 30)")
+    parser.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
+    parser.add_argument("--steps", type=at_least(1), help="step limit per run (default: control.max_steps)")
+    parser.add_argument("--settle", type=at_least(0), default=300,
+                        help="moving target: Cerr and Terr are averaged from this step on (default 300)")
+    parser.add_argument("--verify", type=at_least(0), default=0, metavar="K",
+                        help="re-run K runs as lockstep teams over Zenoh and check they equal the engine")
+    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the summary, per-trial rows, checks")
+    parser.add_argument("--csv", type=CSV_FILE, metavar="PATH", help="write the summary rows as CSV")
+    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
+                        help="draw every quantity against the swept one (error bars: +-1 sd)")
+    parser.set_defaults(handler=run_faults)
+
+
+# ---------------------------------------------------------------------------- flags
+def probability(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise ValueError
+    return value
+
+
+def steps_count(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise ValueError
+    return value
+
+
+def metres(text: str) -> float | None:
+    if text.strip().lower() in ("none", "inf", "unlimited"):
+        return None
+    value = float(text)
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError
+    return value
+
+
+def number_list(flag: str, parse: Callable[[str], object]) -> Callable[[str], list]:
+    """An argparse type: comma-separated values, each checked by ``parse``."""
+
+    def parse_list(text: str) -> list:
+        try:
+            values = [parse(part.strip()) for part in text.split(",") if part.strip()]
+        except ValueError:
+            values = []
+        if not values:
+            raise argparse.ArgumentTypeError(f"{flag} {text!r}: give comma-separated values like "
+                                             + {"--drop": "0,0.1,0.5 (probabilities)",
+                                                "--outage-steps": "0,100,200 (steps >= 0)",
+                                                "--communication-range": "none,8,6 (metres > 0)"}[flag])
+        return values
+
+    parse_list.__name__ = flag
+    return parse_list
+
+
+# ---------------------------------------------------------------------------- command
+def run_faults(args: argparse.Namespace) -> int:
+    spec, label = base_spec(args.scenario)
+    ranges = args.communication_range or [spec.limits.communication_range]
+    cells = [Cell(*values) for values in itertools.product(args.drop, args.outage_steps, ranges)]
+    probe = cell_scenario(spec, label, cells[0], "self", None, args.steps)  # flags checked before any work
+    if max(args.outage_steps) and probe.robots < 4:
+        raise UsageError("--outage-steps: a partition needs at least 4 robots")
+    runs = len(cells) * len(variants(probe))
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TimeRemainingColumn())
+    with Progress(*columns, console=err, transient=False) as progress:
+        task = progress.add_task(f"{runs} runs x {args.trials} trials", total=runs * probe.max_steps)
+        done: dict[str, int] = {}
+
+        def on_step(name: str, step: int) -> None:
+            done[name] = step
+            if step % 50 == 0:
+                progress.update(task, completed=sum(done.values()), description=name)
+
+        result, histories = faults_experiment(args.scenario, cells, args.trials, args.seed, args.steps, args.settle,
+                                              on_step)
+        progress.update(task, completed=runs * probe.max_steps, description=f"{runs} runs x {args.trials} trials")
+    out.print(faults_table(result))
+    code = 0
+    if args.verify:
+        with tempfile.TemporaryDirectory(prefix="ringtrack-verify-") as folder:
+            err.print(f"verifying {args.verify} runs as lockstep teams over Zenoh ...", highlight=False)
+            started = time.perf_counter()
+            checks = verify(args.scenario, cells, histories, args.verify, args.seed, Path(folder))
+        result["verify"] = {"requested": args.verify, "wall_s": time.perf_counter() - started,
+                            "all_equal": all(check["equal"] for check in checks), "runs": checks}
+        for check in checks:
+            err.print(f"verify {_run_label(cells[check['cell']], check['strategy'], check['estimation'])} trial "
+                      f"{check['trial']} (seed {check['seed']}, {check['steps']} steps): "
+                      + ("equal to the engine" if check["equal"] else f"DIFFERS {check}"), highlight=False)
+        code = 0 if result["verify"]["all_equal"] else 1
+    if args.json:
+        write_json(args.json, result)
+    if args.csv:
+        write_csv(args.csv, result["summary"], list(result["summary"][0]))
+    if args.plot:
+        robustness_curves(result, args.plot)
+    return code
+
+
+def faults_table(result: dict) -> Table:
+    """Mean +- sd per cell and variant."""
+    moving = result["moving"]
+    table = Table(title=f"{result['scenario']}: {result['trials']} trials per cell (seeds {result['seed']}..), "
+                  "mean ± sd; costs to Ctime" + (f", Cerr/Terr from step {result['settle']}" if moving else ""),
+                  title_justify="left", box=box.SIMPLE_HEAD)
+    headers = ["drop", "outage", "r_c", "strategy", "done", "Ctime", "Com-bar", "msgs", "J/robot"]
+    headers += ["Cerr deg", "Terr m"] if moving else []
+    for column in headers:
+        table.add_column(column, justify="right", no_wrap=True)
+    for entry in result["summary"]:
+        reach = "-" if entry["communication_range"] is None else f"{entry['communication_range']:g}"
+        strategy = entry["strategy"] + (f"+{entry['estimation'][:7]}" if moving else "")
+        cells = [f"{entry['drop']:g}", str(entry["outage_steps"]), reach, strategy,
+                 f"{entry['converged_mean']:.0%}",
+                 _mean_sd(entry, "ctime", ".0f"), _mean_sd(entry, "com_bar", ".3f"),
+                 _mean_sd(entry, "messages", ".0f"), _mean_sd(entry, "energy_per_robot", ".2e")]
+        cells += [_mean_sd(entry, "cerr", ".2f"), _mean_sd(entry, "terr", ".3f")] if moving else []
+        table.add_row(*cells)
+    return table
+
+
+def _mean_sd(entry: dict, key: str, spec: str) -> str:
+    mean, sd = entry[f"{key}_mean"], entry[f"{key}_sd"]
+    return "-" if mean is None else f"{mean:{spec}} ± {sd:{spec}}"

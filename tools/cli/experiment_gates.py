@@ -1,0 +1,52 @@
+"""``ringtrack experiment gates``: the belief strategy's push gate against messages and Terr."""
+
+from __future__ import annotations
+
+import argparse
+
+from ringtrack.tools.cli.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.output.console import out, write_json
+from ringtrack.tools.studies.gates import gates_experiment, plot_gates
+
+
+def register(kinds: argparse._SubParsersAction) -> None:
+    parser = kinds.add_parser(
+        "gates",
+        help="belief strategy: robot-to-robot messages per robot-step against Terr over the push gate g",
+        description="Run the belief strategy (decentralized) for each push gate g and the self-triggered "
+        "strategy with a centralized EKF on the same seeded starts; means once the first --settle steps "
+        "are left out.",
+    )
+    parser.add_argument("scenario", nargs="?", default="authors-moving", help="base scenario (a moving target)")
+    parser.add_argument("--gates", type=gate_list, default=[1.0, 1.5, 2.0, 3.0, 4.0], help="gates g, e.g. 1,2,4")
+    parser.add_argument("--trials", type=at_least(1), default=5, help="random starts (default 5)")
+    parser.add_argument("--settle", type=at_least(0), default=300, help="means leave out the first steps (300)")
+    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the points")
+    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the trade-off")
+    parser.set_defaults(handler=run_gates)
+
+
+def gate_list(text: str) -> list[float]:
+    try:
+        gates = [float(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        gates = []
+    if not gates or min(gates) <= 0:
+        raise argparse.ArgumentTypeError(f"--gates {text!r}: give positive numbers like 1,1.5,2,3,4")
+    return gates
+
+
+def run_gates(args: argparse.Namespace) -> int:
+    result = gates_experiment(args.scenario, args.gates, args.trials, args.settle)
+    central = result["centralized"]
+    out.print(f"self + centralized: Terr {central['terr_mean']:.3f} m, Cerr {central['cerr_mean_deg']:.1f} deg, "
+              f"{central['robot_messages_per_robot_step']:.3f} msg/robot-step", highlight=False)
+    for entry in result["points"]:
+        out.print(f"belief g = {entry['gate']:g}: Terr {entry['terr_mean']:.3f} m "
+                  f"({entry['terr_mean'] / central['terr_mean']:.2f} x), Cerr {entry['cerr_mean_deg']:.1f} deg, "
+                  f"{entry['robot_messages_per_robot_step']:.3f} msg/robot-step", highlight=False)
+    if args.json:
+        write_json(args.json, result)
+    if args.plot:
+        plot_gates(result, args.plot)
+    return 0

@@ -1,0 +1,468 @@
+"""The monitor process: tallies every message and byte of a run live and writes its run log.
+
+It counts what it receives by kind and link (the same :class:`bus.counting.TrafficCounter` the
+senders use for what they send): with ``--audit`` every message of the run, by default in lockstep
+every kind but those the world's per-step digest accounts for (measurements and commands by the
+world's own counts, robot-to-robot messages by the robots' own, :func:`digested`). From the world's
+Ticks, the robots' Commands and their requests and replies it assembles one log record per step. When the
+world ends the run it waits for every sender's final statistics, checks that its totals equal what
+the senders counted, writes the end record and prints a summary.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from ringtrack.bus.config import BusConfig
+from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
+from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic, team_faults
+from ringtrack.bus.keys import MONITOR, WORLD, Keys, Route, participants, robot_index, robot_name
+from ringtrack.bus.messages import (
+    KINDS,
+    ROBOT_TRAFFIC_KINDS,
+    Command,
+    Digest,
+    DigestEntry,
+    End,
+    Estimate,
+    FaultNotice,
+    Measurement,
+    Push,
+    RangeReport,
+    Reply,
+    Request,
+    Stats,
+    Tick,
+    Traffic,
+)
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, peak_rss_kib
+from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
+from ringtrack.tools.monitor.state import TeamModel, ending_text, startup_names
+from ringtrack.tools.runlog.log import LogWriter, step_record
+from ringtrack.world.scenario import Scenario
+
+FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
+FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)
+# Steps the monitor keeps open at once: a message claiming a step more than AHEAD_STEPS past the
+# latest tick, or a new step once PENDING_LIMIT are open, is dropped and counted (forged far-future
+# steps cannot grow the monitor's memory; a realtime team at 1000 steps/s keeps about 2000 open).
+AHEAD_STEPS = 64
+PENDING_LIMIT = 4096
+VIEW_PERIOD_S = 0.25
+DRAIN_PERIOD_S = 0.02  # the monitor is not on the critical path: it takes samples in batches
+END_AFTER_INTERRUPT_S = 0.5  # a stopped monitor waits this long for the world's End
+
+
+@dataclass
+class PendingStep:
+    """What the monitor has seen of one step so far: per robot, robot-to-robot messages and bytes sent
+    and received; per category, every message stamped with the step."""
+
+    tick: Tick | None = None
+    commands: dict[int, Command] = field(default_factory=dict)
+    sent_messages: Counter[int] = field(default_factory=Counter)
+    sent_bytes: Counter[int] = field(default_factory=Counter)
+    received_messages: Counter[int] = field(default_factory=Counter)
+    received_bytes: Counter[int] = field(default_factory=Counter)
+    traffic_messages: Counter[str] = field(default_factory=Counter)
+    traffic_bytes: Counter[str] = field(default_factory=Counter)
+    notices: list[FaultNotice] = field(default_factory=list)
+
+    def count_robot_message(self, sender: int, receiver: int, size: int) -> None:
+        """One robot-to-robot message of ``size`` payload bytes, ``sender -> receiver`` (robot ids)."""
+        self.sent_messages[sender] += 1
+        self.sent_bytes[sender] += size
+        self.received_messages[receiver] += 1
+        self.received_bytes[receiver] += size
+
+    def complete(self) -> bool:
+        """Tick and every live robot's command are in, and every robot-to-robot message its polls
+        published: :func:`bus.faults.request_traffic` of each poll request, whose fate the fault
+        notices tell (none: delivered once), and each push its command names (published once)."""
+        if self.tick is None or not set(self.tick.live) <= set(self.commands):
+            return False
+        polling = {robot for robot, command in self.commands.items() if command.trigger}
+        fates: dict[tuple[int, int], Fate] = {}
+        for notice in self.notices:
+            if notice.subject == "request" and notice.sender in polling:
+                fate = fates.get((notice.sender, notice.receiver), DELIVERED)
+                if notice.what == "dropped":
+                    fate = Fate(dropped=True)
+                elif notice.what == "duplicated":
+                    fate = replace(fate, copies=2)
+                fates[notice.sender, notice.receiver] = fate
+        expected = 2 * len(polling) * request_traffic(DELIVERED)
+        expected += sum(request_traffic(fate) - request_traffic(DELIVERED) for fate in fates.values())
+        expected += sum(len(getattr(command, "pushed", ())) for command in self.commands.values())
+        return self.sent_messages.total() >= expected
+
+
+# Categories whose every link the monitor must see exactly as its senders counted it. Monitoring
+# traffic (statistics, fault notices) is not compared: a sender's final Stats cannot count itself.
+COMPARED = ("robot", "world", "estimation")
+
+STEPPED = (Tick, Measurement, Command, Request, Reply, Push, RangeReport, Estimate, FaultNotice)
+
+
+class Recorder:
+    """Turns deliveries into step records, in step order, each written once it is complete, or
+    ``FORCE_AFTER_S`` after its tick when later steps exist (a message was lost), or at the end;
+    fault notices and robots joining or leaving become event records. Every record written is also
+    handed to ``on_record``.
+
+    Messages of different senders travel on different links, so a robot's command for step k may
+    reach the monitor after the world's tick for k + 5: completeness, not arrival order, decides.
+    """
+
+    def __init__(self, writer: LogWriter, scenario: Scenario,
+                 on_record: Callable[[dict], None] | None = None) -> None:
+        self.writer = writer
+        self.scenario = scenario
+        self.robots = scenario.robots
+        self.on_record = on_record
+        self.pending: dict[int, PendingStep] = {}
+        self.next_step = 1
+        self.latest_tick = 0
+        self.tick_seen_at: dict[int, float] = {}
+        self.late = 0
+        self.dropped_ahead = 0  # messages for steps beyond the window of open steps
+
+    def on_delivery(self, delivery: Delivery) -> None:
+        message = delivery.message
+        if not isinstance(message, STEPPED):
+            return
+        if message.step < self.next_step and not isinstance(message, FaultNotice):
+            self.late += 1  # its step record is already written
+            return
+        if not self._opens(message.step):
+            self.dropped_ahead += 1
+            return
+        entry = self._pending(message.step)
+        entry.traffic_messages[message.category] += 1
+        entry.traffic_bytes[message.category] += delivery.size
+        if isinstance(message, Tick):
+            self._tick(entry, message)
+        elif isinstance(message, Command):
+            entry.commands[message.robot] = message
+        elif isinstance(message, (Request, Reply, Push)):
+            entry.count_robot_message(message.sender, message.receiver, delivery.size)
+        elif isinstance(message, FaultNotice):
+            entry.notices.append(message)
+            self.record({"type": "event", "event": message.what, "step": message.step,
+                         "subject": message.subject, "sender": message.sender, "receiver": message.receiver,
+                         "reason": message.reason or None, "delay_s": message.delay_s or None})
+
+    def on_tick(self, tick: Tick) -> None:
+        """The true state at the start of ``tick.step``, as a :class:`~bus.messages.Digest` carries it."""
+        if tick.step >= self.next_step and self._opens(tick.step):
+            self._tick(self._pending(tick.step), tick)
+
+    def _tick(self, entry: PendingStep, tick: Tick) -> None:
+        entry.tick = tick
+        self.tick_seen_at[tick.step] = time.monotonic()
+        self.latest_tick = max(self.latest_tick, tick.step)
+
+    def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None) -> None:
+        """Count a message of ``step`` (``size`` payload bytes) the monitor did not receive itself but
+        a :class:`~bus.messages.Digest` reports: a world message, or with ``robots`` (sender,
+        receiver) a robot-to-robot message a command's ``robot_traffic`` names."""
+        if step >= self.next_step and self._opens(step):
+            entry = self._pending(step)
+            category = "world" if robots is None else "robot"
+            entry.traffic_messages[category] += 1
+            entry.traffic_bytes[category] += size
+            if robots is not None:
+                entry.count_robot_message(*robots, size)
+
+    def record(self, record: dict) -> None:
+        """Write ``record`` to the log and hand it to ``on_record`` (the dashboard's model)."""
+        self.writer.write(record)
+        if self.on_record is not None:
+            self.on_record(record)
+
+    def _opens(self, step: int) -> bool:
+        """Whether a message of ``step`` may be kept: its step is open already, or within
+        ``AHEAD_STEPS`` of the latest tick (and of the next step to write) while fewer than
+        ``PENDING_LIMIT`` steps are open."""
+        if step in self.pending:
+            return True
+        return step <= max(self.latest_tick, self.next_step) + AHEAD_STEPS and len(self.pending) < PENDING_LIMIT
+
+    def _pending(self, step: int) -> PendingStep:
+        entry = self.pending.get(step)
+        if entry is None:  # not setdefault: that would build a PendingStep for every message
+            entry = self.pending[step] = PendingStep()
+        return entry
+
+    def flush(self, through: int | None = None) -> None:
+        """Write complete steps in order and overdue ones as they are; with ``through``, also every
+        step up to that one (the last step the world completed) whatever is missing."""
+        now = time.monotonic()
+        while self.next_step in self.pending:
+            entry = self.pending[self.next_step]
+            overdue = self.latest_tick > self.next_step and now - self.tick_seen_at[self.next_step] > FORCE_AFTER_S
+            final = through is not None and self.next_step <= through
+            if entry.tick is None or not (entry.complete() or overdue or final):
+                return
+            self._write(self.next_step, entry)
+            del self.pending[self.next_step]
+            del self.tick_seen_at[self.next_step]
+            self.next_step += 1
+
+    def _write(self, step: int, entry: PendingStep) -> None:
+        tick = entry.tick
+        assert tick is not None
+        robots = range(self.robots)
+        commands = entry.commands
+        record = step_record(
+            step=step,
+            time=tick.time,
+            positions=tick.positions,
+            target=tick.target,
+            live=list(tick.live),
+            trigger=[commands[r].trigger if r in commands else None for r in robots],
+            offset=[commands[r].guaranteed_offset if r in commands else None for r in robots],
+            ages=[list(commands[r].ages) if r in commands else None for r in robots],
+            centre=[list(commands[r].centre) if r in commands else None for r in robots],
+            sent=([entry.sent_messages[r] for r in robots], [entry.sent_bytes[r] for r in robots]),
+            received=([entry.received_messages[r] for r in robots], [entry.received_bytes[r] for r in robots]),
+            traffic={category: [entry.traffic_messages[category], entry.traffic_bytes[category]]
+                     for category in ("robot", "world", "estimation")},
+        )
+        self.record(record)
+
+
+def senders(scenario: Scenario) -> set[str]:
+    """Everyone who sends in a run of ``scenario`` (the monitor only listens)."""
+    return participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=False)
+
+
+@dataclass
+class MonitorReport:
+    """What the monitor saw, and whether it matches what the senders counted."""
+
+    received: list[Traffic]
+    senders: dict[str, list[Traffic]]
+    rejected: dict[str, int]
+    rss_kib: dict[str, int]
+    end: End | None
+    late: int
+    faults: Counter[str] = field(default_factory=Counter)  # robots' fault layers, summed (bus.faults.team_faults)
+    notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
+    rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
+    energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
+
+    def sender_rows(self) -> list[Traffic]:
+        """Every traffic row of every sender's final statistics."""
+        return [row for rows in self.senders.values() for row in rows]
+
+    def sender_totals(self) -> dict[str, dict[str, int]]:
+        return totals_by_category(self.sender_rows())
+
+    def monitor_totals(self) -> dict[str, dict[str, int]]:
+        return totals_by_category(self.received)
+
+    def consistent(self) -> bool:
+        """On every (kind, source, destination) link of the ``COMPARED`` categories, the messages and
+        bytes the monitor saw equal what the senders say they sent."""
+        return per_link(self.received, COMPARED) == per_link(self.sender_rows(), COMPARED)
+
+
+Refresh = Callable[[bool], None]  # redraw the display (must not wait for it); True once at the end
+
+
+async def run_monitor(
+    scenario: Scenario,
+    seed: int,
+    run: int,
+    bus: BusConfig,
+    log_path: Path,
+    steps: int,
+    clock: str,
+    model: TeamModel | None = None,
+    refresh: Refresh | None = None,
+    exit_with_parent: bool = False,
+    digests: bool = False,
+) -> tuple[int, MonitorReport | None]:
+    """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
+    times per second, and once more with True when the log is complete; returns the exit code and
+    the report (None when stopped before the start). With ``digests`` the monitor receives no copy of
+    the measurements, commands and robot-to-robot messages: it counts them from the world's digests
+    (:func:`digested`)."""
+    keys = Keys(run)
+    report: MonitorReport | None = None
+    if model is not None:
+        model.expected = startup_names(scenario)
+
+    def show_startup(roster: Roster) -> None:
+        """Who is up so far, on the dashboard's start-up frame."""
+        if model is not None and refresh is not None:
+            model.up = roster.alive | {MONITOR}
+            refresh(False)
+
+    async def main(participant: Participant, roster: Roster, held: list) -> int:
+        nonlocal report
+        with LogWriter(log_path) as writer:
+            writer.header(scenario, "emulator", run, seed, clock, steps)
+            recorder = Recorder(writer, scenario, None if model is None else model.add)
+            code, report = await _watch(participant, recorder, roster, held, refresh, digests)
+            # The step the world was in when it stopped never completed: it is not written.
+            recorder.flush(through=report.end.step if report.end else None)
+            end = {
+                "type": "end",
+                "steps": report.end.step if report.end else recorder.next_step - 1,
+                "reason": report.end.reason if report.end else "monitor stopped",
+                "wall_s": report.end.wall_s if report.end else None,
+                "traffic": [list(row) for row in report.received],
+                "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
+                "rejected": report.rejected,
+                "late": recorder.late,
+                "dropped_ahead": recorder.dropped_ahead,
+                "rss_kib": report.rss_kib,
+                "consistent": report.consistent(),
+                "faults": {name: report.faults[name] for name in (*FAULT_COUNTERS, "lost")},
+                "notes": dict(report.notes),
+                "rejected_by": report.rejected_by,
+                "energy_j": report.energy_j,
+            }
+            writer.write(end)
+        if model is not None:
+            model.add(end)
+            model.status = (ending_text(report.end.reason) if report.end
+                            else "stopped" if code == STOPPED else "world lost")
+        if refresh is not None:
+            refresh(True)
+        return code
+
+    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=monitored_keys(keys, digests),
+                stats=lambda participant, code: None, on_gathering=show_startup)
+    code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
+    return code, report
+
+
+async def _watch(
+    participant: Participant,
+    recorder: Recorder,
+    roster: Roster,
+    events: list,
+    refresh: Refresh | None,
+    digests: bool = False,
+) -> tuple[int, MonitorReport]:
+    """Record until the run has ended and everything every sender says it sent has been seen (or
+    nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died); with ``digests``, the world's
+    digests count for the messages the monitor does not receive (:data:`DIGESTED`)."""
+    finals: dict[str, Stats] = {}
+    end: End | None = None
+    code = 0
+    interrupted_at = 0.0
+    last_view = 0.0
+    loop = asyncio.get_running_loop()
+    last_event_at = loop.time()
+    team = senders(recorder.scenario)
+    while True:
+        for event in events:
+            if isinstance(event, Delivery) and isinstance(event.message, Digest):
+                if digests:  # else a world digesting for an auditing monitor: what it says is seen already
+                    digested(participant, recorder, event.message)
+            elif isinstance(event, Delivery):
+                message = event.message
+                recorder.on_delivery(event)
+                if isinstance(message, Stats) and message.final:
+                    finals[message.name] = message
+                elif isinstance(message, End):
+                    end = message
+            elif isinstance(event, Presence):
+                roster.update(event)
+                if event.kind == "alive" and robot_index(event.name) is not None:
+                    recorder.record({"type": "event", "event": "joined" if event.up else "left",
+                                     "robot": event.name, "step": recorder.latest_tick, "wall": time.time()})
+            elif isinstance(event, Interrupt) and not code:
+                code, interrupted_at = STOPPED, loop.time()
+        if events:
+            last_event_at = loop.time()
+        recorder.flush()
+        if code and (end is not None or loop.time() - interrupted_at > END_AFTER_INTERRUPT_S):
+            break  # stopped: keep what the world's End says completed, if it comes in time
+        if end is not None:
+            accounted = all(name in finals or roster.gone_for_good(name) for name in team)
+            if (accounted and _seen_everything(participant.counter, finals)) or (
+                loop.time() - last_event_at > FINAL_STATS_GRACE_S
+            ):
+                break
+        elif roster.gone_for_good(WORLD):
+            code = 1  # the world went away without ending the run
+            break
+        now = time.monotonic()
+        if refresh is not None and now - last_view >= VIEW_PERIOD_S:
+            refresh(False)
+            last_view = now
+        await asyncio.sleep(DRAIN_PERIOD_S)
+        events = participant.drain()
+    report = MonitorReport(
+        received=participant.counter.received_table(),
+        senders={name: stats.sent for name, stats in finals.items()},
+        rejected=participant.counter.rejected_table(),
+        rss_kib={name: stats.rss_kib for name, stats in finals.items()} | {MONITOR: peak_rss_kib()},
+        end=end,
+        late=recorder.late,
+        faults=Counter(team_faults([stats.faults for stats in finals.values()])),
+        notes=sum((Counter(stats.notes) for stats in finals.values()), Counter()),
+        rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
+        energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
+    )
+    return code, report
+
+
+# The kinds a world's Digest accounts for: measurements and commands by the world's own counts, and
+# robot-to-robot messages by the robots' own (each command's ``robot_traffic``).
+DIGESTED = ("measurement", "command", "request", "reply", "push")
+
+
+def monitored_keys(keys: Keys, digests: bool) -> tuple[str, ...]:
+    """The key expressions the monitor subscribes to: the whole run when it audits, else every kind
+    the world's digests do not account for (:data:`DIGESTED`)."""
+    if not digests:
+        return (keys.everything,)
+    return tuple(keys.data("*", "*", kind) for kind in KINDS if kind not in DIGESTED)
+
+
+def digested(participant: Participant, recorder: Recorder, digest: Digest) -> None:
+    """Record each step's tick ``digest`` carries, and count the messages it reports as if the monitor
+    had received them: the measurements and commands by the world's own counts (what it published,
+    what it received), the robot-to-robot messages by each commanding robot's own
+    (:attr:`bus.messages.Command.robot_traffic`)."""
+    for entry in digest.entries:
+        if entry.tick is not None:
+            recorder.on_tick(entry.tick)
+        _digested_entry(participant, recorder, entry)
+
+
+def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestEntry) -> None:
+    for robot, size in entry.measurements:
+        participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
+        recorder.count_reported(entry.step, size)
+    for command, size in entry.commands:
+        source = robot_name(command.robot)
+        participant.counter.count_received(("command", source, WORLD), size)
+        recorder.on_delivery(Delivery(command, Route(WORLD, source, "command"), size))
+        for kind, peer, copies, each in command.robot_traffic:
+            sender, receiver = (peer, command.robot) if ROBOT_TRAFFIC_KINDS[kind] == "reply" else (command.robot, peer)
+            for _ in range(copies):
+                participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
+                                                    robot_name(receiver)), each)
+                recorder.count_reported(command.step, each, (sender, receiver))
+
+
+def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:
+    """Whether the monitor has received every message each finished sender says it sent."""
+    for name, stats in finals.items():
+        said = sum(row[3] for row in stats.sent)
+        seen = sum(count for (_kind, source, _dest), count in counter.received_messages.items() if source == name)
+        if seen < said:
+            return False
+    return True

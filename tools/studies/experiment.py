@@ -1,0 +1,299 @@
+"""``ringtrack experiment stationary``: the paper's comparison of the constant and self-triggered
+strategies (or any of constant, self, plan: ``--strategies``) on the same seeded random starts, over
+one or several team sizes."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+import msgspec
+import numpy as np
+
+from ringtrack.agents import engine
+from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
+from ringtrack.tools.output.console import UsageError
+from ringtrack.world.metrics import settled_mean
+from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
+from ringtrack.world.target import Circle
+
+STRATEGIES = ("constant", "self")  # compared by default; the first is the baseline of the ratios
+STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
+# One row per trial of every distinct moving-target run (``experiment moving --csv``).
+MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "trial", "seed",
+                  "cerr_mean_deg", "terr_mean", "poll_rate", "polls", "robot_messages", "robot_bytes",
+                  "robot_messages_per_step", "robot_messages_per_robot_step", "robot_bytes_per_step",
+                  "estimation_messages_per_step"]
+
+
+
+
+
+
+
+
+
+
+def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = STRATEGIES,
+                           **overrides: object) -> dict[str, Scenario]:
+    """The base scenario with ``robots`` robots, random starts and default threshold, per strategy
+    (keyed by the strategy's name)."""
+    text, label = read_scenario_text(base)
+    spec = parse_scenario(text, label)
+    spec = msgspec.structs.replace(spec, team=msgspec.structs.replace(spec.team, angles_deg=None))
+    scenarios = {}
+    for strategy in strategies:
+        scenario = resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
+        try:
+            check_strategy(scenario)
+        except StrategyError as error:
+            raise UsageError(f"--strategies: {error}") from None
+        scenarios[strategy_name(strategy)] = scenario
+    return scenarios
+
+
+def stationary_experiment(
+    base: str,
+    robots: Sequence[int],
+    trials: int,
+    seed: int,
+    on_step: Callable[[int, str, int], None] | None = None,
+    strategies: Sequence[str] = STRATEGIES,
+    **overrides: object,
+) -> dict:
+    """Run the ``strategies`` (default constant and self) for every team size on seeds ``seed ..
+    seed + trials - 1``.
+
+    Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
+    and standard deviation of Ctime and Com-bar, and per team size and strategy after the first
+    ``ratios`` of its means to the first's (the ``baseline``; by default self / constant). A
+    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator) and
+    ``robot_bytes`` the robot-to-robot bytes of those steps (the summary's ``robot_bytes_mean``);
+    ``ctime_true`` (convergence by the true Cerr) is None when not reached within the steps run, as
+    a batch stops once every trial has converged by the strategy's own Cerr.
+    ``on_step(robots, strategy, step)`` reports progress.
+    """
+    if trials < 1:
+        raise UsageError(f"--trials {trials}: give at least 1 trial")
+    seeds = list(range(seed, seed + trials))
+    rows: list[dict] = []
+    summary: list[dict] = []
+    ratios: list[dict] = []
+    started = time.perf_counter()
+    for size in robots:
+        scenarios = random_start_scenarios(base, size, strategies, **overrides)
+        means: dict[str, dict] = {}
+        for strategy, scenario in scenarios.items():
+            report = None if on_step is None else (lambda k, s=strategy, n=size: on_step(n, s, k))
+            history = engine.run(scenario, seeds, until_converged=True, record_positions=False, on_step=report)
+            ctime, com_bar = history.ctime, history.com_bar
+            assert history.sent_bytes is not None  # engine runs count bytes
+            sent_bytes = history.sent_bytes
+            for index, trial_seed in enumerate(seeds):
+                rows.append(
+                    {
+                        "robots": size,
+                        "strategy": strategy,
+                        "trial": index,
+                        "seed": trial_seed,
+                        "converged": bool(ctime[index] > 0),
+                        "ctime": int(ctime[index]) or None,
+                        "ctime_true": int(history.ctime_true[index]) or None,
+                        "com_bar": None if ctime[index] == 0 else float(com_bar[index]),
+                        "triggers": int((history.triggers[: ctime[index] or None, index] != 0).sum()),
+                        "robot_bytes": int(sent_bytes[: ctime[index] or None, index].sum()),
+                    }
+                )
+            done = ctime > 0
+            means[strategy] = {
+                "robots": size,
+                "strategy": strategy,
+                "trials": trials,
+                "converged": int(done.sum()),
+                "ctime_mean": float(ctime[done].mean()) if done.any() else None,
+                "ctime_std": float(ctime[done].std()) if done.any() else None,
+                "com_bar_mean": float(com_bar[done].mean()) if done.any() else None,
+                "com_bar_std": float(com_bar[done].std()) if done.any() else None,
+                "robot_bytes_mean": float(np.mean([row["robot_bytes"] for row in rows[-trials:]])),
+                "sigma_deg": float(np.rad2deg(scenario.control.sigma)),
+                "law": scenario.control.law,
+                "threshold_deg": float(np.rad2deg(scenario.threshold)),
+            }
+            summary.append(means[strategy])
+        first, *others = list(scenarios)
+        baseline = means[first]
+        for strategy in others:
+            compared = means[strategy]
+            if baseline["ctime_mean"] and compared["ctime_mean"]:
+                ratios.append(
+                    {
+                        "robots": size,
+                        "strategy": strategy,
+                        "baseline": first,
+                        "ctime_ratio": compared["ctime_mean"] / baseline["ctime_mean"],
+                        "com_bar_ratio": compared["com_bar_mean"] / baseline["com_bar_mean"],
+                    }
+                )
+    return {
+        "experiment": "stationary",
+        "scenario": base,
+        "seed": seed,
+        "trials": trials,
+        "robots": list(robots),
+        "strategies": list(strategies),
+        "wall_s": time.perf_counter() - started,
+        "summary": summary,
+        "ratios": ratios,
+        "rows": rows,
+    }
+
+
+
+
+
+
+
+
+# ---------------------------------------------------------------------------- moving target
+VELOCITY_SETTINGS = ((0.6, 0.6), (1.0, 0.6), (1.0, 0.4), (1.0, 0.8))
+MAIN_STRATEGIES = (("constant", "centralized"), ("self", "centralized"), ("self", "decentralized"))
+VELOCITY_STRATEGIES = (("constant", "centralized"), ("self", "decentralized"))
+SERIES_STRIDE = 5  # steps between the points of the Cerr/Terr series written to JSON
+
+
+def circle_of(base: str) -> tuple[float, float]:
+    """``(speed, angular_speed)`` of the base scenario's circling target."""
+    text, label = read_scenario_text(base)
+    target = parse_scenario(text, label).target
+    if not isinstance(target, Circle):
+        raise UsageError(f"{label}: experiment moving needs target.motion = 'circle'")
+    return target.speed, target.angular_speed
+
+
+def moving_scenario(base: str, strategy: str, mode: str, speed: float, angular_speed: float,
+                    steps: int | None, fusion: str | None = None) -> Scenario:
+    """The base scenario's circling target at ``speed`` (m/s) and ``angular_speed`` (rad/s), with the
+    given communication strategy, estimation mode and (decentralized) fusion rule."""
+    text, label = read_scenario_text(base)
+    spec = parse_scenario(text, label)
+    circle_of(base)
+    target = msgspec.structs.replace(spec.target, speed=speed, angular_speed=angular_speed)
+    estimation = msgspec.structs.replace(spec.estimation, fusion=fusion or spec.estimation.fusion)
+    spec = msgspec.structs.replace(spec, target=target, estimation=estimation)
+    return resolve(apply_overrides(spec, strategy=strategy, estimation=mode, max_steps=steps), label)
+
+
+def moving_experiment(
+    base: str,
+    trials: int,
+    seed: int,
+    steps: int | None = None,
+    settle: int = 300,
+    on_step: Callable[[str, int], None] | None = None,
+    velocities: bool = True,
+    fusion: str | None = None,
+    strategies: Sequence[str] | None = None,
+) -> dict:
+    """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
+    settings; returns the JSON-ready result with, per run, means from step ``settle`` on and the
+    trial-mean Cerr (true, degrees) and Terr (metres) series, and per-trial ``rows`` of every
+    distinct run (the velocity setting equal to the scenario's circle repeats the comparison's runs:
+    their trials are rows of group "comparison" only). ``strategies`` replaces the paper's runs by
+    each strategy with a centralized and a decentralized EKF (:func:`moving_variants`)."""
+    if trials < 1:
+        raise UsageError(f"--trials {trials}: give at least 1 trial")
+    main = circle_of(base)
+    compared = MAIN_STRATEGIES if strategies is None else moving_variants(strategies)
+    plan = [("comparison", main, strategy) for strategy in compared]
+    if velocities:
+        plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS
+                 for strategy in (VELOCITY_STRATEGIES if strategies is None else compared)]
+    seeds = list(range(seed, seed + trials))
+    histories: dict[tuple, engine.History] = {}
+    runs: list[dict] = []
+    rows: list[dict] = []
+    started = time.perf_counter()
+    for group, (speed, angular_speed), (strategy, mode) in plan:
+        key = (speed, angular_speed, strategy, mode)
+        scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
+        if settle >= scenario.max_steps:
+            raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
+        setting = {"group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
+                   "strategy": strategy_name(strategy), "estimation": mode,
+                   "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
+        if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
+            label = f"v={speed} w={angular_speed} {strategy}+{mode}"
+            report = None if on_step is None else (lambda k, text=label: on_step(text, k))
+            histories[key] = engine.run(scenario, seeds, record_positions=False, on_step=report)
+            rows += [{**setting, "trial": index, "seed": trial_seed,
+                      **moving_figures(histories[key], [index], settle, mode)}
+                     for index, trial_seed in enumerate(seeds)]
+        history = histories[key]
+        runs.append({
+            **setting,
+            **moving_figures(history, list(range(trials)), settle, mode),
+            "cerr_series_deg": history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
+            "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
+        })
+    any_scenario = moving_scenario(base, "self", "decentralized", *main, steps)
+    return {
+        "experiment": "moving",
+        "scenario": base,
+        "trials": trials,
+        "seed": seed,
+        "steps": any_scenario.max_steps,
+        "dt": any_scenario.control.dt,
+        "settle": settle,
+        "series_stride": SERIES_STRIDE,
+        "wall_s": time.perf_counter() - started,
+        "runs": runs,
+        "rows": rows,
+    }
+
+
+def moving_figures(history: engine.History, trials: list[int], settle: int, mode: str) -> dict[str, float | int]:
+    """The figures of a moving-target run over ``trials`` (indices into the batch): true Cerr (degrees)
+    and Terr (metres) means once the first ``settle`` steps are left out (:func:`world.metrics.settled_mean`);
+    over the whole run the poll rate (polls per robot per step), the polls and the robot-to-robot
+    messages (pushes included) and payload bytes (totals of a trial, averaged over ``trials``; and per
+    step), the robot-to-robot messages per robot-step after ``settle``, and the estimation messages
+    per step (centralized: every robot's range and the centre's estimate)."""
+    robots = history.triggers.shape[2]
+    polled = history.triggers[:, trials] != 0
+    assert history.sent_bytes is not None  # engine runs count bytes
+    messages = history.sent[:, trials].sum(axis=-1)  # (K, trials) robot-to-robot messages published
+    payload = history.sent_bytes[:, trials].sum(axis=-1)
+    return {
+        "cerr_mean_deg": settled_mean(history.cerr_true[:, trials], settle),
+        "terr_mean": settled_mean(history.terr[:, trials], settle),
+        "poll_rate": float(polled.mean()),
+        "polls": int(polled.sum()) / len(trials),
+        "robot_messages": int(messages.sum()) / len(trials),
+        "robot_bytes": int(payload.sum()) / len(trials),
+        "robot_messages_per_step": float(messages.mean()),
+        "robot_messages_per_robot_step": (settled_mean(messages, settle) or 0.0) / robots,
+        "robot_bytes_per_step": float(payload.mean()),
+        "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
+    }
+
+
+
+
+def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:
+    """``(strategy, estimation mode)`` runs of a moving-target comparison: each strategy with a
+    centralized and a decentralized EKF, or only with the mode it needs."""
+    variants = []
+    for strategy in strategies:
+        needed = strategy_for(strategy).estimation
+        variants += [(strategy, mode) for mode in ("centralized", "decentralized") if needed in (None, mode)]
+    return variants
+
+
+def run_label(strategy: str, mode: str) -> str:
+    """``self, central``: a run's strategy and estimation, as the table names it."""
+    return f"{strategy}, {mode.removesuffix('ized')}"
+
+
+def strategy_name(value: str) -> str:
+    """The name a strategy (a registered name or a file's path) is reported by."""
+    return strategy_for(value).name

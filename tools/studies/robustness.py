@@ -1,0 +1,271 @@
+"""``ringtrack experiment faults``: robustness curves. How convergence, communication, energy and
+(moving targets) tracking degrade as links get worse, per strategy, over a sweep of drop rates,
+partition outages and communication ranges, on the same seeded random starts; ``--verify K``
+re-runs K of the runs as lockstep teams over Zenoh and checks they equal the engine's.
+
+A *cell* is one value of each swept quantity; a *variant* one strategy (and, for a moving target,
+one estimation mode). Trial t of every cell and variant uses seed ``SEED + t`` for its start, noise
+and fault draws (:func:`agents.engine.fault_seeds`). An outage of L steps cuts the ring into two
+halves: links ``(N/2 - 1, N/2)`` and ``(N - 1, 0)`` are down for steps ``OUTAGE_START ..
+OUTAGE_START + L - 1``. Costs (robot-to-robot messages, bytes, radio energy) of a stationary-target
+run count steps 1..Ctime (every step run when it did not converge); of a moving-target run every
+step, with Cerr (true, degrees) and Terr (metres) averaged from ``--settle`` on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from ringtrack.agents import engine
+from ringtrack.tools.output.console import UsageError
+from ringtrack.tools.runlog.log import history_from_log, read_log
+from ringtrack.tools.team.spawn import spawn_team
+from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
+from ringtrack.world.scenario_schema import OutageSpec, ScenarioSpec
+
+STRATEGIES = ("constant", "self")
+MOVING_MODES = ("centralized", "decentralized")
+OUTAGE_START = 100  # first step of a swept outage
+SWEPT = ("drop", "outage_steps", "communication_range")
+# Per-trial quantities summarised as mean and sd: (key, label, unit) in figure order.
+METRICS = (
+    ("ctime", "Ctime", "steps"),
+    ("converged", "share converged", "fraction"),
+    ("com_bar", "Com-bar", "polls per robot per step"),
+    ("messages", "robot-to-robot messages", "messages"),
+    ("bytes", "robot-to-robot bytes", "B"),
+    ("energy_per_robot", "radio energy per robot", "J"),
+)
+MOVING_METRICS = (("cerr", "Cerr (true)", "deg"), ("terr", "Terr", "m"))
+
+
+
+
+
+
+
+
+
+
+
+
+# ---------------------------------------------------------------------------- runs
+@dataclass(frozen=True)
+class Cell:
+    """One value of each swept quantity (``communication_range`` None: unlimited)."""
+
+    drop: float
+    outage_steps: int
+    communication_range: float | None
+
+    def label(self) -> dict[str, object]:
+        return {"drop": self.drop, "outage_steps": self.outage_steps, "communication_range": self.communication_range}
+
+
+def base_spec(base: str) -> tuple[ScenarioSpec, str]:
+    """The base scenario with random starts (the trials' seeds place the robots)."""
+    text, label = read_scenario_text(base)
+    spec = parse_scenario(text, label)
+    return msgspec.structs.replace(spec, team=msgspec.structs.replace(spec.team, angles_deg=None)), label
+
+
+def cell_scenario(spec: ScenarioSpec, label: str, cell: Cell, strategy: str, mode: str | None,
+                  steps: int | None, seed: int | None = None) -> Scenario:
+    """The base scenario in one cell with one strategy and estimation mode (and ``seed``)."""
+    robots = spec.team.robots
+    faults = spec.faults
+    if cell.outage_steps:
+        cut = OutageSpec(links=[(robots // 2 - 1, robots // 2), (robots - 1, 0)], from_step=OUTAGE_START,
+                         to_step=OUTAGE_START + cell.outage_steps - 1)
+        faults = msgspec.structs.replace(faults, outages=[*faults.outages, cut])
+    limits = msgspec.structs.replace(spec.limits, communication_range=cell.communication_range)
+    spec = msgspec.structs.replace(spec, faults=faults, limits=limits)
+    return resolve(apply_overrides(spec, drop=cell.drop, strategy=strategy, estimation=mode, max_steps=steps,
+                                   seed=seed), label)
+
+
+def variants(scenario: Scenario) -> list[tuple[str, str]]:
+    """(strategy, estimation mode) pairs: both strategies, and for a moving target each mode."""
+    modes = MOVING_MODES if scenario.moving else (scenario.estimation.mode,)
+    return [(strategy, mode) for mode in modes for strategy in STRATEGIES]
+
+
+def trial_rows(history: engine.History, settle: int) -> list[dict[str, object]]:
+    """Per trial: Ctime, converged, Com-bar and the costs of the run (see the module docstring)."""
+    scenario = history.scenario
+    robots = scenario.robots
+    ctime, com_bar = history.ctime, history.com_bar
+    assert history.energy is not None and history.sent_bytes is not None
+    rows = []
+    for trial in range(len(history.seeds)):
+        converged = bool(ctime[trial] > 0)
+        window = slice(None) if scenario.moving or not converged else slice(0, int(ctime[trial]))
+        polls = history.triggers[window, trial] != 0
+        row: dict[str, object] = {
+            "trial": trial,
+            "seed": history.seeds[trial],
+            "ctime": int(ctime[trial]) if converged else None,
+            "converged": converged,
+            "com_bar": float(polls.mean()) if scenario.moving else float(com_bar[trial]) if converged else None,
+            "messages": int(history.sent[window, trial].sum()),
+            "bytes": int(history.sent_bytes[window, trial].sum()),
+            "energy_j": float(history.energy[window, trial].sum()),
+            "energy_per_robot": float(history.energy[window, trial].sum()) / robots,
+            "faults": engine.fault_totals(history, trial),
+        }
+        if scenario.moving:
+            row["cerr"] = float(history.cerr_true[settle:, trial].mean())
+            row["terr"] = float(history.terr[settle:, trial].mean())
+        rows.append(row)
+    return rows
+
+
+def summarise(rows: list[dict[str, object]], keys: list[str]) -> dict[str, float | None]:
+    """Mean and sd over the trials of each key (over the trials where it is known); the share
+    converged as a fraction."""
+    summary: dict[str, float | None] = {}
+    for key in keys:
+        values = np.array([row[key] for row in rows if row[key] is not None], dtype=float)
+        summary[f"{key}_mean"] = float(values.mean()) if len(values) else None
+        summary[f"{key}_sd"] = float(values.std()) if len(values) else None
+    return summary
+
+
+def faults_experiment(
+    base: str,
+    cells: list[Cell],
+    trials: int,
+    seed: int,
+    steps: int | None = None,
+    settle: int = 300,
+    on_step: Callable[[str, int], None] | None = None,
+) -> tuple[dict, dict[tuple, engine.History]]:
+    """Run every cell and variant in the engine; returns the JSON-ready result and the histories
+    by ``(cell index, strategy, mode)`` (what ``--verify`` compares with)."""
+    spec, label = base_spec(base)
+    seeds = list(range(seed, seed + trials))
+    probe = cell_scenario(spec, label, cells[0], "self", None, steps)
+    if probe.moving and settle >= probe.max_steps:
+        raise UsageError(f"--settle {settle}: must be below the {probe.max_steps} steps of a run")
+    keys = [key for key, _, _ in METRICS + (MOVING_METRICS if probe.moving else ())]
+    started = time.perf_counter()
+    histories: dict[tuple, engine.History] = {}
+    summary, rows = [], []
+    for group in _batches(cells):
+        for strategy, mode in variants(probe):
+            scenarios = [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group]
+            more = f" and {len(group) - 1} more cells" if len(group) > 1 else ""
+            name = _run_label(cells[group[0]], strategy, mode) + more
+            report = None if on_step is None else (lambda k, text=name: on_step(text, k))
+            batch = engine.run(scenarios[0], seeds * len(group), until_converged=not scenarios[0].moving,
+                               record_positions=False, on_step=report,
+                               plans=[scenario.faults for scenario in scenarios for _ in seeds])
+            for position, (index, scenario) in enumerate(zip(group, scenarios, strict=True)):
+                history = batch.select(slice(position * trials, (position + 1) * trials), scenario)
+                histories[index, strategy, mode] = history
+                trial = trial_rows(history, settle)
+                head = {"cell": index, **cells[index].label(), "strategy": strategy, "estimation": mode}
+                rows += [{**head, **row} for row in trial]
+                summary.append({**head, "trials": trials, "steps_run": history.steps, **summarise(trial, keys)})
+    summary.sort(key=lambda entry: (entry["cell"], entry["estimation"], entry["strategy"]))
+    rows.sort(key=lambda row: (row["cell"], row["estimation"], row["strategy"], row["trial"]))
+    return {
+        "experiment": "faults",
+        "scenario": base,
+        "moving": probe.moving,
+        "robots": probe.robots,
+        "seed": seed,
+        "trials": trials,
+        "settle": settle if probe.moving else None,
+        "outage_start": OUTAGE_START,
+        "swept": [name for name in SWEPT if len({getattr(cell, name) for cell in cells}) > 1],
+        "cells": [cell.label() for cell in cells],
+        "wall_s": time.perf_counter() - started,
+        "summary": summary,
+        "savings": savings(summary),
+        "rows": rows,
+    }, histories
+
+
+def _batches(cells: list[Cell]) -> list[list[int]]:
+    """Indices of the cells that differ only in their faults (drop, outage), so that each group
+    runs as one engine batch with a fault plan per trial; cells of another range run apart."""
+    groups: dict[float | None, list[int]] = {}
+    for index, cell in enumerate(cells):
+        groups.setdefault(cell.communication_range, []).append(index)
+    return list(groups.values())
+
+
+def savings(summary: list[dict]) -> list[dict]:
+    """Per cell and estimation mode: the mean radio energy per robot the self-triggered strategy
+    saves against the constant one (joules, and as a fraction of the constant strategy's)."""
+    found = []
+    by_key = {(entry["cell"], entry["estimation"], entry["strategy"]): entry for entry in summary}
+    for (cell, mode, strategy), entry in by_key.items():
+        constant = by_key.get((cell, mode, "constant"))
+        if strategy != "self" or constant is None or not constant["energy_per_robot_mean"]:
+            continue
+        saved = constant["energy_per_robot_mean"] - entry["energy_per_robot_mean"]
+        found.append({"cell": cell, "estimation": mode, "saved_per_robot_j": saved,
+                      "saved_share": saved / constant["energy_per_robot_mean"]})
+    return found
+
+
+def _run_label(cell: Cell, strategy: str, mode: str) -> str:
+    reach = "inf" if cell.communication_range is None else f"{cell.communication_range:g}"
+    return f"drop {cell.drop:g} outage {cell.outage_steps} r_c {reach}: {strategy}+{mode}"
+
+
+# ---------------------------------------------------------------------------- verification
+def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History], count: int, seed: int,
+           runs: Path) -> list[dict]:
+    """Re-run ``count`` (cell, variant, trial) runs drawn by ``seed`` as lockstep teams over Zenoh
+    for as many steps as the engine ran them; each must equal its engine run: angles to 1e-9, every
+    trigger, the fault counts, and each robot's radio energy to a relative 1e-9."""
+    spec, label = base_spec(base)
+    keys = sorted(histories)
+    trials = len(next(iter(histories.values())).seeds)
+    choices = [(key, trial) for key in keys for trial in range(trials)]
+    picked = np.random.default_rng(seed).choice(len(choices), size=min(count, len(choices)), replace=False)
+    checks = []
+    for choice in sorted(int(index) for index in picked):
+        (cell_index, strategy, mode), trial = choices[choice]
+        history = histories[cell_index, strategy, mode]
+        trial_seed = history.seeds[trial]
+        scenario = cell_scenario(spec, label, cells[cell_index], strategy, mode, history.steps, trial_seed)
+        result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=False, quiet=True)
+        check = {"cell": cell_index, **cells[cell_index].label(), "strategy": strategy, "estimation": mode,
+                 "trial": trial, "seed": trial_seed, "steps": history.steps, "exit_code": result["exit_code"]}
+        if result["exit_code"] == 0:
+            logged = history_from_log(read_log(Path(result["log"])))
+            engine_faults = engine.fault_totals(history, trial)
+            energy = history.energy[:, trial].sum(axis=0)  # type: ignore[index]
+            wire_energy = np.array([result["energy"]["transmit_j"], result["energy"]["receive_j"]]).T
+            check.update(
+                steps_logged=logged.steps,
+                max_angle_difference=float(np.max(np.abs(logged.angles[:, 0] - history.angles[:, trial])))
+                if logged.steps == history.steps else None,
+                triggers_equal=logged.steps == history.steps
+                and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, trial])),
+                faults_equal=all(result["faults"].get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS),
+                energy_equal=bool(np.allclose(wire_energy, energy, rtol=1e-9, atol=0.0)),
+            )
+            difference = check["max_angle_difference"]
+            check["equal"] = bool(difference is not None and difference < 1e-9 and check["triggers_equal"]
+                                  and check["faults_equal"] and check["energy_equal"])
+        else:
+            check["equal"] = False
+        checks.append(check)
+    return checks
+
+
+
+
+
+

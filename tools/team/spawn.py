@@ -1,0 +1,349 @@
+"""``ringtrack spawn``: start a world, N robots and a monitor as separate OS processes over Zenoh.
+
+Everything of a run goes into one run folder (``runs/<UTC time>-<name>-<run id>/`` by default): the
+resolved scenario, ``run.json`` (run id, endpoints: what ``ringtrack robot --join`` needs to restart
+a crashed robot), the run log, each process's standard error and the summary JSON. The world
+listens on a free loopback port and announces it; the others connect to it and gossip links the
+rest. Completion, Ctrl-C and SIGTERM all end every process within 2 s.
+
+On a terminal, spawn draws the dashboard's start-up frame itself before it starts any process, and
+hands the terminal to the monitor once the monitor is ready to draw (:mod:`tools.startup`). What it
+needs only after that first frame (Zenoh, the supervisor, the run log reader) is imported then.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import math
+import signal
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ringtrack.agents import engine  # here: spawn's first frame comes before these imports
+from ringtrack.bus.config import LEASE_S, LOOPBACK_ANY_PORT
+from ringtrack.bus.counting import totals_by_category, totals_by_kind
+from ringtrack.bus.keys import FUSION, MONITOR, WORLD, new_run_id, participants, robot_name
+from ringtrack.bus.radio import energy_report
+from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
+from ringtrack.tools.dashboard.startup import StartupView
+from ringtrack.tools.output.console import OutputError, UsageError, err, out, warn_if_threshold_loose, write_json
+from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
+from ringtrack.tools.team.supervisor import FORK_WORKS, ROLE_COMMAND, Supervisor, Terminated, terminate_as_exception
+from ringtrack.world.scenario import Scenario
+
+if TYPE_CHECKING:
+    from ringtrack.tools.dashboard.startup import StartupView
+    from ringtrack.tools.team.supervisor import Supervisor
+
+STALL_TIMEOUT_S = 60.0
+STARTUP_S_PER_PROCESS = 2.0  # start-up allowance per process on top of STALL_TIMEOUT_S (startup_limit)
+LOCKSTEP_WAIT_S = LEASE_S  # a frozen robot is seen gone (liveliness) after about as long
+CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
+MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
+PROCESS_MIB = 80  # resident memory of one robot process (measured 55-75 MiB), for the process budget
+MAX_PROCESSES = 1024
+
+
+
+
+
+
+def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
+    """Make ``runs/<UTC time>-<name>-<run id>/``; a ``runs`` that cannot hold it (a file, a read-only
+    file system, no permission) is a :class:`UsageError` naming ``--runs``, before any process starts."""
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
+    folder = runs / f"{stamp}-{scenario.name}-{run:08x}"
+    try:
+        folder.mkdir(parents=True, exist_ok=False)
+    except OSError as error:
+        problem = "it is not a folder" if isinstance(error, NotADirectoryError) else error.strerror
+        raise UsageError(f"--runs {runs}: cannot make a run folder there ({problem}); give a writable folder "
+                         "with --runs DIR") from None
+    return folder
+
+
+def spawn_team(
+    scenario: Scenario,
+    clock: str = "lockstep",
+    rate: float = 1.0,
+    runs: Path = Path("runs"),
+    log_path: Path | None = None,
+    dashboard: bool | None = None,
+    until_converged: bool = False,
+    quiet: bool = False,
+    topology: str | None = None,
+    robots_per_process: int = 1,
+    secure: Path | None = None,
+    all_robots: bool = False,
+    lockstep_wait: float = LOCKSTEP_WAIT_S,
+    lease: float = LEASE_S,
+    audit: bool = False,
+    settle: int = 300,
+    start: str | None = None,
+) -> dict:
+    """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
+    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
+    monitor draws its dashboard when ``dashboard`` is True, summary lines when False, and decides by
+    its terminal when None; ``quiet`` sends its display to ``RUN_FOLDER/monitor.stdout``. ``topology``
+    "mesh" links every pair of processes directly (Zenoh peers), "star" makes the world a Zenoh
+    router that every other process reaches as a client; None picks mesh up to
+    ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
+    still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
+    mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
+    robot in the monitor's report. In lockstep the world treats a robot silent for ``lockstep_wait``
+    seconds in one step as gone, and a robot's poll gives up on a reply after half of that; every
+    process announces a liveliness ``lease`` of that many seconds. With ``audit`` the monitor
+    receives a copy of every message (else, in lockstep, the world's digests account for
+    measurements and commands). A moving target's summary means leave out the first ``settle``
+    steps (:func:`agents.engine.summary`). ``start`` "fork" forks the robot processes from one
+    launcher that has imported their code (:mod:`tools.launcher`), "exec" starts each as a fresh
+    interpreter; None picks fork where it works (Linux)."""
+    if robots_per_process < 1:
+        raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
+    processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
+    if processes > budget:
+        raise UsageError(
+            f"--robots {scenario.robots}: {processes} robot processes of about {PROCESS_MIB} MiB each are more than "
+            f"this machine holds ({budget}); host several per process with --robots-per-process "
+            f"{math.ceil(scenario.robots / budget)}"
+        )
+    secure_listen = None if secure is None else secured(secure, scenario)
+    warn_if_threshold_loose(scenario)
+    run = new_run_id()
+    folder = run_folder(runs, scenario, run)
+    # The start-up frame before anything else: on a terminal only (a pipe nobody reads must not hold
+    # spawn up), and only where the monitor draws its dashboard.
+    handover = folder / "display.handover"
+    view = startup_view(scenario, clock, handover) if not quiet and dashboard is not False and out.is_terminal \
+        else None
+
+    if start == "fork" and not FORK_WORKS:
+        raise UsageError("--start fork: forking robot processes needs Linux (os.fork and pidfd); use --start exec")
+    start = start or ("fork" if FORK_WORKS else "exec")
+
+    listen = secure_listen or LOOPBACK_ANY_PORT
+    scenario_path = folder / "scenario.toml"
+    scenario_path.write_bytes(scenario.to_toml())
+    log_path = log_path or folder / "log.jsonl"
+    announce = folder / "world-endpoints.json"
+    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent", "--lease", str(lease)]
+    common += [] if secure is None else ["--secure", str(secure.resolve())]
+    common += ["--audit"] if audit else []
+    started = time.perf_counter()
+    interrupted = ""
+    stop_signal = signal.SIGTERM
+    sessions = len(participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True))
+    topology = topology or ("mesh" if sessions <= MESH_LIMIT else "star")
+    world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
+    first_step = FirstStep(log_path, started)
+    if not quiet:
+        fusion = ", the fusion centre" if scenario.estimation.mode == "centralized" else ""
+        err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
+                  f"robots in {processes} processes", highlight=False)
+    with Supervisor(folder) as supervisor:
+        supervisor.leader = "world"
+        try:
+            with terminate_as_exception(), view or contextlib.nullcontext():
+                if start == "fork":
+                    supervisor.preload()  # it imports while the world and the monitor come up
+                stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
+                world = ["world", *common, *world_mode, "--clock", clock, "--rate", str(rate), "--listen", listen,
+                         "--announce", str(announce), "--lockstep-wait", str(lockstep_wait), *stop_rule]
+                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
+                monitor_flags += ["--all-robots"] if all_robots else []
+                monitor_flags += [] if view is None else ["--display-handover", str(handover)]
+                say(view, "starting the world and the monitor")
+                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
+                    # Started at once: it comes up (and takes the start-up frame over) while the world does.
+                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
+                                                 str(announce), "--log", str(log_path), "--clock", clock,
+                                                 *monitor_flags], stdout=display)
+                if start == "fork":  # the launcher's imports are those of the world too
+                    supervisor.fork([("world", world)])
+                else:
+                    supervisor.start("world", [*ROLE_COMMAND, *world])
+                endpoints = supervisor.endpoints(announce, "world")
+                listening = f"the world listens on {', '.join(endpoints)} after {time.perf_counter() - started:.1f} s"
+                if view is not None:  # said on the frame: a line above it would push its top off the screen
+                    say(view, f"{listening}; starting {processes} robot processes")
+                elif not quiet:
+                    err.print(f"spawn: {listening}; starting the others", highlight=False)
+                connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
+                reply_wait = lockstep_wait / 2 if clock == "lockstep" else scenario.control.dt / rate
+                reply_timeout = ["--reply-timeout", str(reply_wait)]
+                write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
+                                                 "secure": None if secure is None else str(secure.resolve()),
+                                                 "reply_timeout": reply_wait, "lease_s": lease})
+                if scenario.estimation.mode == "centralized":
+                    supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
+                robots = []
+                for first in range(0, scenario.robots, robots_per_process):
+                    last = min(first + robots_per_process, scenario.robots) - 1
+                    ids = str(first) if first == last else f"{first}-{last}"
+                    robots.append((f"r{ids}", ["robot", *common, *connect, *reply_timeout, "--id", ids]))
+                if start == "fork":
+                    supervisor.fork(robots)
+                else:
+                    for name, argv in robots:
+                        supervisor.start(name, [*ROLE_COMMAND, *argv])
+                if view is not None:
+                    say(view, "every process started; the monitor takes over this screen once it is up")
+                    view.started_all()
+                # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
+                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
+                                started=lambda: first_step.after is not None,
+                                startup_s=startup_limit(len(supervisor.children)))
+        except KeyboardInterrupt:
+            interrupted, stop_signal = "interrupted by the user (Ctrl-C)", signal.SIGINT  # the children say so too
+        except Terminated:
+            interrupted = "terminated (SIGTERM)"
+        except TimeoutError as error:
+            interrupted = f"stalled: {error} {stalled_at(log_path, folder)}"
+        finally:
+            supervisor.stop(stop_signal=stop_signal)
+    failures = {child.name: child.process.returncode for child in supervisor.crashed()}
+    if not interrupted:
+        for line in _failure_lines(supervisor, log_path):
+            err.print(line, highlight=False, markup=False)
+    result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started, settle)
+    result["topology"] = topology
+    result["startup_s"] = first_step.after
+    result["failures"] = failures
+    result["stopped"] = interrupted or None
+    stopped_by_signal = interrupted.startswith(("interrupted", "terminated"))
+    result["exit_code"] = 130 if stopped_by_signal else int(bool(failures or interrupted))
+    try:
+        write_json(folder / "summary.json", result)
+    except OutputError as error:
+        err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
+        result["exit_code"] = result["exit_code"] or 1
+    if interrupted:
+        err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
+    if result.get("id_collisions"):
+        err.print("ringtrack: warning: two processes ran as the same robot (an id collision; see the robots' stderr)",
+                  highlight=False)
+    if result.get("monitor_equals_senders") is False:
+        err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
+    return result
+
+
+def startup_view(scenario: Scenario, clock: str, handover: Path) -> StartupView:
+    """The start-up frame, drawn on stdout when the block is entered (:class:`tools.startup.StartupView`)."""
+    return StartupView(out, scenario, clock, handover)
+
+
+def say(view: StartupView | None, note: str) -> None:
+    """Show on the start-up frame (if any) what spawn is starting."""
+    if view is not None:
+        view.note = note
+
+
+def secured(directory: Path, scenario: Scenario) -> str:
+    """Check the team folder serves every participant of ``scenario`` (before anything starts) and
+    return the endpoint the world listens on."""
+    names = [WORLD, MONITOR, *([FUSION] if scenario.estimation.mode == "centralized" else [])]
+    check_team(directory, [*names, *(robot_name(robot) for robot in range(scenario.robots))], scenario.robots)
+    return SECURE_LOOPBACK_ANY_PORT
+def stalled_at(log_path: Path, folder: Path) -> str:
+    """What a stalled run waited for: the step after the last one logged, and, from the world's
+    standard error, the robot its lockstep wait last named."""
+    steps = len(read_log(log_path).steps) if log_path.is_file() else 0
+    waiting = ""
+    world_stderr = folder / "world.stderr"
+    if world_stderr.is_file():
+        named = [line for line in world_stderr.read_text(errors="replace").splitlines() if "waits for" in line]
+        waiting = f"; {named[-1].removeprefix('ringtrack.world: ')}" if named else ""
+    return f"after step {steps} (waiting for step {steps + 1}{waiting})"
+
+
+def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:
+    """One line per child that crashed on its own, with the tail of its standard error; a monitor
+    that stopped because the run log could not be written (a full disk, whose stderr file cannot
+    hold its message either) says which file and how many complete steps it holds."""
+    lines = []
+    for child in supervisor.crashed():
+        if child.name == "monitor" and child.process.returncode == LogWriteError.exit_code:
+            steps = len(read_log(log_path).steps) if log_path.is_file() else 0
+            lines.append(f"ringtrack: error: {log_path}: the run log could not be written (disk full or not "
+                         f"writable) after {steps} complete steps; the team was stopped")
+            continue
+        detail = child.stderr_tail()
+        lines.append(f"{child.name} exited with {child.process.returncode}" + (f": {detail}" if detail else ""))
+    return lines
+
+
+def process_budget() -> int:
+    """How many robot processes this machine can hold: 80 % of its available memory at
+    ``PROCESS_MIB`` each, at most ``MAX_PROCESSES``."""
+    try:
+        meminfo = Path("/proc/meminfo").read_text()
+        available_kib = int(next(line.split()[1] for line in meminfo.splitlines() if line.startswith("MemAvailable:")))
+    except (OSError, StopIteration, ValueError):
+        return MAX_PROCESSES
+    return max(1, min(MAX_PROCESSES, int(0.8 * available_kib / 1024 / PROCESS_MIB)))
+
+
+def startup_limit(processes: int) -> float:
+    """Seconds a team of ``processes`` may take from the last start to its first step before spawn
+    calls the start-up hung: generous (a 64-process team took 29 s on a loaded 2-core machine), so
+    only a participant that never comes up reaches it."""
+    return STALL_TIMEOUT_S + STARTUP_S_PER_PROCESS * processes
+
+
+class FirstStep:
+    """Notes when the run log first holds a step record: the team's start-up time."""
+
+    def __init__(self, log_path: Path, started: float) -> None:
+        self.log_path = log_path
+        self.started = started
+        self.after: float | None = None
+
+    def __call__(self) -> None:
+        if self.after is None and self.log_path.exists() and b'"type":"step"' in self.log_path.read_bytes()[:65536]:
+            self.after = time.perf_counter() - self.started
+
+
+def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: int, supervisor: Supervisor,
+             wall_s: float, settle: int = 300) -> dict:
+    """The summary of ``ringtrack simulate --json`` plus traffic, pids and timing of the run."""
+    result: dict = {"run": f"{run:08x}", "clock": clock, "folder": str(folder), "log": str(log_path),
+                    "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
+    if not log_path.exists():
+        return result
+
+    log = read_log(log_path)
+    if log.steps:
+        result.update(engine.summary(history_from_log(log), settle=settle))
+    end = log.end or {}
+    senders = supervisor.senders_counts()
+    if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it
+        traffic = [tuple(row) for counts in senders.values() for row in counts["sent"]]
+        result["monitor_lost"] = True
+    else:
+        traffic = [tuple(row) for row in end.get("traffic", [])]
+    result["messages"] = {category: entry["messages"] for category, entry in totals_by_category(traffic).items()}
+    result["bytes"] = {category: entry["bytes"] for category, entry in totals_by_category(traffic).items()}
+    result["by_kind"] = totals_by_kind(traffic)
+    result["monitor_equals_senders"] = end.get("consistent")
+    result["faults"] = end.get("faults", {})
+    result["rejected"] = end.get("rejected", {})
+    result["rss_kib"] = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
+    result["end_reason"] = end.get("reason")
+    result["id_collisions"] = end.get("notes", {}).get("id_collisions", 0)
+    result["energy"] = robot_energy(end.get("energy_j", {}), scenario.robots)
+    if end.get("wall_s") and end.get("steps"):
+        result["steps_per_s"] = end["steps"] / end["wall_s"]
+    return result
+
+
+def robot_energy(by_name: dict[str, list[float]], robots: int) -> dict[str, object] | None:
+    """The summary's energy section from an end record's ``energy_j`` (None unless every robot
+    reported: a crashed robot's energy is unknown)."""
+    names = [f"r{robot}" for robot in range(robots)]
+    if not all(name in by_name for name in names):
+        return None
+    return energy_report([by_name[name][0] for name in names], [by_name[name][1] for name in names])
+
+
