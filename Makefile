@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run check test bench clean
+.PHONY: run check test bench docs clean
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || { echo "make: ringtrack needs Python 3.11 or newer; $(PYTHON) is $$($(PYTHON) --version 2>&1); run make PYTHON=python3.11 ..."; exit 2; }
@@ -36,5 +36,9 @@ test: check
 bench: $(STAMP)
 	$(BIN)/ringtrack bench engine
 
+# The documentation site (mkdocs.yml, docs/) on http://127.0.0.1:8000, rebuilt on every change.
+docs: $(STAMP)
+	$(BIN)/python -m mkdocs serve
+
 clean:
-	rm -rf $(VENV) runs .pytest_cache .hypothesis
+	rm -rf $(VENV) runs site .pytest_cache .hypothesis

@@ -1,4 +1,4 @@
-"""A team assembled by hand (``world`` / ``monitor`` / ``robot --id 0-5``, as the README shows)
+"""A team assembled by hand (``world`` / ``monitor`` / ``robot --id 0-5``, as docs/emulator.md shows)
 behaves like ``spawn``: it stops at convergence unless ``--steps``, and the monitor says Ctime."""
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def endpoints(path: Path, timeout_s: float = 20) -> list[str]:
 
 
 def by_hand(team: Team, *steps: str) -> tuple[list[int], str, Path]:
-    """The README's by-hand team on loopback (port 0); returns exit codes, the monitor's output and the log."""
+    """The by-hand team of docs/emulator.md on loopback (port 0); returns exit codes, the monitor's output and the log."""
     common = ["paper-stationary", "--run", f"{os.getpid() & 0xFFFFFFF:08x}", "--monitor", *steps]
     announce, log = team.folder / "endpoints.json", team.folder / "run.jsonl"
     world = team.start("world", *common, "--listen", "tcp/127.0.0.1:0", "--announce", str(announce))

@@ -161,12 +161,12 @@ def test_section14_centralized_terr_reference():
 
 @pytest.mark.slow
 def test_decentralized_tracking_against_centralized():
-    """The decentralized reference of docs/algorithms.md section 14 (0.437 m) is not reproduced (see README: the
+    """The decentralized reference of docs/algorithms.md section 14 (0.437 m) is not reproduced (see docs/results.md: the
     self-triggered robots poll 3-7 % of steps and single-range beliefs drift between polls). What is
-    asserted is what the README reports: decentralized filters fused every step (constant strategy)
+    asserted is what docs/results.md reports: decentralized filters fused every step (constant strategy)
     track as well as 0.3 m, and self-triggered decentralized tracking is worse than centralized, as
     in the paper. Fusing every step is one CI per robot and step, the costliest run of the suite: it
-    runs the first seed only (the README's figure, 0.179 m over all steps, is of that seed)."""
+    runs the first seed only (the figure of docs/results.md, 0.172 m from step 300, is of that seed)."""
     fused_every_step = reference_run("decentralized", "constant", seeds=tuple(SEEDS[:1]))
     assert fused_every_step.steps == 1300
     assert fused_every_step.terr[299:].mean() < 0.3
