@@ -9,6 +9,7 @@ whose ``reason`` is counted by the receiver.
 
 from __future__ import annotations
 
+import enum
 from functools import cache
 from typing import Annotated, ClassVar
 
@@ -182,11 +183,40 @@ class Tick(Message, tag=5, frozen=True):
     category: ClassVar[str] = "monitoring"
 
 
+class EndReason(enum.StrEnum):
+    """Why a run ended: the world's :class:`End` and the run log's end record carry its value."""
+
+    DONE = "done"  # every step asked for was run
+    CONVERGED = "converged"  # the world ended the run at convergence
+    RING_EMPTY = "every robot left the ring"  # they all crashed or quit: a failed run
+    SIGINT = "interrupted (SIGINT)"
+    SIGTERM = "interrupted (SIGTERM)"
+    PARENT_EXITED = "interrupted (parent exited)"  # the process that started the world went away
+    MONITOR_STOPPED = "monitor stopped"  # the log only: the monitor stopped before the world's End
+
+    @classmethod
+    def interrupted_by(cls, cause: str) -> EndReason:
+        """The reason of a run stopped by ``cause`` ("SIGINT", "SIGTERM", "parent exited")."""
+        return cls(f"interrupted ({cause})")
+
+    @property
+    def interrupted(self) -> bool:
+        """Stopped from outside (a signal, or the parent's end) rather than by the run itself."""
+        return self in (EndReason.SIGINT, EndReason.SIGTERM, EndReason.PARENT_EXITED)
+
+    def text(self, step: int | None = None) -> str:
+        """Why the run ended, in words (``step``: the last step run, named where it matters)."""
+        if self is EndReason.RING_EMPTY and step is not None:
+            return f"{self.value} by step {step}"
+        return {EndReason.SIGINT: "interrupted by the user (Ctrl-C)", EndReason.SIGTERM: "terminated (SIGTERM)",
+                EndReason.PARENT_EXITED: "stopped (its parent process went away)"}.get(self, self.value)
+
+
 class End(Message, tag=6, frozen=True):
-    """World -> everyone: the run is over after ``step`` steps (``reason``: "done", "stopped", ...)."""
+    """World -> everyone: the run is over after ``step`` steps, and why."""
 
     step: Count  # 0: stopped before its first step
-    reason: str
+    reason: EndReason
     wall_s: NonNegativeReal
     kind: ClassVar[str] = "end"
     category: ClassVar[str] = "world"

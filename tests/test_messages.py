@@ -19,6 +19,7 @@ from ringtrack.bus.messages import (
     Digest,
     DigestEntry,
     End,
+    EndReason,
     Measurement,
     Rejected,
     Reply,
@@ -60,7 +61,7 @@ def messages() -> st.SearchStrategy:
         st.builds(lambda s, t, ps, p, live: Tick(SCHEMA, RUN, s, t, ps, p, live), steps, non_negative,
                   st.lists(points, min_size=ROBOTS, max_size=ROBOTS), points,
                   st.lists(robots, max_size=ROBOTS, unique=True)),
-        st.builds(lambda s, why, w: End(SCHEMA, RUN, s, why, w), st.integers(0, 10**6), st.text(max_size=20),
+        st.builds(lambda s, why, w: End(SCHEMA, RUN, s, why, w), st.integers(0, 10**6), st.sampled_from(EndReason),
                   non_negative),
         st.builds(lambda entries: Digest(SCHEMA, RUN, entries), st.lists(digest_entries(), max_size=10)),
     )
@@ -122,6 +123,7 @@ BAD_VALUES = [
     (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 5, (0.0, 0.0), [0, 1, 2]), "malformed"),  # 5 positions for 6
     (Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0, -1]), "sender"),
     (End(SCHEMA, RUN, -1, "done", 1.0), "malformed"),
+    (End(SCHEMA, RUN, 3, "over, trust me", 1.0), "malformed"),  # no reason a world gives
     # a digest's entries: the tick of another step, of another run, of another team; too many entries
     (Digest(SCHEMA, RUN, [DigestEntry(3, Tick(SCHEMA, RUN, 4, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0]), [], [])]),
      "malformed"),

@@ -27,7 +27,7 @@ from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
 from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index, robot_name
-from ringtrack.bus.messages import SCHEMA, Command, Digest, DigestEntry, End, Tick, digest_entries
+from ringtrack.bus.messages import SCHEMA, Command, Digest, DigestEntry, End, EndReason, Tick, digest_entries
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
@@ -63,7 +63,11 @@ DIGEST_PERIOD_S = 0.05  # lockstep: a step's digest entry waits at most this lon
 
 
 class RunStopped(Exception):
-    """The run cannot go on; the message says why."""
+    """The run cannot go on: ``reason`` says why."""
+
+    def __init__(self, reason: EndReason) -> None:
+        super().__init__(reason.value)
+        self.reason = reason
 
 
 async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, options: WorldOptions,
@@ -81,7 +85,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         began = time.perf_counter()
         step_once = functools.partial(_lockstep, wait_s=options.lockstep_wait) if options.clock == "lockstep" \
             else _realtime
-        reason, code = "done", 0
+        reason, code = EndReason.DONE, 0
         period = scenario.control.dt / options.rate
         start = asyncio.get_running_loop().time()
         watch = ReachWatch(participant)
@@ -99,10 +103,10 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                 converged = options.until_converged and world.converged()
                 world.advance()
                 if converged:
-                    reason = "converged"
+                    reason = EndReason.CONVERGED
                     break
         except RunStopped as stop:
-            reason, code = str(stop), STOPPED if str(stop).startswith("interrupted") else 1
+            reason, code = stop.reason, STOPPED if stop.reason.interrupted else 1
         finally:
             watch.close()
             if digests is not None:
@@ -110,7 +114,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         wall = time.perf_counter() - began
         last = world.step - 1
         participant.send(BROADCAST, End(SCHEMA, run, last, reason, wall))
-        log.info("run %s after %d steps in %.2f s (%.0f steps/s)", reason, last, wall, last / wall if wall else 0.0)
+        said = reason.value if reason.interrupted else reason.text(world.step)
+        log.info("run %s after %d steps in %.2f s (%.0f steps/s)", said, last, wall, last / wall if wall else 0.0)
         return code
 
     def on_joined(participant: Participant) -> None:
@@ -183,7 +188,7 @@ def refuse_empty_ring(world: WorldState) -> None:
     """Raise :class:`RunStopped` once no robot is left in the ring (they all crashed, or all quit on
     a forged End): such a run ends as failed, never as done or converged."""
     if not world.live and not world.rejoining:
-        raise RunStopped(f"every robot left the ring by step {world.step}")
+        raise RunStopped(EndReason.RING_EMPTY)
 
 
 def _publish(context: Context) -> None:
@@ -256,7 +261,7 @@ def _handle(event: object, context: Context) -> None:
     elif isinstance(event, Reach):
         context.admission.update(event)
     elif isinstance(event, Interrupt):
-        raise RunStopped(f"interrupted ({event.reason})")
+        raise RunStopped(EndReason.interrupted_by(event.reason))
     elif isinstance(event, Presence) and event.kind == "alive":
         roster.update(event)
         context.tokens.hold(alive_robots(roster, world.scenario.robots))

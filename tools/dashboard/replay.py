@@ -5,7 +5,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from ringtrack.tools.monitor.state import TeamModel, ending_text
+from ringtrack.bus.messages import EndReason
+from ringtrack.tools.monitor.state import TeamModel
 from ringtrack.tools.runlog.log import RunLog
 
 FRAME_S = 0.1  # at most ten redraws per wall second
@@ -17,7 +18,7 @@ FRAME_S = 0.1  # at most ten redraws per wall second
 
 def ending(log: RunLog) -> str:
     """The status the last frame shows: why the run ended, or that its log stops short."""
-    return ending_text(log.end["reason"]) if log.end else "log ends here (the run was stopped)"
+    return EndReason(log.end["reason"]).text(log.end["steps"]) if log.end else "log ends here (the run was stopped)"
 
 
 def replay(model: TeamModel, records: list[dict], speed: float, refresh: Callable[[bool], None]) -> None:

@@ -22,10 +22,11 @@ from rich.table import Table
 
 from ringtrack.bus.counting import category_of, robot_link_totals
 from ringtrack.bus.keys import robot_index
+from ringtrack.bus.messages import EndReason
 from ringtrack.tools.dashboard.dashboard import Dashboard
 from ringtrack.tools.dashboard.startup import take_over
 from ringtrack.tools.monitor.monitor import COMPARED, MonitorReport
-from ringtrack.tools.monitor.state import TeamModel, ending_text, messages_saved
+from ringtrack.tools.monitor.state import TeamModel, messages_saved
 from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE
 
 LINE_PERIOD_S = 2.0
@@ -241,8 +242,9 @@ def print_report(console: Console, report: MonitorReport, outcome: dict | None =
     console.print(per_link_table(report, all_robots))
     verdict = "equal on every link" if report.consistent() else "DIFFERENT"
     rejected = ", ".join(f"{reason} {count}" for reason, count in report.rejected.items()) or "none"
-    ending = f"{ending_text(report.end.reason)} after {report.end.step} steps" if report.end else "no end record"
-    if report.end is not None and report.end.reason == "converged":
+    ending = f"{report.end.reason.text(report.end.step)} after {report.end.step} steps" if report.end \
+        else "no end record"
+    if report.end is not None and report.end.reason is EndReason.CONVERGED:
         ending += f" (Ctime = {report.end.step} steps)"
     console.print(f"run: {ending}; rejected: {rejected}; late: {report.late}", highlight=False)
     console.print(f"monitor vs senders: {verdict}", highlight=False)

@@ -29,6 +29,7 @@ from ringtrack.bus.messages import (
     Digest,
     DigestEntry,
     End,
+    EndReason,
     Estimate,
     FaultNotice,
     Measurement,
@@ -42,7 +43,7 @@ from ringtrack.bus.messages import (
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, peak_rss_kib
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
-from ringtrack.tools.monitor.state import TeamModel, ending_text, startup_names
+from ringtrack.tools.monitor.state import TeamModel, startup_names
 from ringtrack.tools.runlog.log import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
@@ -316,7 +317,7 @@ async def run_monitor(
             end = {
                 "type": "end",
                 "steps": report.end.step if report.end else recorder.next_step - 1,
-                "reason": report.end.reason if report.end else "monitor stopped",
+                "reason": report.end.reason if report.end else EndReason.MONITOR_STOPPED,
                 "wall_s": report.end.wall_s if report.end else None,
                 "traffic": [list(row) for row in report.received],
                 "senders": {name: [list(row) for row in rows] for name, rows in report.senders.items()},
@@ -333,7 +334,7 @@ async def run_monitor(
             writer.write(end)
         if model is not None:
             model.add(end)
-            model.status = (ending_text(report.end.reason) if report.end
+            model.status = (report.end.reason.text(report.end.step) if report.end
                             else "stopped" if code == STOPPED else "world lost")
         if refresh is not None:
             refresh(True)

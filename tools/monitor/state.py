@@ -36,11 +36,6 @@ def messages_saved(robots: int, steps: int, spent: int) -> tuple[int, float]:
     return constant - spent, (constant - spent) / constant if constant else 0.0
 
 
-def ending_text(reason: str) -> str:
-    """Why a run ended, in words: the world's End reason, with the signal that stopped it named."""
-    return {"interrupted (SIGINT)": "interrupted by the user (Ctrl-C)",
-            "interrupted (SIGTERM)": "terminated (SIGTERM)",
-            "interrupted (parent exited)": "stopped (its parent process went away)"}.get(reason, reason)
 
 
 def startup_names(scenario: Scenario) -> list[str]:

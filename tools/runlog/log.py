@@ -37,6 +37,7 @@ import numpy as np
 
 from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals, link_traffic
 from ringtrack.bus.faults import FAULTS
+from ringtrack.bus.messages import EndReason
 from ringtrack.tools.output.console import OutputError
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import target_error, true_cerr
@@ -198,7 +199,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                              "estimation": [estimation_messages, None]},
                 )
             )
-        writer.write({"type": "end", "steps": history.steps, "reason": "done", "wall_s": None,
+        writer.write({"type": "end", "steps": history.steps, "reason": EndReason.DONE, "wall_s": None,
                       "traffic": [list(row) for row in link_traffic(history, trial)], "senders": {}, "rejected": {},
                       "late": 0, "faults": fault_totals(history, trial), "energy_j": _engine_energy(history, trial)})
 
