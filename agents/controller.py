@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step
+from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step, trigger_reasons
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
 from ringtrack.world.elementwise import choose, scalar
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
@@ -32,9 +32,16 @@ from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
 
 
+def _self_triggered(controller: MidpointController) -> Mask:
+    """The self-triggered rule (T1-T3) from a controller's view: the default trigger rule."""
+    return trigger_reasons(controller.theta, controller.m_minus, controller.m_plus, controller.predecessor_age,
+                           controller.successor_age, controller.params)
+
+
 class MidpointController:
     """Memory and decisions of the midpoint strategies; ``rule(controller)`` is the trigger rule of
-    steps after the first (default: that of the strategy ``params.strategy`` names).
+    steps after the first (default: the self-triggered rule, :func:`agents.laws.trigger_reasons`;
+    a strategy gives its own, :meth:`agents.strategy.Strategy.controller`).
 
     ``predecessor_position``/``successor_position`` (shape ``S + (2,)``) are the remembered
     neighbour positions, ``predecessor_age``/``successor_age`` (shape ``S``, int) their ages in steps,
@@ -52,11 +59,7 @@ class MidpointController:
                  rule: Callable[[Any], Mask] | None = None) -> None:
         self.region = region
         self.params = params
-        if rule is None:  # the trigger rule of the strategy the parameters name
-            from ringtrack.agents.strategy import strategy_for
-
-            rule = strategy_for(params.strategy).triggers
-        self.rule = rule
+        self.rule = rule if rule is not None else _self_triggered
         self.own_position: FloatArray = np.array(own_position, dtype=float)
         self.predecessor_position: FloatArray = self.own_position.copy()
         self.successor_position: FloatArray = self.own_position.copy()

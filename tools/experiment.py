@@ -17,7 +17,7 @@ from ringtrack.agents import engine
 from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
 from ringtrack.tools import gates, robustness
 from ringtrack.tools.console import UsageError, err, out, progress_bar, write_csv, write_json
-from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, strategy_argument
+from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, plan_horizon, strategy_argument
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
@@ -235,7 +235,7 @@ def stationary_experiment(
 
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
-                 "plan_horizon": args.plan_horizon}
+                 "strategy_parameters": plan_horizon(args)}
     # Validate the scenario and flags before showing any progress.
     probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
     names, limit = list(probe), next(iter(probe.values())).max_steps

@@ -7,13 +7,11 @@ import argparse
 import time
 from pathlib import Path
 
-import msgspec
-
 from ringtrack.agents import engine
 from ringtrack.tools.console import err, out, write_json
 from ringtrack.tools.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from ringtrack.world.metrics import settled_mean
-from ringtrack.world.scenario import Scenario, load_scenario, resolve
+from ringtrack.world.scenario import Scenario, apply_overrides, load_scenario, resolve
 
 
 def register(kinds: argparse._SubParsersAction) -> None:
@@ -44,9 +42,7 @@ def gate_list(text: str) -> list[float]:
 
 
 def with_gate(scenario: Scenario, gate: float) -> Scenario:
-    spec = scenario.spec
-    estimation = msgspec.structs.replace(spec.estimation, push_gate=gate)
-    return resolve(msgspec.structs.replace(spec, estimation=estimation), scenario.name)
+    return resolve(apply_overrides(scenario.spec, strategy_parameters={"belief": {"push_gate": gate}}), scenario.name)
 
 
 def point(history: engine.History, settle: int) -> dict[str, float | None]:

@@ -159,6 +159,7 @@ def digests(args: argparse.Namespace) -> bool:
 
 
 def run_world_role(args: argparse.Namespace) -> int:
+    from ringtrack.agents.strategy import check_strategy
     from ringtrack.world.process import WorldOptions, run_world
 
     scenario = scenario_from_arguments(args)
@@ -172,6 +173,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
         lockstep_wait=args.lockstep_wait,
         digest=args.monitor and digests(args),
+        cerr=check_strategy(scenario).cerr,
     )
     config = bus_config(args, [WORLD], scenario.robots, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))
