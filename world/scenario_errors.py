@@ -34,7 +34,8 @@ def explain_validation(message: str, raw: Any) -> str:
         return f"{key} is missing; add it"
     if "[...]" in path:  # a value of a plain table ([strategy]): name its key
         base, _, rest = path.partition("[...]")
-        path = base + _wrong_key(_type_at(base, raw)[1], nested=bool(rest))
+        key = base + _wrong_key(_type_at(base, raw)[1], nested=bool(rest))
+        return f"{key}: expected a boolean, a number or a string, got `{body.rpartition('`, got `')[2]}; fix the value"
     key = path or "scenario"
     kinds = _number_kinds(_type_at(path, raw)[0]) if body.startswith("Expected `float`") else []
     if Probability in kinds:
