@@ -12,7 +12,7 @@ A scenario file looks like::
     robots = 6
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
     [strategy]
-    name = "self"              # "self" | "constant" | "plan" | "belief" | path/to/strategy.py
+    name = "belief"            # "self" (default) | "constant" | "plan" | "belief" | path/to/strategy.py
     push_gate = 2.0            # the named strategy's own parameters (`ringtrack strategies` lists them)
     [strategy.plan]            # parameters of a strategy run in its place (--strategy plan)
     plan_horizon = 10
