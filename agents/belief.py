@@ -6,8 +6,9 @@ Each robot runs its own range-only EKF (decentralized estimation). On top of the
 * mutual exchange: a request carries the requester's belief, and the polled neighbour fuses it by
   CI too, in its next step (no extra message);
 * pushes: a robot that does not poll tells both ring neighbours its belief when it has moved far
-  from the belief it last told them, ``(x - x_last)^T P_last^-1 (x - x_last) > g^2`` with ``g`` =
-  ``[estimation] push_gate`` (default 2); what it tells by a request counts as told.
+  from the belief it last told them, ``(x - x_last)^T P_last^-1 (x - x_last) > g^2`` with ``g`` the
+  strategy's parameter ``push_gate`` (``[strategy] push_gate``, default 2); what it tells by a
+  request counts as told.
 
 A robot fuses what it was told in step ``k - 1`` (pushes and requests' beliefs, each predicted one
 step) at one defined point of step ``k``: between its own prediction and its own update, before it
@@ -21,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.estimation import Estimator
-from ringtrack.agents.strategy import SelfTriggered
+from ringtrack.agents.strategy import SelfTriggered, StrategyParameter
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.params import EstimationParams
 
@@ -39,9 +40,16 @@ class SharedBelief(SelfTriggered):
 
     name = "belief"
     summary = "self-triggered, decentralized beliefs shared in requests and pushed past a gate"
+    label = "shared beliefs"
     estimation = "decentralized"
     listens = True
     pushes = True
+    parameters = (
+        StrategyParameter("push_gate", float, 2.0, units="sigmas", gt=0,
+                          help="push the belief once it moved this Mahalanobis distance g from the last told "
+                          "((x - x_last)^T P_last^-1 (x - x_last) > g^2)"),
+    )
+    push_gate: float
 
     def hear(self, estimator: Estimator, positions: ArrayLike, ranges: ArrayLike,
              beliefs: list[tuple[FloatArray, FloatArray]]) -> None:
@@ -53,4 +61,4 @@ class SharedBelief(SelfTriggered):
 
     def wants_push(self, mean: FloatArray, last_mean: FloatArray, last_covariance: FloatArray,
                    params: EstimationParams) -> NDArray[np.bool_]:
-        return mahalanobis_squared(mean, last_mean, last_covariance) > params.push_gate**2
+        return mahalanobis_squared(mean, last_mean, last_covariance) > self.push_gate**2

@@ -40,7 +40,8 @@ def self_triggered_rule(controller: MidpointController) -> Mask:
 
 class MidpointController:
     """Memory and decisions of the midpoint strategies; ``rule(controller)`` is the trigger rule of
-    steps after the first (default: that of the strategy ``params.strategy`` names).
+    steps after the first (default: the self-triggered rule, :func:`agents.laws.trigger_reasons`;
+    a strategy gives its own, :meth:`agents.strategy.Strategy.controller`).
 
     ``predecessor_position``/``successor_position`` (shape ``S + (2,)``) are the remembered
     neighbour positions, ``predecessor_age``/``successor_age`` (shape ``S``, int) their ages in steps,

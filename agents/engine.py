@@ -105,8 +105,9 @@ class History:
 
     @property
     def cerr(self) -> FloatArray:
-        """The paper's Cerr of the run's strategy: memory-based for "self" and "plan", true for "constant"."""
-        return strategy_cerr(self.scenario.control.strategy, self.cerr_memory, self.cerr_true)
+        """The paper's Cerr of the run's strategy, as the strategy says (:attr:`Strategy.cerr`: the
+        memory-based Cerr, or the true one for the constant strategy)."""
+        return strategy_cerr(strategy_for(self.scenario.strategy).cerr, self.cerr_memory, self.cerr_true)
 
     @property
     def ctime(self) -> NDArray[np.int64]:
@@ -493,7 +494,7 @@ def run(
         positions = motion_step(scenario, positions, goal)
         if on_step is not None:
             on_step(k)
-        done |= converged(strategy_cerr(params.strategy, memory_cerr(offsets[row]), cerr_true[row]), threshold_deg)
+        done |= converged(strategy_cerr(strategy.cerr, memory_cerr(offsets[row]), cerr_true[row]), threshold_deg)
         if until_converged and done.all():
             steps = k
             break
@@ -555,7 +556,7 @@ def summary(history: History, trial: int = 0, settle: int = SETTLE_STEPS) -> dic
     com_bar = float(history.com_bar[trial])
     return {
         "scenario": scenario.name,
-        "strategy": strategy_for(scenario.control.strategy).name,
+        "strategy": strategy_for(scenario.strategy).name,
         "law": scenario.control.law,
         "robots": int(history.angles.shape[2]),
         "seed": history.seeds[trial],

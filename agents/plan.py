@@ -20,18 +20,23 @@ so what it promised is what it does. Angles are radians about the target; steps 
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.laws import Trigger, fresh_step, guarded_step, set_trigger_reasons
-from ringtrack.agents.strategy import Controller, Received, Strategy
+from ringtrack.agents.strategy import Controller, Received, Strategy, StrategyError, StrategyParameter
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
 
+if TYPE_CHECKING:
+    from ringtrack.world.scenario import Scenario
+
 IntArray = NDArray[np.int64]
+PLAN_HORIZON = 10  # default H, steps (README: chosen by measurement)
+MAX_PLAN_HORIZON = 10_000  # steps; a controller holds H + 2 angles per robot
 
 
 class Plan(NamedTuple):
@@ -115,13 +120,14 @@ class PlanController:
     The course is a ring buffer of the next ``H + 2`` angles (``course``, indexed by step modulo its
     length): angles are known up to step ``end``, decisions (all "no poll") for the steps before it,
     and where ``stopped`` the decision at ``end`` is a poll (``T_j = end``). It is extended lazily,
-    as far as the robot's own step or a reply's horizon needs.
+    as far as the robot's own step or a reply's horizon needs. ``horizon`` is ``H`` (steps).
     """
 
-    def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> None:
+    def __init__(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike,
+                 horizon: int = PLAN_HORIZON) -> None:
         self.region = region
         self.params = params
-        self.horizon = params.plan_horizon
+        self.horizon = horizon
         self.own_position: FloatArray = np.array(own_position, dtype=float)
         shape = self.own_position.shape[:-1]
         self.predecessor_position: FloatArray = self.own_position.copy()
@@ -320,16 +326,35 @@ class PlanStrategy(Strategy):
     """The self-triggered rule with plan-carrying replies (this module): its controller is a
     :class:`PlanController`, its replies carry :meth:`PlanController.offer` as four floats
     ``(T' - k, r-, r+, D)`` (steps ahead of the reply's step ``k``, then radians), all zero where
-    the replier polls (so the reply goes as a plain one and is read as the paper's rule)."""
+    the replier polls (so the reply goes as a plain one and is read as the paper's rule).
+
+    It needs what makes a robot's motion between its triggers a function of its memory alone
+    (:meth:`check`): a known stationary target and no communication range (whose reachability
+    comes from the world each step)."""
 
     name = "plan"
     summary = "the paper's triggers; replies carry the replier's committed plan (known target)"
+    label = "plan replies"
     estimation = "known"
     reply_fields = 4
+    parameters = (
+        StrategyParameter("plan_horizon", int, PLAN_HORIZON, units="steps", ge=0, le=MAX_PLAN_HORIZON,
+                          help="the most steps ahead a reply's plan describes (H; 0: the paper's rule)"),
+    )
+    plan_horizon: int
+
+    def check(self, scenario: Scenario) -> None:
+        if scenario.estimation.mode != "known":
+            raise StrategyError("the plan strategy needs a known stationary target (estimation.mode = 'known'); "
+                                "use 'self' to estimate")
+        if scenario.communication_range is not None:
+            raise StrategyError("the plan strategy needs unlimited communication; "
+                                "unset limits.communication_range or use 'self'")
+        super().check(scenario)
 
     def controller(self, region: ConvexRegion, params: ControlParams, own_position: ArrayLike) -> Controller:
         # Its ages and knowledge are read-only views of its records, where the protocol has plain attributes.
-        return PlanController(region, params, own_position)  # type: ignore[return-value]
+        return PlanController(region, params, own_position, self.plan_horizon)  # type: ignore[return-value]
 
     def reply_content(self, controller: PlanController) -> FloatArray:
         plan = controller.offer()

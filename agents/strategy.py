@@ -26,8 +26,16 @@ The memory and the motion law are the strategy's controller (:meth:`~Strategy.co
 default :class:`agents.controller.MidpointController` with the strategy's trigger rule): any object
 with the methods and attributes of :class:`Controller`, vectorised over a leading shape.
 
+A strategy owns its knowledge: its parameters (:attr:`~Strategy.parameters`, each a
+:class:`StrategyParameter` with type, default, units, help and bounds, set in a scenario's
+``[strategy]`` section and checked here when the strategy is built: an instance holds them as
+attributes, resolved once), which Cerr its runs report (:attr:`~Strategy.cerr`), how tables name it
+(:attr:`~Strategy.label`) and which scenarios it suits (:meth:`~Strategy.check`). Nothing outside a
+strategy's own module compares against its name.
+
 Strategies are found by name (:data:`REGISTRY`) or loaded from a Python file defining exactly one
-subclass of :class:`Strategy` (:func:`strategy_for`); docs/strategies.md walks through writing one.
+subclass of :class:`Strategy` (:func:`strategy_for`); :func:`describe_strategies` tells what each
+declares (``ringtrack strategies``); docs/strategies.md walks through writing one.
 """
 
 from __future__ import annotations
@@ -35,6 +43,9 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
+import json
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -46,7 +57,8 @@ from numpy.typing import ArrayLike, NDArray
 from ringtrack.agents.controller import MidpointController, self_triggered_rule
 from ringtrack.agents.laws import Mask, Trigger
 from ringtrack.world.geometry import ConvexRegion, FloatArray
-from ringtrack.world.params import ControlParams, EstimationParams, Mode
+from ringtrack.world.metrics import CerrSource
+from ringtrack.world.params import ControlParams, EstimationParams, Mode, StrategyChoice, StrategyValue
 
 if TYPE_CHECKING:
     from ringtrack.agents.estimation import Estimator
@@ -98,12 +110,116 @@ class Received:
     content: FloatArray | None = None
 
 
+ParameterType = type[bool] | type[int] | type[float] | type[str]
+PARAMETER_TYPES: dict[type, str] = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+@dataclass(frozen=True)
+class StrategyParameter:
+    """One parameter a strategy declares (:attr:`Strategy.parameters`), set in a scenario's
+    ``[strategy]`` section as ``name = value``.
+
+    ``type`` is ``bool``, ``int``, ``float`` (an integer is taken as a float) or ``str``; ``default``
+    the value when the scenario gives none; ``units`` how the value is measured ("steps", "m",
+    "rad", ...; "" for a dimensionless one); ``help`` one line on what it does; bounds on a number
+    (``gt`` / ``ge`` below, ``le`` above) and the allowed ``choices`` of a string (empty: any).
+    """
+
+    name: str
+    type: ParameterType
+    default: StrategyValue
+    units: str = ""
+    help: str = ""
+    gt: float | None = None
+    ge: float | None = None
+    le: float | None = None
+    choices: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.type not in PARAMETER_TYPES:
+            raise StrategyError(f"parameter {self.name!r} has type {self.type!r}; declare bool, int, float or str")
+        if not self.name.isidentifier() or self.name.startswith("_") or self.name == "name":
+            raise StrategyError(f"parameter name {self.name!r}; declare an identifier other than 'name' "
+                                "that does not start with '_'")
+        if (self.gt, self.ge, self.le) != (None, None, None) and self.type not in (int, float):
+            raise StrategyError(f"parameter {self.name!r}: bounds need a number type; declare int or float")
+        if self.choices and self.type is not str:
+            raise StrategyError(f"parameter {self.name!r}: choices need type str; declare str")
+        problem = self.problem(self.default)
+        if problem is not None:
+            raise StrategyError(f"parameter {self.name!r}: its default {problem}; declare a default that is "
+                                f"{self.expects}")
+
+    @property
+    def expects(self) -> str:
+        """What a value must be, in words: "a number > 0", "an integer >= 0 and <= 10000", ..."""
+        if self.choices:
+            return "one of " + ", ".join(json.dumps(choice) for choice in self.choices)
+        bounds = [f"{sign} {_show(bound)}" for sign, bound in ((">", self.gt), (">=", self.ge), ("<=", self.le))
+                  if bound is not None]
+        return " ".join([PARAMETER_TYPES[self.type], " and ".join(bounds)]).strip()
+
+    def problem(self, value: Any) -> str | None:
+        """None when ``value`` suits the declaration; else what is wrong with it ("must be > 0 (it
+        is -1)")."""
+        kind = self.type
+        if kind is float:
+            fits = isinstance(value, int | float) and not isinstance(value, bool)
+        elif kind is int:
+            fits = isinstance(value, int) and not isinstance(value, bool)
+        else:
+            fits = isinstance(value, kind)
+        it_is = f"(it is {_show(value)})"
+        if not fits:
+            return f"must be {PARAMETER_TYPES[kind]} {it_is}"
+        if kind is float and not math.isfinite(value):
+            return f"must be a finite number {it_is}"
+        for sign, bound, holds in ((">", self.gt, lambda b: value > b), (">=", self.ge, lambda b: value >= b),
+                                   ("<=", self.le, lambda b: value <= b)):
+            if bound is not None and not holds(bound):
+                return f"must be {sign} {_show(bound)} {it_is}"
+        if self.choices and value not in self.choices:
+            return f"must be {self.expects} {it_is}"
+        return None
+
+    def resolve(self, value: Any, where: str = "strategy") -> StrategyValue:
+        """``value`` checked and in the declared type (:class:`StrategyError` naming the key,
+        ``strategy.NAME`` in the section ``where``, and the fix otherwise)."""
+        problem = self.problem(value)
+        if problem is not None:
+            raise StrategyError(f"{where}.{self.name} {problem}; give {self.expects} "
+                                f"(default {_show(self.default)})", key=self.name)
+        return float(value) if self.type is float else value
+
+
+def _show(value: Any) -> str:
+    """A value as a scenario file writes it (TOML): true, 2.5, "text"."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)
+
+
 class Strategy:
     """A communication strategy. Subclasses set :attr:`name` (and :attr:`summary`) and override
-    what they change; every method is vectorised over the leading shape of its arrays."""
+    what they change; every method is vectorised over the leading shape of its arrays.
+
+    A strategy is built from the values of its declared :attr:`parameters` (a scenario's
+    ``[strategy]`` table, :func:`strategy_for`): each is checked against its declaration, a
+    missing one takes its default, and the strategy holds it as an attribute of that name (declare
+    its type on the class too, e.g. ``push_gate: float``), so per-step code reads a plain attribute.
+    """
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
+    # How tables, figures and the dashboard name the strategy ("self-triggered"); "" means ``name``.
+    label: ClassVar[str] = ""
+    # The parameters a scenario's [strategy] section sets (each an attribute of a built strategy).
+    parameters: ClassVar[tuple[StrategyParameter, ...]] = ()
+    # Which Cerr is the paper's Cerr of a run (convergence, Ctime): "memory" (the robots' guaranteed
+    # offsets, for every strategy whose memory says something) or "true" (true positions).
+    cerr: ClassVar[CerrSource] = "memory"
     # The estimation mode the strategy needs (None: any); checked by :meth:`check`.
     estimation: ClassVar[Mode | None] = None
     # Requests carry the requester's belief and neighbours fuse the beliefs told them (step 2).
@@ -113,8 +229,50 @@ class Strategy:
     # Floats a reply carries beyond position and belief (:meth:`reply_content`).
     reply_fields: ClassVar[int] = 0
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        names = [parameter.name for parameter in cls.parameters]
+        taken = [name for name in names if name in vars(Strategy) or names.count(name) > 1]
+        if taken:
+            raise StrategyError(f"{cls.__name__} declares the parameter {taken[0]!r} twice or over a member of "
+                                "Strategy; give it another name")
+
+    def __init__(self, values: Mapping[str, StrategyValue] | None = None,
+                 where: Mapping[str, str] | None = None) -> None:
+        """Build the strategy from the values of its parameters (defaults for those not given);
+        :class:`StrategyError` names an unknown key or a bad value, ``strategy.KEY``, and the fix.
+        ``where`` tells the section each key came from (default "strategy"; "strategy.NAME" for a
+        ``[strategy.NAME]`` table)."""
+        given = dict(values or {})
+        place = where or {}
+        declared = {parameter.name: parameter for parameter in self.parameters}
+        for key in given:
+            if key not in declared:
+                known = (f"give one of {', '.join(declared)}" if declared
+                         else "it has no parameters; remove the key")
+                raise StrategyError(f"{place.get(key, 'strategy')}.{key}: the {self.name} strategy has no parameter "
+                                    f"{key!r}; {known}", key=key)
+        self.values: dict[str, StrategyValue] = {
+            name: parameter.resolve(given[name], place.get(name, "strategy")) if name in given else parameter.default
+            for name, parameter in declared.items()
+        }
+        for name, value in self.values.items():
+            setattr(self, name, value)
+
+    @classmethod
+    def display_label(cls) -> str:
+        """How tables and figures name the strategy: its :attr:`label`, else its :attr:`name`."""
+        return cls.label or cls.name
+
+    @classmethod
+    def description(cls) -> str:
+        """One line on what the strategy does: its :attr:`summary`, else its docstring's first line."""
+        lines = (cls.__doc__ or "").strip().splitlines()
+        return cls.summary or (lines[0] if lines else "")
+
     def check(self, scenario: Scenario) -> None:
-        """Raise :class:`StrategyError` when ``scenario`` does not suit the strategy."""
+        """Raise :class:`StrategyError` when ``scenario`` does not suit the strategy (by default: the
+        estimation mode it needs); a strategy with more needs extends it."""
         mode = scenario.estimation.mode
         if self.estimation is not None and mode != self.estimation:
             raise StrategyError(f"the {self.name} strategy needs estimation.mode = '{self.estimation}' "
@@ -144,7 +302,8 @@ class Strategy:
                    params: EstimationParams) -> NDArray[np.bool_]:
         """Whether a robot that does not poll pushes its belief (``mean`` metres ``S + (2,)``) to
         both neighbours, given the belief it last told them (``last_mean``, ``last_covariance``
-        m^2, ``S + (2, 2)``); only for strategies with :attr:`pushes`."""
+        m^2, ``S + (2, 2)``) and the team's estimation parameters; only for strategies with
+        :attr:`pushes`."""
         return np.zeros(np.shape(mean)[:-1], dtype=bool)
 
     def hear(self, estimator: Estimator, positions: ArrayLike, ranges: ArrayLike,
@@ -157,8 +316,14 @@ class Strategy:
 
 
 class StrategyError(ValueError):
-    """A strategy name or file that cannot be used, or a scenario it does not suit; the message
-    says why and how to fix it."""
+    """A strategy name or file that cannot be used, a scenario it does not suit, or a bad value of
+    one of its parameters; the message says why and how to fix it. ``key`` is the ``[strategy]``
+    key at fault: "name" for the strategy itself (the message then does not name it), else the
+    parameter's key (the message then starts ``strategy.KEY``)."""
+
+    def __init__(self, message: str, key: str = "name") -> None:
+        super().__init__(message)
+        self.key = key
 
 
 class Constant(Strategy):
@@ -166,6 +331,7 @@ class Constant(Strategy):
 
     name = "constant"
     summary = "poll both neighbours every step"
+    cerr = "true"  # its memory is always a step old: the paper takes Cerr from the true positions
 
     def triggers(self, controller: Any) -> Reasons:
         return np.full(np.shape(controller.theta), int(Trigger.SCHEDULE), dtype=np.int64)
@@ -177,6 +343,7 @@ class SelfTriggered(Strategy):
 
     name = "self"
     summary = "the paper's self-triggered rule (T1-T3)"
+    label = "self-triggered"
 
 
 # Registered strategies: name -> "module:class" (imported when first used).
@@ -188,17 +355,34 @@ REGISTRY: dict[str, str] = {
 }
 
 
-def strategy_for(name_or_path: str) -> Strategy:
-    """The strategy registered as ``name_or_path``, or the one a Python file at that path defines
-    (exactly one subclass of :class:`Strategy`); :class:`StrategyError` otherwise."""
-    return _strategy(name_or_path)
+def strategy_for(choice: str | StrategyChoice) -> Strategy:
+    """The strategy a scenario's ``[strategy]`` section chooses (:class:`StrategyChoice`; a plain
+    string: that strategy with its defaults), built with its parameters checked: the strategy
+    registered under the name, or the one a Python file at that path defines (exactly one subclass
+    of :class:`Strategy`); :class:`StrategyError` otherwise. Its parameters are the section's plain
+    keys over those of its own ``[strategy.NAME]`` table (``NAME`` its :attr:`Strategy.name`)."""
+    if isinstance(choice, str):
+        choice = StrategyChoice(choice)
+    return _strategy(choice)
 
 
 @cache
-def _strategy(name_or_path: str) -> Strategy:
+def _strategy(choice: StrategyChoice) -> Strategy:
+    cls = strategy_class(choice.name)
+    own = choice.table(cls.name)
+    values = {**own, **dict(choice.values)}
+    where = {key: f"strategy.{cls.name}" for key in own} | {key: "strategy" for key, _ in choice.values}
+    return cls(values, where)
+
+
+@cache
+def strategy_class(name_or_path: str) -> type[Strategy]:
+    """The class of the strategy registered as ``name_or_path`` or defined by the Python file at
+    that path (imported once); :class:`StrategyError` otherwise."""
     if name_or_path in REGISTRY:
         module, _, attribute = REGISTRY[name_or_path].partition(":")
-        return getattr(importlib.import_module(module), attribute)()
+        found: type[Strategy] = getattr(importlib.import_module(module), attribute)
+        return found
     path = Path(name_or_path)
     fix = f"give one of {', '.join(sorted(REGISTRY))} or the path of a .py file that defines a Strategy"
     if path.suffix != ".py":
@@ -208,8 +392,8 @@ def _strategy(name_or_path: str) -> Strategy:
     return _load_file(path.resolve())
 
 
-def _load_file(path: Path) -> Strategy:
-    """Import a strategy file as a module of its own and instantiate its one Strategy subclass."""
+def _load_file(path: Path) -> type[Strategy]:
+    """Import a strategy file as a module of its own and find its one Strategy subclass."""
     digest = hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(f"ringtrack_strategy_{digest}", path)
     assert spec is not None and spec.loader is not None
@@ -224,15 +408,51 @@ def _load_file(path: Path) -> Strategy:
     if len(found) != 1:
         raise StrategyError(f"{path}: defines {len(found)} subclasses of ringtrack.agents.strategy.Strategy; "
                             "define exactly one")
-    strategy = found[0]()
+    strategy = found[0]
     if not strategy.name or strategy.name in REGISTRY:
-        raise StrategyError(f"{path}: {found[0].__name__}.name is {strategy.name!r}; give it a name of its own "
+        raise StrategyError(f"{path}: {strategy.__name__}.name is {strategy.name!r}; give it a name of its own "
                             f"(not one of {', '.join(sorted(REGISTRY))})")
     return strategy
 
 
 def check_strategy(scenario: Scenario) -> Strategy:
-    """The scenario's strategy, checked against the scenario (:class:`StrategyError` if unusable)."""
-    strategy = strategy_for(scenario.control.strategy)
+    """The scenario's strategy built from its ``[strategy]`` section and checked against the
+    scenario (:class:`StrategyError` if unusable)."""
+    strategy = strategy_for(scenario.strategy)
     strategy.check(scenario)
     return strategy
+
+
+@dataclass(frozen=True)
+class StrategyDescription:
+    """What a strategy declares, for people (``ringtrack strategies``): its ``name``, ``label``
+    (tables and figures), one line on what it does (``description``), the estimation mode it needs
+    (None: any), which Cerr its runs report and its parameters."""
+
+    name: str
+    label: str
+    description: str
+    estimation: Mode | None
+    cerr: CerrSource
+    parameters: tuple[StrategyParameter, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        """The description as JSON-ready builtins (a parameter's type by its name: "float", ...)."""
+        return {
+            "name": self.name, "label": self.label, "description": self.description,
+            "estimation": self.estimation, "cerr": self.cerr,
+            "parameters": [{"name": p.name, "type": p.type.__name__, "default": p.default, "units": p.units,
+                            "help": p.help, "expects": p.expects} for p in self.parameters],
+        }
+
+
+def describe_strategy(name_or_path: str) -> StrategyDescription:
+    """What the strategy registered as ``name_or_path`` (or defined by that file) declares."""
+    cls = strategy_class(name_or_path)
+    return StrategyDescription(cls.name, cls.display_label(), cls.description(), cls.estimation, cls.cerr,
+                               cls.parameters)
+
+
+def describe_strategies(extra: tuple[str, ...] = ()) -> list[StrategyDescription]:
+    """Every registered strategy, in :data:`REGISTRY` order, then those of the files ``extra``."""
+    return [describe_strategy(name) for name in (*REGISTRY, *extra)]

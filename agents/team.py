@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.node import Outgoing, RobotNode
+from ringtrack.agents.strategy import check_strategy
 from ringtrack.bus.keys import WORLD, robot_index
 from ringtrack.bus.messages import Command
 from ringtrack.world.geometry import FloatArray, angle_of
@@ -45,7 +46,7 @@ def run_team(scenario: Scenario, steps: int, run: int, pick: Pick = first) -> Te
     """Run ``steps`` lockstep steps of the whole team of ``scenario`` (its own seed) in this process:
     each step the world's measurements go out, every message is delivered (in the order ``pick``
     chooses) until every robot commanded, and the world advances."""
-    world = WorldState(scenario, scenario.seed, run, steps)
+    world = WorldState(scenario, scenario.seed, run, steps, check_strategy(scenario).cerr)
     nodes = [RobotNode(robot, scenario, run) for robot in range(scenario.robots)]
     triggers = np.zeros((steps, scenario.robots), dtype=np.int64)
     angles = np.zeros((steps, scenario.robots))

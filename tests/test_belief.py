@@ -50,6 +50,26 @@ def test_pushes_are_robot_to_robot_messages_and_follow_the_gate() -> None:
     assert silent.sent.sum() == 4 * int((silent.triggers != 0).sum())
 
 
+def test_the_gate_set_in_the_strategy_section_is_the_gate_the_robots_use(tmp_path: Path) -> None:
+    """``[strategy] push_gate``: the default gate written out changes nothing, a gate nothing passes
+    silences the pushes (as ``with_gate``, the gate sweep's override), and a narrower one pushes more."""
+    text = (Path(__file__).resolve().parent.parent / "scenarios" / "authors-moving.toml").read_text()
+
+    def gated(gate: str) -> engine.History:
+        path = tmp_path / f"gate-{gate}.toml"
+        path.write_text(text.replace('[strategy]\nname = "self"\n', f'[strategy]\nname = "belief"\npush_gate = {gate}\n'))
+        return engine.run(load_scenario(str(path), max_steps=STEPS))
+
+    default, written = engine.run(belief()), gated("2.0")
+    assert default.pushes is not None and written.pushes is not None and default.pushes.sum() > 0
+    assert np.array_equal(default.pushes, written.pushes) and np.array_equal(default.triggers, written.triggers)
+    silent, swept = gated("1e6"), engine.run(with_gate(belief(), 1e6))
+    assert silent.pushes is not None and swept.pushes is not None and silent.pushes.sum() == swept.pushes.sum() == 0
+    assert np.array_equal(silent.sent, swept.sent)
+    narrow = gated("1")
+    assert narrow.pushes is not None and narrow.pushes.sum() > default.pushes.sum()
+
+
 @pytest.mark.processes
 @pytest.mark.timeout(300)
 def test_lockstep_belief_team_equals_the_engine(tmp_path: Path) -> None:

@@ -1,7 +1,7 @@
 """Convergence is claimed only on steps whose Cerr is known: missing offsets never count as zero error.
 
-One rule decides convergence (:func:`world.metrics.converged` on :func:`world.metrics.strategy_cerr`):
-the engine, the world process, histories read from run logs and the summaries built from them.
+One rule decides convergence (:func:`world.metrics.converged` on :func:`world.metrics.strategy_cerr`, from
+the Cerr the strategy names): the engine, the world process, histories read from run logs and the summaries built from them.
 """
 
 from __future__ import annotations

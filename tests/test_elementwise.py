@@ -31,7 +31,7 @@ def same(one: object, team: np.ndarray, index: int) -> bool:
 
 
 def params(law: str = "prop", omega_deg: float = 1.0, dt: float = 0.1, sigma_deg: float = 0.1) -> ControlParams:
-    return ControlParams(strategy="self", law=law, omega_max=np.deg2rad(omega_deg), dt=dt, sigma=np.deg2rad(sigma_deg))
+    return ControlParams(law=law, omega_max=np.deg2rad(omega_deg), dt=dt, sigma=np.deg2rad(sigma_deg))
 
 
 def test_helpers_choose_and_clip_like_numpy() -> None:

@@ -55,10 +55,10 @@ laws = st.sampled_from(["prop", "deadbeat"])
 sigmas_deg = st.sampled_from([0.0, 0.01, 0.05, 0.06, 0.1, 0.2, 0.5, 1.0, 5.0])
 
 
-def new_controller(region, params, positions) -> MidpointController:
-    """A team controller that, like the engine's, starts knowing nothing but its own positions (with
-    the trigger rule of the strategy ``params`` name)."""
-    return strategy_for(params.strategy).controller(region, params, positions)
+def new_controller(region, params, positions, strategy: str = "self") -> MidpointController:
+    """A team controller that, like the engine's, starts knowing nothing but its own positions, with
+    the trigger rule of ``strategy``."""
+    return MidpointController(region, params, positions, rule=strategy_for(strategy).triggers)
 
 
 def exchange(controller: MidpointController, reasons, positions) -> None:
@@ -67,8 +67,8 @@ def exchange(controller: MidpointController, reasons, positions) -> None:
     controller.receive(np.roll(positions, 1, axis=0), np.roll(positions, -1, axis=0), polled, polled)
 
 
-def params_for(omega_deg: float, dt: float, law: str = "prop", sigma_deg: float = 0.0, strategy: str = "self") -> ControlParams:
-    return ControlParams(omega_max=omega_deg * DEG, dt=dt, sigma=sigma_deg * DEG, strategy=strategy, law=law)
+def params_for(omega_deg: float, dt: float, law: str = "prop", sigma_deg: float = 0.0) -> ControlParams:
+    return ControlParams(omega_max=omega_deg * DEG, dt=dt, sigma=sigma_deg * DEG, law=law)
 
 
 # ---------------------------------------------------------------------------- oracle 3
@@ -128,9 +128,9 @@ def test_oracle4_uniform_ring_is_a_fixed_point_of_every_law(robots, rotation, om
 @given(region_with_points(1, pull_max=0.9), st.integers(3, 12), st.floats(-math.pi, math.pi), laws, st.sampled_from(["self", "constant"]))
 def test_oracle4_uniform_ring_stays_put_through_the_controller(case, robots, rotation, law, strategy):
     region, (centre,) = case
-    params = params_for(1.0, 0.1, law, 0.06, strategy)
+    params = params_for(1.0, 0.1, law, 0.06)
     positions = uniform_ring(region, centre, robots, rotation)
-    controller = new_controller(region, params, positions)
+    controller = new_controller(region, params, positions, strategy)
     theta0 = angle_of(positions, centre)
     for k in range(1, 8):
         reasons = controller.observe(k, positions, centre)
@@ -316,7 +316,7 @@ def test_oracle8_uncertainty_bound_is_sound_inside_a_running_ring(case, angles, 
     """Drive MidpointController like the engine does and check |V_true - gV| <= ubd for every robot
     and step, from the controller's own memory and ages; also oracle 12 at controller level."""
     region, (centre,) = case
-    params = params_for(omega, dt, law, sigma, "self")
+    params = params_for(omega, dt, law, sigma)
     positions = region.boundary_point(angles, centre)
     controller = new_controller(region, params, positions)
     polls = np.zeros(len(angles), dtype=int)
@@ -384,9 +384,9 @@ def test_oracle12_everyone_polls_at_step_1_and_constant_polls_every_step(strateg
 
     region = ConvexRegion.from_vertices([[3, 7], [8, 17], [5, 26], [1, 22]])
     centre = np.array([4.0, 20.0])
-    params = params_for(1.0, 0.1, "prop", 0.06, strategy)
+    params = params_for(1.0, 0.1, "prop", 0.06)
     positions = region.boundary_point(np.radians([69.8979, 75.0730, 83.1024, 108.1016, 170.1016, 303.8982]), centre)
-    controller = new_controller(region, params, positions)
+    controller = new_controller(region, params, positions, strategy)
     triggered = []
     for k in range(1, 60):
         reasons = controller.observe(k, positions, centre)

@@ -17,6 +17,7 @@ from ringtrack.agents import engine
 from ringtrack.agents.engine import fault_totals
 from ringtrack.agents.node import RobotNode
 from ringtrack.agents.plan import PlanController, PlanStrategy, no_plan, prediction_set
+from ringtrack.agents.strategy import StrategyError, check_strategy
 from ringtrack.bus.counting import totals_by_category
 from ringtrack.bus.keys import Route
 from ringtrack.bus.messages import (
@@ -31,6 +32,8 @@ from ringtrack.bus.messages import (
     encode,
     robot_message_bytes,
 )
+from ringtrack.tools.cli import build_parser
+from ringtrack.tools.cli.options import scenario_from_arguments
 from ringtrack.tools.runlog.log import read_log
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.geometry import angle_of
@@ -96,7 +99,8 @@ def test_prediction_set_is_the_papers_without_a_plan_and_the_envelope_with_one()
        drop=st.sampled_from([0.0, 0.3]), law=st.sampled_from(["prop", "deadbeat"]))
 def test_sets_contain_the_true_neighbours_and_order_is_kept(robots: int, seed: int, horizon: int, drop: float,
                                                             law: str) -> None:
-    scenario = random_start(robots=robots, seed=seed, plan_horizon=horizon, drop=drop, law=law)
+    scenario = random_start(robots=robots, seed=seed, strategy_parameters={"plan_horizon": horizon}, drop=drop,
+                            law=law)
     checked_run(scenario, [seed, seed + 1], steps=250)
 
 
@@ -109,7 +113,8 @@ def test_paper_example_keeps_its_sets_every_step_to_convergence() -> None:
 def test_horizon_zero_is_the_papers_rule() -> None:
     """H = 0: every plan ends where it starts (r = D = 0, T' = k), the paper's self-triggered rule."""
     seeds = list(range(8))
-    planned = engine.run(random_start(plan_horizon=0), seeds, steps=500, record_positions=False)
+    planned = engine.run(random_start(strategy_parameters={"plan_horizon": 0}), seeds, steps=500,
+                         record_positions=False)
     paper = engine.run(random_start("self"), seeds, steps=500, record_positions=False)
     assert np.array_equal(planned.triggers, paper.triggers)
     assert np.max(np.abs(planned.angles - paper.angles)) < 1e-9
@@ -168,16 +173,40 @@ def test_engine_counts_the_bigger_replies() -> None:
 
 # ---------------------------------------------------------------------------- scenario checks
 @pytest.mark.parametrize(("overrides", "message"), [
-    ({"estimation": "decentralized"}, "paper-stationary.toml: control.strategy = 'plan' needs a known stationary "
-                                      "target (estimation.mode = 'known'); use 'self' to estimate"),
-    ({"communication_range": 9.0}, "paper-stationary.toml: control.strategy = 'plan' needs unlimited communication; "
+    ({"estimation": "decentralized"}, "the plan strategy needs a known stationary target (estimation.mode = 'known'); "
+                                      "use 'self' to estimate"),
+    ({"communication_range": 9.0}, "the plan strategy needs unlimited communication; "
                                    "unset limits.communication_range or use 'self'"),
-    ({"plan_horizon": -1}, "control.plan_horizon: expected `int` >= 0; fix the value"),
+    ({"strategy_parameters": {"plan_horizon": -1}}, "strategy.plan_horizon must be >= 0 (it is -1); give an integer "
+                                                    ">= 0 and <= 10000 (default 10)"),
+    ({"strategy_parameters": {"plan_horizon": 2.5}}, "strategy.plan_horizon must be an integer (it is 2.5); give an "
+                                                     "integer >= 0 and <= 10000 (default 10)"),
 ])
 def test_unsupported_combinations_are_refused_in_one_line(overrides: dict, message: str) -> None:
-    with pytest.raises(ScenarioError) as error:
-        load_scenario("paper-stationary", strategy="plan", **overrides)
+    """The plan strategy's own checks (:meth:`PlanStrategy.check`) and its parameter's declaration,
+    whether the scenario is checked in a process (check_strategy) or by a command."""
+    with pytest.raises(StrategyError) as error:
+        check_strategy(load_scenario("paper-stationary", strategy="plan", **overrides))
     assert str(error.value) == message
+    if "strategy_parameters" in overrides:
+        return  # --plan-horizon: argparse refuses these itself
+    flags = {"estimation": ["--estimation", "decentralized"],
+             "communication_range": ["--communication-range", "9"]}[next(iter(overrides))]
+    with pytest.raises(ScenarioError) as refused:
+        scenario_from_arguments(build_parser(["simulate"]).parse_args(["simulate", "--strategy", "plan", *flags]))
+    assert str(refused.value) == f"--strategy plan: {message}"
+
+
+def test_the_plan_horizon_flag_sets_the_strategys_parameter() -> None:
+    def scenario_of(*flags: str) -> Scenario:
+        return scenario_from_arguments(build_parser(["simulate"]).parse_args(["simulate", *flags]))
+
+    assert check_strategy(scenario_of("--strategy", "plan", "--plan-horizon", "3")).plan_horizon == 3
+    assert check_strategy(scenario_of("--strategy", "plan")).plan_horizon == 10
+    with pytest.raises(ScenarioError) as refused:
+        scenario_of("--strategy", "plan", "--plan-horizon", "20000")
+    assert str(refused.value) == ("paper-stationary: strategy.plan_horizon must be <= 10000 (it is 20000); give an "
+                                  "integer >= 0 and <= 10000 (default 10)")
 
 
 # ---------------------------------------------------------------------------- the robot process

@@ -65,14 +65,15 @@ def with_estimation(key: str, value: str) -> str:
     [
         pytest.param(
             BASE.replace('name = "test"', 'name = "test"\nfoo = 1'),
-            "x.toml: unknown key 'foo' in top level; allowed keys: region, target, name, seed, team, control, sensing, "
+            "x.toml: unknown key 'foo' in top level; allowed keys: region, target, name, seed, team, strategy, control, sensing, "
             "estimation, limits, faults, radio",
             id="unknown-top-level-key",
         ),
         pytest.param(
             BASE + "speed = 3\n",
             "x.toml: unknown key 'speed' in [control]; allowed keys: "
-            "strategy, law, dt, omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps, plan_horizon",
+            "law, dt, omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps; a strategy's own parameters go in "
+            "[strategy]",
             id="unknown-control-key",
         ),
         pytest.param(
@@ -289,8 +290,9 @@ def test_scenario_accepts_the_shipped_moving_scenarios_and_variants():
 # ---------------------------------------------------------------------------- [faults], and a square region
 BAD_SCENARIOS = {
     "wrong type": ('[team]\nrobots = "six"\n', "team.robots: expected `int`, got `str`; fix the value"),
-    "unknown key": ("[control]\nspeed = 3\n", "unknown key 'speed' in [control]; allowed keys: strategy, law, dt, "
-                    "omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps, plan_horizon"),
+    "unknown key": ("[control]\nspeed = 3\n", "unknown key 'speed' in [control]; allowed keys: law, dt, "
+                    "omega_max_deg, v_max, sigma_deg, threshold_deg, max_steps; a strategy's own parameters go in "
+                    "[strategy]"),
     "non-convex": (None, "region is not convex at vertex 2 [1.0, 1.0]; give a convex polygon"),
     "target outside": ("position = [9.0, 9.0]",
                        "target.position [9.0, 9.0] is not inside the region; move it inside the polygon"),

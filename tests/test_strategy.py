@@ -78,10 +78,10 @@ def test_bad_strategies_are_refused_in_one_line(tmp_path: Path, content: str | N
 def test_a_scenario_file_names_its_strategy(tmp_path: Path) -> None:
     text = (Path(__file__).resolve().parent.parent / "scenarios" / "paper-stationary.toml").read_text()
     bad = tmp_path / "bad.toml"
-    bad.write_text(text.replace('strategy = "self"', 'strategy = "lazy"'))
+    bad.write_text(text.replace('[strategy]\nname = "self"', '[strategy]\nname = "lazy"'))
     completed = subprocess.run([*RINGTRACK, "simulate", str(bad)], capture_output=True, text=True, timeout=60)
     assert completed.returncode == 2
-    assert completed.stderr.startswith(f"ringtrack: error: {bad}: control.strategy: 'lazy' is not a registered")
+    assert completed.stderr.startswith(f"ringtrack: error: {bad}: strategy.name: 'lazy' is not a registered")
     needs = subprocess.run([*RINGTRACK, "simulate", "authors-moving", "--strategy", "belief", "--estimation",
                             "centralized"], capture_output=True, text=True, timeout=60)
     assert needs.returncode == 2

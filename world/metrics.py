@@ -5,7 +5,8 @@
 * ``Cerr_memory(k) = sum_i |gV_i(k) - theta_i(k)|`` from each robot's memory before it polls in step
   k (the paper's self-triggered Cerr);
 * the paper's ``Cerr`` of a run is ``Cerr_memory`` for the self-triggered strategy (and any other
-  that remembers) and ``Cerr_true`` for the constant one (:func:`strategy_cerr`); a step where a
+  that remembers) and ``Cerr_true`` for the constant one, as the strategy says
+  (``Strategy.cerr``, a :data:`CerrSource`; :func:`strategy_cerr`); a step where a
   live robot's offset is unknown (a realtime robot that sent no command in time) has no
   ``Cerr_memory`` (NaN), never a zero error;
 * ``Ctime = min{k >= 1 : Cerr(k) < threshold}`` (1-based; 0 here when it never happens), the one
@@ -17,11 +18,18 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.ring import midpoint_errors, successor_values
+
+# Which Cerr is the paper's Cerr of a strategy's run: "memory" (Cerr_memory: the robots' own
+# guaranteed offsets) or "true" (Cerr_true: true positions about the true target).
+CerrSource = Literal["memory", "true"]
+CERR_SOURCES: tuple[CerrSource, ...] = ("memory", "true")
 
 
 def convergence_error(offsets: ArrayLike) -> FloatArray:
@@ -49,11 +57,13 @@ def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None) -> FloatArray
     return convergence_error(offsets)
 
 
-def strategy_cerr(strategy: str, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
-    """The paper's Cerr of a run (degrees): from the true positions for the constant strategy, whose
-    memory is always one step old; memory-based for the self-triggered strategy and every other
-    (strategies that remember, :mod:`agents.strategy`)."""
-    return np.asarray(cerr_true if strategy == "constant" else cerr_memory, dtype=float)
+def strategy_cerr(source: CerrSource, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
+    """The paper's Cerr of a run (degrees) from the ``source`` its strategy names
+    (:attr:`agents.strategy.Strategy.cerr`): ``"true"`` for the constant strategy, whose memory is
+    always one step old; ``"memory"`` for the self-triggered strategy and every other that remembers."""
+    if source not in CERR_SOURCES:
+        raise ValueError(f"Cerr source {source!r}; use one of {', '.join(CERR_SOURCES)}")
+    return np.asarray(cerr_true if source == "true" else cerr_memory, dtype=float)
 
 
 def converged(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.bool_]:

@@ -32,6 +32,7 @@ from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.world.admission import Admission
+from ringtrack.world.metrics import CerrSource
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.state import WorldState
 
@@ -56,6 +57,7 @@ class WorldOptions:
     until_converged: bool = False
     lockstep_wait: float = 10.0  # s (--lockstep-wait); lockstep: a robot silent this long in one step is gone
     digest: bool = False  # lockstep: report to the monitor in Digests of the world's own links (no audit)
+    cerr: CerrSource = "memory"  # the Cerr that decides convergence: the scenario's strategy's (Strategy.cerr)
 
 
 WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
@@ -81,7 +83,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
     tokens: list[ReachTokens] = []
 
     async def main(participant: Participant, roster: Roster, _held: list) -> int:
-        world = WorldState(scenario, seed, run, options.steps)
+        world = WorldState(scenario, seed, run, options.steps, options.cerr)
         began = time.perf_counter()
         step_once = functools.partial(_lockstep, wait_s=options.lockstep_wait) if options.clock == "lockstep" \
             else _realtime

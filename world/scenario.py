@@ -19,7 +19,7 @@ import numpy as np
 from ringtrack.bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
 from ringtrack.bus.radio import Radio
 from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
-from ringtrack.world.params import ControlParams, EstimationParams
+from ringtrack.world.params import DEFAULT_STRATEGY, ControlParams, EstimationParams, StrategyChoice
 from ringtrack.world.ring import ring_gaps
 from ringtrack.world.scenario_errors import ScenarioError, explain_validation
 from ringtrack.world.scenario_files import parse_scenario, read_scenario_text, shipped_scenarios
@@ -50,6 +50,8 @@ class Scenario:
     """A validated scenario with everything in SI units (metres, seconds, radians).
 
     ``target`` is the target's position at step 1; :meth:`target_path` gives every step's.
+    ``strategy`` is the ``[strategy]`` section: the strategy's name and its parameters as given
+    (checked by the strategy itself: :func:`ringtrack.agents.strategy.check_strategy`).
     """
 
     spec: ScenarioSpec
@@ -61,6 +63,7 @@ class Scenario:
     v_max: float | None  # m/s cap on boundary speed in the world, None: no cap
     faults: FaultPlan = NO_FAULTS
     communication_range: float | None = None  # m, r_c; None: unlimited
+    strategy: StrategyChoice = StrategyChoice()
 
     @property
     def name(self) -> str:
@@ -114,8 +117,8 @@ class Scenario:
 
 def load_scenario(name_or_path: str, **overrides: Any) -> Scenario:
     """Read, validate and resolve a scenario; ``overrides`` are ``section.key``-free keyword pairs
-    such as ``strategy="constant"``, ``robots=8``, ``seed=3``, ``max_steps=500`` (see
-    :func:`apply_overrides`)."""
+    such as ``strategy="constant"``, ``robots=8``, ``seed=3``, ``max_steps=500``,
+    ``strategy_parameters={"push_gate": 1.5}`` (see :func:`apply_overrides`)."""
     text, label = read_scenario_text(name_or_path)
     spec = parse_scenario(text, label)
     return resolve(apply_overrides(spec, **overrides), label)
@@ -123,7 +126,7 @@ def load_scenario(name_or_path: str, **overrides: Any) -> Scenario:
 
 # Override name -> (section or None for the top level, key).
 OVERRIDABLE: dict[str, tuple[str | None, str]] = {
-    "strategy": ("control", "strategy"),
+    "strategy": ("strategy", "name"),
     "law": ("control", "law"),
     "dt": ("control", "dt"),
     "omega_max_deg": ("control", "omega_max_deg"),
@@ -131,7 +134,6 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
     "sigma_deg": ("control", "sigma_deg"),
     "threshold_deg": ("control", "threshold_deg"),
     "max_steps": ("control", "max_steps"),
-    "plan_horizon": ("control", "plan_horizon"),
     "robots": ("team", "robots"),
     "estimation": ("estimation", "mode"),
     "drop": ("faults", "drop"),
@@ -140,7 +142,8 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
     "seed": (None, "seed"),
     "name": (None, "name"),
 }
-
+# The override that sets keys of [strategy] (a mapping key -> value, merged into the section).
+STRATEGY_PARAMETERS = "strategy_parameters"
 
 
 
@@ -155,9 +158,11 @@ class OverrideError(ScenarioError):
 
 
 def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
-    """Replace keys of a spec (``OVERRIDABLE`` names, e.g. command-line flags); ``None`` values are
-    ignored. The result is validated like a file, so a bad value gets the same one-line error as a
-    bad key, raised as :class:`OverrideError` naming the override.
+    """Replace keys of a spec (``OVERRIDABLE`` names, e.g. command-line flags, and
+    ``strategy_parameters``, a mapping merged into ``[strategy]``: see :func:`_strategy_section`);
+    ``None`` values are ignored. The
+    result is validated like a file, so a bad value gets the same one-line error as a bad key,
+    raised as :class:`OverrideError` naming the override.
 
     A ``robots`` override that no longer matches explicit ``team.angles_deg`` replaces them by a
     seeded random start (``start_angles``).
@@ -166,8 +171,12 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     for name, value in overrides.items():
         if value is None:
             continue
+        if name == STRATEGY_PARAMETERS:
+            sections.setdefault("strategy", {}).update(value)
+            continue
         if name not in OVERRIDABLE:
-            raise ScenarioError(f"unknown override {name!r}; use one of {', '.join(OVERRIDABLE)}")
+            known = ", ".join([*OVERRIDABLE, STRATEGY_PARAMETERS])
+            raise ScenarioError(f"unknown override {name!r}; use one of {known}")
         section, key = OVERRIDABLE[name]
         sections.setdefault(section, {})[key] = value
     team = sections.get("team", {})
@@ -175,6 +184,8 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     if "robots" in team and angles is not None and len(angles) != team["robots"]:
         team["angles_deg"] = None  # explicit start of another team size: use a seeded random start
     replaced: dict[str, Any] = dict(sections.pop(None, {}))
+    if "strategy" in sections:
+        replaced["strategy"] = _strategy_section(dict(spec.strategy), sections.pop("strategy"))
     for section, values in sections.items():
         assert section is not None
         replaced[section] = msgspec.structs.replace(getattr(spec, section), **values)
@@ -185,11 +196,32 @@ def apply_overrides(spec: ScenarioSpec, **overrides: Any) -> ScenarioSpec:
     except msgspec.ValidationError as error:
         text = explain_validation(str(error), raw)
         for name, value in overrides.items():
+            if name == STRATEGY_PARAMETERS:
+                continue  # worded by the key it names, strategy.KEY
             section, key = OVERRIDABLE[name]
             path = f"{section}.{key}" if section else key
             if value is not None and text.startswith(f"{path}:"):
                 raise OverrideError(name, value, path, text[len(path):]) from None
         raise ScenarioError(text) from None
+
+
+def _strategy_section(section: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """``[strategy]`` with the keys ``given`` by overrides: a ``name`` replaces the strategy (the
+    section's plain keys, the named strategy's parameters, go with it; its ``[strategy.OTHER]``
+    tables stay); plain keys set the parameters of the strategy that runs; a table ``OTHER``
+    is merged into ``[strategy.OTHER]`` and, where OTHER is the strategy that runs, set as plain
+    keys too, so that an override wins over the file's."""
+    name = given.get("name", section.get("name", DEFAULT_STRATEGY))
+    if name != section.get("name", DEFAULT_STRATEGY):
+        section = {key: value for key, value in section.items() if isinstance(value, dict)}
+    for key, value in given.items():
+        if isinstance(value, dict):
+            section[key] = {**section.get(key, {}), **value}
+            if key == name:
+                section.update(value)
+        else:
+            section[key] = value
+    return section
 
 
 def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
@@ -228,9 +260,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         omega_max=omega,
         dt=control.dt,
         sigma=math.radians(control.sigma_deg),
-        strategy=control.strategy,
         law=control.law,
-        plan_horizon=control.plan_horizon,
     )
     estimation = spec.estimation
     if estimation.mode == "known" and not isinstance(spec.target, Stationary):
@@ -242,8 +272,7 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             f"{label}: estimation.prior = 'trilateration' needs the centralized mode (one robot has one range);"
             " use 'truth' or [x, y]"
         )
-    if control.strategy == "plan":
-        _check_plan(spec, label)
+    strategy = _strategy_choice(spec, label)
     # Only an estimating team needs the inscribed radius: computing it loads scipy's LP solver, which
     # would add about 42 MiB and 0.5 s of CPU (a busy 2-core machine) to every process of a known-target team.
     # A margin below the vertices' mean's distance to the nearest edge (at most the inscribed radius)
@@ -274,25 +303,25 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             fusion=estimation.fusion,
             criterion=estimation.criterion,
             margin=estimation.margin,
-            push_gate=estimation.push_gate,
         ),
         threshold=math.radians(threshold_deg),
         v_max=control.v_max,
         faults=_fault_plan(spec, label, _radio(spec, label)),
         communication_range=spec.limits.communication_range,
+        strategy=strategy,
     )
 
 
-def _check_plan(spec: ScenarioSpec, label: str) -> None:
-    """The plan strategy needs what makes a robot's motion between its triggers a function of its
-    memory alone: a known stationary target and no communication range (whose reachability comes
-    from the world each step)."""
-    if spec.estimation.mode != "known":
-        raise ScenarioError(f"{label}: control.strategy = 'plan' needs a known stationary target "
-                            "(estimation.mode = 'known'); use 'self' to estimate")
-    if spec.limits.communication_range is not None:
-        raise ScenarioError(f"{label}: control.strategy = 'plan' needs unlimited communication; "
-                            "unset limits.communication_range or use 'self'")
+def _strategy_choice(spec: ScenarioSpec, label: str) -> StrategyChoice:
+    """The ``[strategy]`` section: its name checked to be a name at all (whether it names a strategy,
+    and the strategy's parameters, are the strategy's to check: :mod:`ringtrack.agents.strategy`)."""
+    values = {key: value for key, value in spec.strategy.items() if not isinstance(value, dict)}
+    tables = {key: value for key, value in spec.strategy.items() if isinstance(value, dict)}
+    name = values.pop("name", DEFAULT_STRATEGY)
+    if not isinstance(name, str) or not name:
+        raise ScenarioError(f"{label}: strategy.name: expected a registered strategy's name or the path of a .py "
+                            "file, e.g. \"self\"; fix the value")
+    return StrategyChoice.of(name, values, tables)
 
 
 def _radio(spec: ScenarioSpec, label: str) -> Radio:

@@ -8,6 +8,9 @@ from typing import Annotated, Any, Literal, get_args, get_origin, get_type_hints
 from ringtrack.world.scenario_schema import ScenarioSpec
 from ringtrack.world.schema import COORDINATE_LIMIT, Coordinate, Probability, Spec
 
+# Sections where scenarios once gave a strategy's parameters (control.plan_horizon, estimation.push_gate).
+STRATEGY_KEYS_WERE_IN = ("control", "estimation")
+
 
 class ScenarioError(ValueError):
     """A scenario cannot be used; the message is one line naming the key and the fix."""
@@ -23,11 +26,16 @@ def explain_validation(message: str, raw: Any) -> str:
     if unknown:
         allowed = ", ".join(_fields_at(path, raw))
         place = f"[{path}]" if path else "top level"
-        return f"unknown key {unknown.group(1)!r} in {place}; allowed keys: {allowed}"
+        moved = "; a strategy's own parameters go in [strategy]" if path in STRATEGY_KEYS_WERE_IN else ""
+        return f"unknown key {unknown.group(1)!r} in {place}; allowed keys: {allowed}{moved}"
     missing = re.match(r"Object missing required field `(.+)`", body)
     if missing:
         key = f"{path}.{missing.group(1)}" if path else missing.group(1)
         return f"{key} is missing; add it"
+    if "[...]" in path:  # a value of a plain table ([strategy]): name its key
+        base, _, rest = path.partition("[...]")
+        key = base + _wrong_key(_type_at(base, raw)[1], nested=bool(rest))
+        return f"{key}: expected a boolean, a number or a string, got `{body.rpartition('`, got `')[2]}; fix the value"
     key = path or "scenario"
     kinds = _number_kinds(_type_at(path, raw)[0]) if body.startswith("Expected `float`") else []
     if Probability in kinds:
@@ -41,6 +49,18 @@ def explain_validation(message: str, raw: Any) -> str:
         choices = ", ".join(repr(choice) for choice in _choices_at(path, raw))
         return f"{key}: {body[0].lower()}{body[1:]}; use one of {choices}"
     return f"{key}: {body[0].lower()}{body[1:]}; fix the value"
+
+
+def _wrong_key(table: Any, nested: bool) -> str:
+    """``.key`` of the first value of a plain table that is not a boolean, a number, a string nor a
+    table; with ``nested``, ``.table.key`` of the first such value in one of its tables."""
+    for key, value in table.items() if isinstance(table, dict) else []:
+        if not nested and isinstance(value, list):
+            return f".{key}"
+        for inner, entry in value.items() if nested and isinstance(value, dict) else []:
+            if isinstance(entry, list | dict):
+                return f".{key}.{inner}"
+    return ""
 
 
 def _number_kinds(annotation: Any) -> list[Any]:

@@ -42,7 +42,20 @@ def parse_scenario(text: bytes | str, label: str = "scenario") -> ScenarioSpec:
     target = raw.get("target")
     if isinstance(target, dict):
         target.setdefault("motion", "stationary")
+    _move_strategy_name(raw, label)
     try:
         return msgspec.convert(raw, ScenarioSpec)
     except msgspec.ValidationError as error:
         raise ScenarioError(f"{label}: {explain_validation(str(error), raw)}") from None
+
+
+def _move_strategy_name(raw: dict, label: str) -> None:
+    """Accept the strategy's name where scenarios gave it before ``[strategy]`` existed, ``[control]
+    strategy``, as ``[strategy] name`` (a strategy's parameters have no old place to come from)."""
+    control, section = raw.get("control"), raw.get("strategy", {})
+    if not (isinstance(control, dict) and "strategy" in control and isinstance(section, dict)):
+        return
+    if "name" in section:
+        raise ScenarioError(f"{label}: control.strategy and strategy.name both name the strategy; "
+                            "keep strategy.name only")
+    raw["strategy"] = {"name": control.pop("strategy"), **section}

@@ -11,9 +11,12 @@ A scenario file looks like::
     [team]
     robots = 6
     angles_deg = [69.9, 75.1, 83.1, 108.1, 170.1, 303.9]   # optional; else a seeded random start
+    [strategy]
+    name = "belief"            # "self" (default) | "constant" | "plan" | "belief" | path/to/strategy.py
+    push_gate = 2.0            # the named strategy's own parameters (`ringtrack strategies` lists them)
+    [strategy.plan]            # parameters of a strategy run in its place (--strategy plan)
+    plan_horizon = 10
     [control]
-    strategy = "self"          # "self" | "constant" | "plan" | "belief" | path/to/strategy.py
-    plan_horizon = 10          # plan: the most steps ahead a reply's plan describes (H)
     law = "prop"               # fresh-information law: "prop" | "deadbeat"
     dt = 0.1                   # s
     omega_max_deg = 1.0        # deg/s; or v_max (m/s) and omega_max is derived
@@ -32,7 +35,6 @@ A scenario file looks like::
     fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
     criterion = "trace"        # CI weights minimise "trace" or "det" of the fused covariance
     margin = 0.1               # m: every estimate is kept this far inside the region (below D_in / 2)
-    push_gate = 2.0            # strategy "belief": push the belief once it moved g sigmas from the last told
     [limits]
     communication_range = 5.0  # m, r_c: links longer than this are down (default: unlimited)
     [faults]                   # robot-to-robot links; seeded by seed (default: the scenario's)
@@ -58,6 +60,14 @@ A scenario file looks like::
 
 The radio's formulas are in :mod:`ringtrack.bus.radio`.
 
+``[strategy]`` is a plain table: ``name`` (default "self") and the named strategy's own parameters,
+which only the strategy knows (it declares them: :mod:`ringtrack.agents.strategy`), so here they are
+checked only to be a boolean, a number or a string. A table ``[strategy.OTHER]`` holds the
+parameters of strategy OTHER for runs where it replaces the named one (``--strategy OTHER``, an
+experiment comparing strategies): ``[strategy.belief] push_gate = 1.5``. A scenario written before
+the section existed may still give the name as ``[control] strategy``
+(:func:`ringtrack.world.scenario_files.parse_scenario`).
+
 A new section is a ``Spec`` struct here plus a field of :class:`ScenarioSpec`; what it means for a run
 is resolved in :func:`ringtrack.world.scenario.resolve`, and an invalid value is worded by
 :mod:`ringtrack.world.scenario_errors` from the struct's annotations (nothing to add there).
@@ -69,9 +79,12 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from ringtrack.world.params import PLAN_HORIZON
+from ringtrack.world.params import StrategyValue
 from ringtrack.world.schema import Finite, NonNegative, Point, Positive, Probability, Spec
 from ringtrack.world.target import TargetSpec
+
+# [strategy]: name and the named strategy's parameters, plus a [strategy.OTHER] table per other strategy.
+StrategySection = dict[str, StrategyValue | dict[str, StrategyValue]]
 
 
 class RegionSpec(Spec, frozen=True):
@@ -87,7 +100,6 @@ class TeamSpec(Spec, frozen=True):
 
 
 class ControlSpec(Spec, frozen=True):
-    strategy: Annotated[str, msgspec.Meta(min_length=1)] = "self"  # a registered name or a .py file
     law: Literal["prop", "deadbeat"] = "prop"
     dt: Positive = 0.1
     omega_max_deg: Positive | None = None
@@ -95,7 +107,6 @@ class ControlSpec(Spec, frozen=True):
     sigma_deg: NonNegative = 0.0
     threshold_deg: Positive | None = None
     max_steps: Annotated[int, msgspec.Meta(ge=1)] = 3000
-    plan_horizon: Annotated[int, msgspec.Meta(ge=0, le=10_000)] = PLAN_HORIZON
 
 
 class SensingSpec(Spec, frozen=True):
@@ -112,7 +123,6 @@ class EstimationSpec(Spec, frozen=True):
     fusion: Literal["ci", "sequential"] = "ci"
     criterion: Literal["trace", "det"] = "trace"
     margin: NonNegative = 0.1  # m: every estimate is kept this far inside the region
-    push_gate: Positive = 2.0  # the belief strategy pushes once (x - x_last)^T P_last^-1 (x - x_last) > g^2
 
 
 class LimitsSpec(Spec, frozen=True):
@@ -167,6 +177,8 @@ class ScenarioSpec(Spec, kw_only=True, frozen=True):
     name: str = "scenario"
     seed: Annotated[int, msgspec.Meta(ge=0)] = 0
     team: TeamSpec = TeamSpec()
+    # [strategy]: name (a registered name or a .py file) and the strategy's own parameters.
+    strategy: StrategySection = {}
     control: ControlSpec = ControlSpec()
     sensing: SensingSpec = SensingSpec()
     estimation: EstimationSpec = EstimationSpec()

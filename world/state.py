@@ -10,7 +10,7 @@ import numpy as np
 
 from ringtrack.bus.messages import SCHEMA, Command, Measurement, PushCommand, PushMeasurement, Tick
 from ringtrack.world.geometry import FloatArray
-from ringtrack.world.metrics import converged, memory_cerr, strategy_cerr, true_cerr
+from ringtrack.world.metrics import CerrSource, converged, memory_cerr, strategy_cerr, true_cerr
 from ringtrack.world.ranges import link_distance
 from ringtrack.world.ring import neighbours_in_ring, successor_values
 from ringtrack.world.scenario import Scenario
@@ -27,10 +27,12 @@ def motion_step(scenario: Scenario, positions: FloatArray, goals: FloatArray) ->
 class WorldState:
     """Positions of ``scenario.robots`` robots started from ``seed``, the target on its path for
     ``steps`` steps, the ranges measured at the start of the current step, and the goals commanded
-    for it."""
+    for it. ``cerr`` is the Cerr that decides convergence, as the scenario's strategy says
+    (:attr:`agents.strategy.Strategy.cerr`; the world does not know strategies)."""
 
-    def __init__(self, scenario: Scenario, seed: int, run: int, steps: int) -> None:
+    def __init__(self, scenario: Scenario, seed: int, run: int, steps: int, cerr: CerrSource = "memory") -> None:
         self.scenario = scenario
+        self.cerr_source = cerr
         self.run = run
         self.positions: FloatArray = scenario.start_positions(seed)
         self.path = scenario.target_path(seed, steps)
@@ -176,7 +178,7 @@ class WorldState:
         live robot that has not reported leaves it unknown) or the true positions (constant)."""
         live = np.zeros(self.scenario.robots, dtype=bool)
         live[list(self.ring)] = True
-        cerr = strategy_cerr(self.scenario.control.strategy, memory_cerr(self.offsets, live),
+        cerr = strategy_cerr(self.cerr_source, memory_cerr(self.offsets, live),
                              true_cerr(self.positions, self.target))
         return bool(converged(cerr, np.rad2deg(self.scenario.threshold)))
 

@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, ...]] = {
     "certs": ("certs",),
     "introspect": ("list", "echo", "hz"),
     "export": ("export",),
+    "strategies": ("strategies",),
 }
 
 # One-line errors of bad input: (module, class). A class whose module was never imported cannot

@@ -10,7 +10,15 @@ from rich.table import Table
 
 from ringtrack.agents.strategy import StrategyError, strategy_for
 from ringtrack.tools.cli import experiment_faults, experiment_gates
-from ringtrack.tools.cli.options import CSV_FILE, FIGURE_SUFFIXES, JSON_FILE, at_least, output_path, strategy_argument
+from ringtrack.tools.cli.options import (
+    CSV_FILE,
+    FIGURE_SUFFIXES,
+    JSON_FILE,
+    at_least,
+    output_path,
+    plan_horizon,
+    strategy_argument,
+)
 from ringtrack.tools.output.console import err, out, progress_bar, write_csv, write_json
 from ringtrack.tools.studies.experiment import (
     MAIN_STRATEGIES,
@@ -116,7 +124,7 @@ def robot_list(text: str) -> list[int]:
 
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
-                 "plan_horizon": args.plan_horizon}
+                 "strategy_parameters": plan_horizon(args)}
     # Validate the scenario and flags before showing any progress.
     probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
     names, limit = list(probe), next(iter(probe.values())).max_steps

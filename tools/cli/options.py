@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ringtrack.agents.strategy import REGISTRY, StrategyError, check_strategy
 from ringtrack.tools.output.console import unwritable
+from ringtrack.world.params import StrategyValue
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
 
 DEFAULT_SCENARIO = "paper-stationary"
@@ -60,7 +61,7 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
             args.scenario,
             strategy=strategy_argument(args.strategy),
             law=args.law,
-            plan_horizon=args.plan_horizon,
+            strategy_parameters=plan_horizon(args),
             robots=args.robots,
             seed=args.seed,
             max_steps=args.steps,
@@ -75,6 +76,12 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
     return checked_strategy(scenario, args.strategy, args.scenario)
 
 
+def plan_horizon(args: argparse.Namespace) -> dict[str, dict[str, StrategyValue]] | None:
+    """``--plan-horizon H`` as what it sets: ``[strategy.plan] plan_horizon``, the plan strategy's
+    parameter wherever that strategy runs (and nothing where another does)."""
+    return None if args.plan_horizon is None else {"plan": {"plan_horizon": args.plan_horizon}}
+
+
 def strategy_argument(value: str | None) -> str | None:
     """A ``--strategy`` value as the scenario records it: a registered name as it is, a file's path
     made absolute (every process of a team reads it from the run folder's scenario)."""
@@ -84,12 +91,16 @@ def strategy_argument(value: str | None) -> str | None:
 
 
 def checked_strategy(scenario: Scenario, flag_value: str | None, source: str) -> Scenario:
-    """``scenario`` once its strategy loads and suits it; else a one-line :class:`ScenarioError`
-    naming ``--strategy`` (when given) or the scenario's ``control.strategy``."""
+    """``scenario`` once its strategy loads, its ``[strategy]`` parameters check out and it suits
+    the scenario; else a one-line :class:`ScenarioError` naming ``--strategy`` (when given) or the
+    scenario's ``strategy.name``, or the scenario and the parameter's ``strategy.KEY``."""
     try:
         check_strategy(scenario)
     except StrategyError as error:
-        where = f"--strategy {flag_value}" if flag_value is not None else f"{source}: control.strategy"
+        if error.key != "name":  # the message names strategy.KEY
+            where = source
+        else:
+            where = f"--strategy {flag_value}" if flag_value is not None else f"{source}: strategy.name"
         raise ScenarioError(f"{where}: {error}") from None
     return scenario
 

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 from pathlib import Path
 
+from ringtrack.agents.strategy import check_strategy
 from ringtrack.bus.keys import WORLD
 from ringtrack.tools.cli.options import positive, scenario_from_arguments
 from ringtrack.tools.cli.role_flags import bus_config, common_flags, digests
@@ -39,6 +40,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
         lockstep_wait=args.lockstep_wait,
         digest=args.monitor and digests(args),
+        cerr=check_strategy(scenario).cerr,
     )
     config = bus_config(args, [WORLD], scenario.robots, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))

@@ -225,14 +225,14 @@ def fit_line(pieces: list[tuple[str, str, int]], width: int, separator: str = " 
 
 def header_line(model: TeamModel, width: int) -> Text:
     """The top line: run, strategy, step and pace; pieces are left out on narrow consoles, never wrapped."""
-    scenario, control = model.scenario, model.scenario.control
+    scenario = model.scenario
     rate = model.steps_per_second() if model.live else 0.0
     pace = f"replay x{model.replay_speed:g}" if model.replay_speed else f"{rate:.0f} steps/s" if rate else ""
     pieces = [
         ("ringtrack", "bold", 6),
         (scenario.name, "bold", 0),
         (f"{len(model.robots)} robots", "", 1),
-        (f"{control.strategy} strategy", "", 2),
+        (f"{scenario.strategy.name} strategy", "", 2),
         (f"{scenario.estimation.mode} target", "", 4),
         (model.clock, "", 5),
         (f"step {model.step}/{model.steps}", "bold", 0),

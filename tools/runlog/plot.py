@@ -103,7 +103,7 @@ def plot_run(log: RunLog) -> Figure:
                      borderaxespad=0.0)
     energy = (log.end or {}).get("energy_j") or {}
     links.set_title(PANELS[3])
-    figure.suptitle(f"{scenario.name}: {scenario.robots} robots, {scenario.control.strategy} strategy, "
+    figure.suptitle(f"{scenario.name}: {scenario.robots} robots, {scenario.strategy.name} strategy, "
                     f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})"
                     + (f"; team radio energy {1e3 * sum(map(sum, energy.values())):.2f} mJ" if energy else ""))
     return figure

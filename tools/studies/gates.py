@@ -7,18 +7,15 @@ import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
-import msgspec
 
 from ringtrack.agents import engine
 from ringtrack.tools.output.console import err
 from ringtrack.world.metrics import settled_mean
-from ringtrack.world.scenario import Scenario, load_scenario, resolve
+from ringtrack.world.scenario import Scenario, apply_overrides, load_scenario, resolve
 
 
 def with_gate(scenario: Scenario, gate: float) -> Scenario:
-    spec = scenario.spec
-    estimation = msgspec.structs.replace(spec.estimation, push_gate=gate)
-    return resolve(msgspec.structs.replace(spec, estimation=estimation), scenario.name)
+    return resolve(apply_overrides(scenario.spec, strategy_parameters={"belief": {"push_gate": gate}}), scenario.name)
 
 
 def point(history: engine.History, settle: int) -> dict[str, float | None]:
