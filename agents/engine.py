@@ -21,14 +21,13 @@ from ringtrack.agents.estimation import Estimator
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
-from ringtrack.bus.radio import energy_report, message_bits, receive_energy, transmit_energy
+from ringtrack.bus.radio import message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import (
     converged,
     convergence_step,
     mean_communication_rate,
     memory_cerr,
-    settled_mean,
     strategy_cerr,
     target_error,
     true_cerr,
@@ -540,56 +539,9 @@ def _to_sides(values: NDArray) -> tuple[NDArray, NDArray]:
     return predecessor_values(values, axis=1), successor_values(values, axis=1)
 
 
-SETTLE_STEPS = 300  # moving targets: Cerr and Terr means leave out the first steps (as experiment moving)
 
 
-def summary(history: History, trial: int = 0, settle: int = SETTLE_STEPS) -> dict[str, object]:
-    """The JSON-ready summary of one trial of a run: convergence, communication and final error.
-    ``robot_messages`` counts every robot-to-robot message put on the bus (requests, replies,
-    pushes); for a moving target ``cerr_mean_deg`` (true Cerr, degrees) and ``terr_mean`` (metres)
-    are means once the first ``settle`` steps are left out (:func:`world.metrics.settled_mean`),
-    for a stationary one ``terr_mean`` is over every step."""
-    scenario = history.scenario
-    ctime = int(history.ctime[trial])
-    ctime_true = int(history.ctime_true[trial])
-    polled = (history.triggers[:, trial] != 0).sum(axis=0)
-    com_bar = float(history.com_bar[trial])
-    return {
-        "scenario": scenario.name,
-        "strategy": strategy_for(scenario.strategy).name,
-        "law": scenario.control.law,
-        "robots": int(history.angles.shape[2]),
-        "seed": history.seeds[trial],
-        "steps": history.steps,
-        "threshold_deg": float(np.rad2deg(scenario.threshold)),
-        "converged": ctime > 0,
-        "ctime": ctime or None,
-        "ctime_true": ctime_true or None,
-        "com_bar": com_bar if ctime else None,
-        "triggers": {"total": int(polled.sum()), "per_robot": polled.tolist()},
-        "cerr_final_deg": _known(history.cerr[-1, trial]),
-        "cerr_true_final_deg": float(history.cerr_true[-1, trial]),
-        "estimation": scenario.estimation.mode,
-        "terr_mean": settled_mean(history.terr[:, trial], settle) if scenario.moving
-        else float(history.terr[:, trial].mean()),
-        "terr_final": float(history.terr[-1, trial]),
-        "robot_messages": int(history.sent[:, trial].sum()),
-        **({"from_step": settle, "cerr_mean_deg": settled_mean(history.cerr_true[:, trial], settle)}
-           if scenario.moving else {}),
-        "faults": fault_totals(history, trial),
-        **_radio_summary(history, trial),
-    }
 
 
-def _radio_summary(history: History, trial: int) -> dict[str, object]:
-    """The bytes the robots published and their radio energy (:func:`bus.radio.energy_report`),
-    when the history knows them."""
-    if history.energy is None or history.sent_bytes is None:
-        return {}
-    return {"robot_bytes": int(history.sent_bytes[:, trial].sum()),
-            "energy": energy_report(*history.energy[:, trial].sum(axis=0).T)}
 
 
-def _known(value: float) -> float | None:
-    """A figure for JSON: None where it is unknown (NaN)."""
-    return None if np.isnan(value) else float(value)

@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar, overload
 
+import msgspec
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -126,13 +127,18 @@ def airtime_s(radio: Radio, payload_bytes: int) -> float:
     return radio.latency_s + float(message_bits(radio, payload_bytes)) / radio.bandwidth_bps
 
 
-def energy_report(transmit_j: ArrayLike, receive_j: ArrayLike) -> dict[str, object]:
-    """The JSON-ready energy of a run's robot-to-robot traffic: per robot (transmit, receive and
-    their sum) and the team total, joules."""
+class EnergyReport(msgspec.Struct, frozen=True):
+    """The radio energy of a run's robot-to-robot traffic, joules: per robot (robot index order) to
+    transmit, to receive and their sum, and the team's total."""
+
+    per_robot_j: list[float]
+    transmit_j: list[float]
+    receive_j: list[float]
+    team_j: float
+
+
+def energy_report(transmit_j: ArrayLike, receive_j: ArrayLike) -> EnergyReport:
+    """The :class:`EnergyReport` of robots that spent ``transmit_j`` and ``receive_j`` (joules, per robot)."""
     transmit, receive = np.asarray(transmit_j, dtype=float), np.asarray(receive_j, dtype=float)
-    return {
-        "per_robot_j": (transmit + receive).tolist(),
-        "transmit_j": transmit.tolist(),
-        "receive_j": receive.tolist(),
-        "team_j": float((transmit + receive).sum()),
-    }
+    return EnergyReport(per_robot_j=(transmit + receive).tolist(), transmit_j=transmit.tolist(),
+                        receive_j=receive.tolist(), team_j=float((transmit + receive).sum()))

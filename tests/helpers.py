@@ -39,6 +39,7 @@ from hypothesis import strategies as st
 from ringtrack.agents import engine
 from ringtrack.agents.engine import History
 from ringtrack.tools.runlog.log import RunLog, history_from_log, read_log
+from ringtrack.tools.team.plan import TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.geometry import ConvexRegion
 from ringtrack.world.scenario import Scenario, load_scenario, parse_scenario, resolve
@@ -265,12 +266,12 @@ def short_sighted(estimation: str, prior: str, **overrides: object) -> Scenario:
 RINGTRACK = [sys.executable, "-m", "ringtrack.tools.cli"]
 
 
-def lockstep_run(scenario: Scenario, runs: Path, audit: bool = False) -> tuple[dict, RunLog]:
+def lockstep_run(scenario: Scenario, runs: Path, audit: bool = False) -> tuple[TeamResult, RunLog]:
     """Spawn a lockstep team (with ``audit``, the monitor observing every message itself) and return
     its summary and run log."""
-    result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=False, audit=audit)
-    assert result["exit_code"] == 0, result
-    return result, read_log(Path(result["log"]))
+    result = spawn_team(TeamPlan(scenario=scenario, clock="lockstep", runs=runs, dashboard=False, audit=audit))
+    assert result.exit_code == 0, result
+    return result, read_log(Path(result.log))
 
 
 def engine_twin(log: RunLog) -> History:

@@ -12,6 +12,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.agents.belief import mahalanobis_squared
+from ringtrack.agents.summary import summarise
 from ringtrack.bus.faults import FAULT_COUNTERS
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.tools.studies.gates import with_gate
@@ -81,11 +82,11 @@ def test_lockstep_belief_team_equals_the_engine(tmp_path: Path) -> None:
     assert np.max(np.abs(logged.estimates - twin.estimates)) < 1e-9  # every robot's belief it steered by
     assert np.array_equal(logged.triggers, twin.triggers)
     assert np.array_equal(logged.sent, twin.sent) and np.array_equal(logged.received, twin.received)
-    assert twin.pushes is not None and result["by_kind"]["push"]["messages"] == int(twin.pushes.sum()) > 0
-    assert result["robot_messages"] == int(twin.sent.sum())
-    spawned, simulated = engine.summary(logged, settle=100), engine.summary(twin, settle=100)  # as spawn's summary
+    assert twin.pushes is not None and result.by_kind["push"]["messages"] == int(twin.pushes.sum()) > 0
+    assert result.outcome.robot_messages == int(twin.sent.sum())
+    spawned, simulated = summarise(logged, settle=100), summarise(twin, settle=100)  # as spawn's summary
     for key in ("robot_messages", "cerr_mean_deg", "terr_mean", "from_step"):
-        assert spawned[key] == pytest.approx(simulated[key], rel=1e-9, abs=1e-12)
+        assert getattr(spawned, key) == pytest.approx(getattr(simulated, key), rel=1e-9, abs=1e-12)
 
 
 def run(command: str, folder: Path, flags: list[str]) -> tuple[dict, object]:
@@ -105,7 +106,7 @@ def test_belief_with_faults_counts_every_message_once(tmp_path: Path) -> None:
     simulated, engine_log = run("simulate", tmp_path, flags)
     spawned, team_log = run("spawn", tmp_path, flags)
     count = assert_one_count(engine_log)
-    assert assert_one_count(team_log) == count == simulated["robot_messages"] == spawned["robot_messages"]
+    assert assert_one_count(team_log) == count == simulated["robot_messages"] == spawned["outcome"]["robot_messages"]
     assert engine_log.end["faults"]["dropped"] > 0 and engine_log.end["faults"]["duplicated"] > 0
     assert team_log.end["consistent"] is True
     assert team_log.end["notes"].get("pushes_waited_out", 0) == 0  # every lost push is known lost at once (the
@@ -116,4 +117,4 @@ def test_belief_with_faults_counts_every_message_once(tmp_path: Path) -> None:
     assert any(kind == "push" for kind, *_ in robot_links(team_log.end["traffic"]))
     assert {key: spawned["faults"][key] for key in FAULT_COUNTERS} == \
         {key: simulated["faults"][key] for key in FAULT_COUNTERS}
-    assert spawned["terr_mean"] == pytest.approx(simulated["terr_mean"], rel=1e-9)
+    assert spawned["outcome"]["terr_mean"] == pytest.approx(simulated["terr_mean"], rel=1e-9)

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.agents import engine
+from ringtrack.agents.summary import summarise
 from ringtrack.tools.runlog.log import read_log
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK
@@ -70,7 +71,7 @@ def by_hand(team: Team, *steps: str) -> tuple[list[int], str, Path]:
 
 @pytest.mark.processes
 def test_a_team_by_hand_stops_at_convergence_and_the_monitor_reports_ctime(team: Team) -> None:
-    ctime = engine.summary(engine.run(load_scenario("paper-stationary"), until_converged=True))["ctime"]
+    ctime = summarise(engine.run(load_scenario("paper-stationary"), until_converged=True)).ctime
     codes, said, log = by_hand(team)
     assert codes == [0, 0, 0]
     assert len(read_log(log).steps) == ctime  # not all of control.max_steps

@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import io
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from rich.console import Console
+from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
+from ringtrack.tools.output.console import show
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
 
@@ -125,3 +130,30 @@ def test_moving_experiment_needs_a_circling_target() -> None:
                                capture_output=True, text=True, timeout=60)
     assert completed.returncode == 2
     assert completed.stderr.strip() == "ringtrack: error: paper-stationary.toml: experiment moving needs target.motion = 'circle'"
+
+
+@pytest.mark.processes
+def test_a_table_written_to_a_pipe_is_never_cut() -> None:
+    """Off a terminal a table takes the width it needs, however narrow the console says it is: every
+    column is there (the drop rate first) and no cell ends in an ellipsis."""
+    completed = subprocess.run([sys.executable, "-m", "ringtrack", "experiment", "faults", "paper-stationary",
+                                "--drop", "0,0.3", "--trials", "2", "--steps", "60"],
+                               capture_output=True, text=True, timeout=120, env={**os.environ, "COLUMNS": "40"})
+    assert completed.returncode == 0, completed.stderr
+    lines = completed.stdout.splitlines()
+    header = next(line for line in lines if "strategy" in line)
+    assert header.split() == ["drop", "outage", "r_c", "strategy", "done", "Ctime", "Com-bar", "msgs", "J/robot"]
+    assert "…" not in completed.stdout
+    assert any(line.split()[:4] == ["0.3", "0", "-", "constant"] for line in lines)
+
+
+def test_show_widens_a_table_only_off_a_terminal() -> None:
+    """:func:`show` prints a table wider than a pipe's console whole, and at a terminal's width on one."""
+    table = Table("a column with a long heading", "another column with a long heading")
+    table.add_row("a cell that is long enough to be cut", "and another one")
+    piped = Console(file=io.StringIO(), width=30)
+    show(table, piped)
+    assert "…" not in piped.file.getvalue() and "a cell that is long enough to be cut" in piped.file.getvalue()
+    terminal = Console(file=io.StringIO(), width=30, force_terminal=True, color_system=None)
+    show(table, terminal)
+    assert max(len(line) for line in terminal.file.getvalue().splitlines()) <= 30

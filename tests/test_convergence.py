@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ringtrack.agents.summary import summarise
 from ringtrack.bus.messages import SCHEMA, Command
 from ringtrack.tools.runlog.log import history_from_log, read_log, write_engine_log
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.metrics import converged, convergence_step, memory_cerr, true_cerr
 from ringtrack.world.state import WorldState
@@ -31,6 +33,22 @@ def test_a_missing_offset_leaves_cerr_unknown_and_never_converged() -> None:
     # a robot out of the ring is no part of the sum; a live one without an offset is unknown
     assert memory_cerr(offsets[0], live=[True, True, False]) == 0.0
     assert np.isnan(memory_cerr(offsets[0], live=[False, True, True]))
+
+
+def test_a_command_does_not_move_the_robots_before_the_step_ends() -> None:
+    """The positions of a step are those its tick published until the world advances: taking the
+    next goal (uncapped speed: the goal is reached in one step) must not move anyone at once, or the
+    world would judge convergence on next step's positions (and a constant team end a step early)."""
+    team = scenario(strategy="constant")
+    assert team.v_max is None
+    world = WorldState(team, seed=0, run=1, steps=10, cerr="true")
+    world.advance()
+    published = world.positions.copy()
+    goal = team.region.boundary_point(1.0, team.region.chebyshev_centre[0])
+    world.accept(Command(SCHEMA, 1, 2, 0, (float(goal[0]), float(goal[1])), 0, 0.0, (0, 0), (0.0, 0.0)))
+    np.testing.assert_array_equal(world.positions, published)
+    world.advance()
+    np.testing.assert_allclose(world.positions[0], goal)
 
 
 def test_the_world_does_not_converge_on_offsets_it_has_not_received() -> None:
@@ -66,27 +84,27 @@ def test_a_log_with_missing_offsets_reports_no_convergence_there(tmp_path: Path)
     path.write_text("\n".join(lines) + "\n")
     history = history_from_log(read_log(path))
     assert np.isnan(history.cerr[0, 0]) and history.ctime[0] == 0
-    assert engine.summary(history)["converged"] is False
+    assert summarise(history).converged is False
 
 
 def racy_realtime_run(tmp_path: Path, strategy: str) -> tuple[dict, list[dict]]:
     """A realtime team at 20x (5 ms steps: step 1 is a race) that stops at convergence."""
     team = scenario(strategy=strategy, max_steps=1000)
-    result = spawn_team(team, clock="realtime", rate=20.0, runs=tmp_path, dashboard=False, until_converged=True,
-                        quiet=True)
-    assert result["exit_code"] == 0, result
-    return result, read_log(Path(result["log"])).steps
+    result = spawn_team(TeamPlan(scenario=team, clock="realtime", rate=20.0, runs=tmp_path, dashboard=False, until_converged=True,
+                        quiet=True))
+    assert result.exit_code == 0, result
+    return result, read_log(Path(result.log)).steps
 
 
 def assert_claims_only_known_convergence(result: dict, steps: list[dict]) -> list[int]:
     """Every step at which the run says it converged (the world's end, the log's Ctime) has a known
     Cerr below the threshold: self-triggered, every live robot's offset is in its record; constant,
     the true Cerr of its record. Returns those steps."""
-    ended = result["steps"] if result["end_reason"] == "converged" else None
-    claimed = [step for step in (result["ctime"], ended) if step]
+    ended = result.outcome.steps if result.end_reason == "converged" else None
+    claimed = [step for step in (result.outcome.ctime, ended) if step]
     for step in claimed:
         record = steps[step - 1]
-        if result["strategy"] == "self":
+        if result.outcome.strategy == "self":
             offsets = [record["offset"][robot] for robot in record["live"]]
             assert None not in offsets, (step, record["offset"])
             assert float(memory_cerr(offsets)) < THRESHOLD_DEG
@@ -102,11 +120,11 @@ def test_a_racy_realtime_self_triggered_run_never_claims_a_false_convergence(tmp
     result, steps = racy_realtime_run(tmp_path, "self")
     claimed = assert_claims_only_known_convergence(result, steps)
     # Wherever a live robot's offset did not reach the monitor, the logged run's Cerr is unknown.
-    cerr = history_from_log(read_log(Path(result["log"]))).cerr[:, 0]
+    cerr = history_from_log(read_log(Path(result.log))).cerr[:, 0]
     unknown = [row for row, record in enumerate(steps)
                if any(record["offset"][robot] is None for robot in record["live"])]
     assert np.isnan(cerr[unknown]).all() and not np.isnan(np.delete(cerr, unknown)).any()
-    assert (result["cerr_final_deg"] is None) == (len(steps) - 1 in unknown)
+    assert (result.outcome.cerr_final_deg is None) == (len(steps) - 1 in unknown)
     # Step 1 is where the robots' memory is the truth (they start with exact information), so there
     # the true Cerr must agree: 64 deg, far from converged.
     assert 1 not in claimed

@@ -19,6 +19,7 @@ from ringtrack.tools.dashboard.views import LiveView
 from ringtrack.tools.monitor.state import TeamModel
 from ringtrack.tools.runlog.log import LogWriter, RunLog, read_log
 from ringtrack.tools.runlog.plot import PANELS, plot_run
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import lockstep_run
@@ -120,9 +121,9 @@ def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch:
     monkeypatch.setenv("COLUMNS", "120")  # the monitor's forced terminal: wide enough for every column
     monkeypatch.setenv("LINES", "60")
     scenario = load_scenario("paper-stationary", max_steps=80)
-    result = spawn_team(scenario, runs=tmp_path, dashboard=True, quiet=True)
-    assert result["exit_code"] == 0
-    folder = Path(result["folder"])
+    result = spawn_team(TeamPlan(scenario=scenario, runs=tmp_path, dashboard=True, quiet=True))
+    assert result.exit_code == 0
+    folder = Path(result.folder)
     log = read_log(folder / "log.jsonl")
     end = log.end
     assert end is not None and end["late"] == 0 and end["consistent"] is True
@@ -157,8 +158,8 @@ def test_dashboard_of_a_real_run_equals_the_monitor(tmp_path: Path, monkeypatch:
 
 @pytest.mark.processes
 def test_summary_lines_when_the_monitor_has_no_terminal(tmp_path: Path) -> None:
-    result = spawn_team(load_scenario("paper-stationary", max_steps=40), runs=tmp_path, quiet=True)
-    lines = (Path(result["folder"]) / "monitor.stdout").read_text().splitlines()
+    result = spawn_team(TeamPlan(scenario=load_scenario("paper-stationary", max_steps=40), runs=tmp_path, quiet=True))
+    lines = (Path(result.folder) / "monitor.stdout").read_text().splitlines()
     steps = [line for line in lines if line.startswith("step ")]
     assert steps and steps[-1].startswith("step 40/40: robot-to-robot")
 

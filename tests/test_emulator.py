@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import signal
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -10,12 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ringtrack.agents import engine
 from ringtrack.agents.engine import History, robot_to_robot_sent
+from ringtrack.agents.summary import summarise
 from ringtrack.bus.counting import per_link, totals_by_category
-from ringtrack.bus.messages import digest_entries
+from ringtrack.bus.messages import EndReason, digest_entries
 from ringtrack.tools.runlog.log import RunLog, history_from_log, read_log
+from ringtrack.tools.team.plan import TeamPlan
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import (
+    RINGTRACK,
     SENSING_RANGE,
     assert_equals_engine,
     engine_twin,
@@ -40,7 +47,7 @@ def test_lockstep_team_equals_the_engine(tmp_path: Path, strategy: str) -> None:
     assert len(log.steps) == STEPS
 
     # Every role is its own OS process.
-    pids = result["pids"]
+    pids = result.pids
     assert set(pids) == {"world", "monitor"} | {f"r{i}" for i in range(6)}
     assert len(set(pids.values())) == 8
 
@@ -49,13 +56,13 @@ def test_lockstep_team_equals_the_engine(tmp_path: Path, strategy: str) -> None:
     polled = logged.triggers[:, 0] != 0
     sent = np.array([record["sent_messages"] for record in log.steps])
     assert np.array_equal(sent, robot_to_robot_sent(polled))
-    assert result["messages"]["robot"] == 4 * int(polled.sum())
-    assert result["triggers"]["total"] == int(polled.sum())
+    assert result.messages["robot"] == 4 * int(polled.sum())
+    assert result.outcome.triggers.total == int(polled.sum())
     if strategy == "constant":
-        assert result["messages"]["robot"] == 4 * 6 * STEPS
+        assert result.messages["robot"] == 4 * 6 * STEPS
     # The world serves one measurement per robot per step and gets one command back; it tells the
     # monitor each step's true state in a digest of up to ten steps (no tick of its own).
-    kinds = result["by_kind"]
+    kinds = result.by_kind
     assert kinds["measurement"]["messages"] == kinds["command"]["messages"] == 6 * STEPS
     assert STEPS // digest_entries(6) <= kinds["digest"]["messages"] <= STEPS and "tick" not in kinds
 
@@ -82,9 +89,9 @@ def test_digests_give_the_audited_log_without_copies_of_world_traffic(tmp_path: 
     team = scenario(max_steps=150)
     digested, digested_log = lockstep_run(team, tmp_path / "digest")
     audited, audited_log = lockstep_run(team, tmp_path / "audit", audit=True)
-    assert 150 // digest_entries(6) <= digested["by_kind"]["digest"]["messages"] <= 150
-    assert "tick" not in digested["by_kind"] and "digest" not in audited["by_kind"]
-    assert audited["by_kind"]["tick"]["messages"] == 150
+    assert 150 // digest_entries(6) <= digested.by_kind["digest"]["messages"] <= 150
+    assert "tick" not in digested.by_kind and "digest" not in audited.by_kind
+    assert audited.by_kind["tick"]["messages"] == 150
     assert digested_log.steps == audited_log.steps
     assert digested_log.end is not None and audited_log.end is not None
     assert digested_log.end["consistent"] is True and audited_log.end["consistent"] is True
@@ -117,9 +124,9 @@ def test_two_runs_at_once_do_not_interfere(tmp_path: Path) -> None:
         assert not isinstance(outcome, BaseException), outcome
         result, log = outcome
         assert_equals_engine(log)
-        assert result["monitor_equals_senders"] is True
-        assert result["robots"] == runs[name].robots
-    assert outcomes["a"][0]["run"] != outcomes["b"][0]["run"]
+        assert result.monitor_equals_senders is True
+        assert result.outcome.robots == runs[name].robots
+    assert outcomes["a"][0].run != outcomes["b"][0].run
     (a_start, a_end), (b_start, b_end) = spans["a"], spans["b"]
     overlap = min(a_end, b_end) - max(a_start, b_start)
     assert overlap > 0.5 * min(a_end - a_start, b_end - b_start)  # the two teams really ran at once
@@ -162,25 +169,20 @@ def test_stop_leaves_no_process_and_a_readable_log(tmp_path: Path, stop: signal.
 
 
 def test_spawn_stops_at_convergence_like_the_engine(tmp_path: Path) -> None:
-    from ringtrack.agents import engine
-    from ringtrack.tools.team.spawn import spawn_team
-
     team = scenario(robots=5, seed=4, max_steps=2000, omega_max_deg=3.0)
-    result = spawn_team(team, runs=tmp_path, dashboard=False, until_converged=True)
-    twin = engine.summary(engine.run(team, until_converged=True, record_positions=False))
-    assert result["exit_code"] == 0 and result["end_reason"] == "converged"
+    result = spawn_team(TeamPlan(scenario=team, runs=tmp_path, dashboard=False, until_converged=True))
+    twin = summarise(engine.run(team, until_converged=True, record_positions=False))
+    assert result.exit_code == 0 and result.end_reason is EndReason.CONVERGED and result.outcome is not None
     for key in ("ctime", "com_bar", "steps", "triggers"):
-        assert result[key] == twin[key], key
+        assert getattr(result.outcome, key) == getattr(twin, key), key
 
 
 @pytest.mark.realtime
 def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
-    from ringtrack.tools.team.spawn import spawn_team
-
-    result = spawn_team(scenario(max_steps=200), clock="realtime", rate=10.0, runs=tmp_path, dashboard=False)
-    assert result["exit_code"] == 0 and result["end_reason"] == "done"
-    assert result["monitor_equals_senders"] is True
-    log = read_log(Path(result["log"]))
+    result = spawn_team(TeamPlan(scenario=scenario(max_steps=200), clock="realtime", rate=10.0, runs=tmp_path, dashboard=False))
+    assert result.exit_code == 0 and result.end_reason == "done"
+    assert result.monitor_equals_senders is True
+    log = read_log(Path(result.log))
     assert len(log.steps) == 200
     # The world keeps its schedule: it never starts a step early, so 200 steps of 0.1 s at 10x take
     # at least 2 s (how much longer depends on the load; a loaded world drifts but never hurries).
@@ -188,8 +190,8 @@ def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
     # Requests go out in pairs; a robot that falls behind the clock may abandon a poll when a newer
     # measurement arrives, so completed polls (those in commands) are a lower bound.
     completed = sum(1 for record in log.steps for trigger in record["trigger"] if trigger)
-    requests = result["by_kind"]["request"]["messages"]
-    replies = result["by_kind"]["reply"]["messages"]
+    requests = result.by_kind["request"]["messages"]
+    replies = result.by_kind["reply"]["messages"]
     assert requests % 2 == 0
     assert 2 * completed <= replies <= requests
     # The team moves towards the uniform configuration about as fast per command as in lockstep,
@@ -204,11 +206,6 @@ def test_realtime_team_runs_and_counts_every_message(tmp_path: Path) -> None:
 
 def test_a_team_assembled_by_hand_from_the_role_commands(tmp_path: Path) -> None:
     """``ringtrack world``, ``robot`` and ``monitor`` started one by one, as across hosts."""
-    import json
-    import subprocess
-
-    from tests.helpers import RINGTRACK
-
     announce, log_path = tmp_path / "world.json", tmp_path / "log.jsonl"
     common = ["paper-stationary", "--robots", "4", "--seed", "7", "--steps", "120", "--run", "00c0ffee", "--monitor"]
     processes = [subprocess.Popen([*RINGTRACK, "world", *common, "--announce", str(announce)],
@@ -243,18 +240,18 @@ def test_moving_target_lockstep_equals_the_engine(tmp_path: Path, estimation: st
     moving = load_scenario("authors-moving", estimation=estimation, max_steps=STEPS)
     result, log = lockstep_run(moving, tmp_path)
     logged = assert_tracks_like_the_engine(log)
-    kinds = result["by_kind"]
+    kinds = result.by_kind
     polls = int((logged.triggers != 0).sum())
     assert kinds["request"]["messages"] == kinds["reply"]["messages"] == 2 * polls
     if estimation == "decentralized":
         # replies carry the neighbour's belief: position, mean and covariance (7 floats of 9 bytes)
         assert kinds["reply"]["bytes"] / kinds["reply"]["messages"] > 7 * 9
-        assert "estimation" not in result["messages"]
+        assert "estimation" not in result.messages
     else:
         # every robot reports its range and the fusion centre broadcasts one estimate per step
         assert kinds["range"]["messages"] == 6 * STEPS and kinds["estimate"]["messages"] == STEPS
-        assert "fusion" in result["pids"] and len(set(result["pids"].values())) == 9
-    assert result["monitor_equals_senders"] is True
+        assert "fusion" in result.pids and len(set(result.pids.values())) == 9
+    assert result.monitor_equals_senders is True
 
 
 def assert_tracks_like_the_engine(log: RunLog) -> History:
@@ -274,10 +271,10 @@ def test_constant_strategy_with_centralized_estimation_equals_the_engine(tmp_pat
     result, log = lockstep_run(team, tmp_path)
     logged = assert_tracks_like_the_engine(log)
     assert np.all(logged.triggers != 0)  # constant: every robot polls every step
-    kinds = result["by_kind"]
+    kinds = result.by_kind
     assert kinds["request"]["messages"] == kinds["reply"]["messages"] == 2 * 6 * steps
     assert kinds["range"]["messages"] == 6 * steps and kinds["estimate"]["messages"] == steps
-    assert result["monitor_equals_senders"] is True
+    assert result.monitor_equals_senders is True
 
 
 @pytest.mark.parametrize(("estimation", "prior"), [("decentralized", "truth"), ("centralized", "trilateration")])
@@ -296,8 +293,6 @@ def test_limited_sensing_range_equals_the_engine(tmp_path: Path, estimation: str
 
 
 def test_the_world_caps_boundary_speed_at_v_max_like_the_engine(tmp_path: Path) -> None:
-    from ringtrack.agents import engine
-
     capped = scenario(v_max=0.05, max_steps=200)  # omega_max stays 1 deg/s; the world caps the motion
     _, log = lockstep_run(capped, tmp_path)
     logged = assert_equals_engine(log)

@@ -16,6 +16,8 @@ import pytest
 from ringtrack.agents import engine
 from ringtrack.bus.faults import FAULT_COUNTERS, FaultPlan, LinkRates, Outage, link
 from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.plan import TeamPlan
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import ring_order_kept
 from ringtrack.world.ranges import link_lengths
@@ -55,7 +57,7 @@ def test_twenty_percent_drop_converges_keeps_order_and_accounts_for_every_messag
     team = scenario(drop=0.2, max_steps=900)
     result, log = lockstep_run(team, tmp_path)
     logged = assert_equals_engine(log)  # a lockstep run with faults is reproducible: it equals the engine
-    assert result["converged"] is True
+    assert result.outcome.converged is True
     assert ring_order_kept(team.region, logged.positions[:, 0]).all()
     faults = log.end["faults"]
     assert faults["dropped"] > 0 and faults["duplicated"] == 0
@@ -68,7 +70,7 @@ def test_twenty_percent_drop_converges_keeps_order_and_accounts_for_every_messag
     assert {event["reason"] for event in dropped_events} == {"drop"}
     # what the monitor saw on the wire: every request not dropped before sending, every reply
     requests_dropped_early = sum(1 for event in dropped_events if event["subject"] == "request")
-    assert result["messages"]["robot"] == faults["sent"] - requests_dropped_early
+    assert result.messages["robot"] == faults["sent"] - requests_dropped_early
 
 
 @pytest.mark.processes
@@ -119,7 +121,7 @@ to_s = 15.0
     assert all(successor_age[k] == successor_age[k - 1] + 1 for k in range(51, 151))
     assert any(log.steps[k]["trigger"][3] for k in range(50, 151))  # it did poll: in vain
     assert any(successor_age[k] < successor_age[k - 1] for k in range(151, 250))  # heard again after the outage
-    assert result["faults"]["dropped"] == len(dropped)
+    assert result.faults["dropped"] == len(dropped)
 
 
 @pytest.mark.processes
@@ -137,13 +139,13 @@ to_step = 299
     result, log = lockstep_run(team, tmp_path / "runs")
     logged = assert_equals_engine(log)
     assert ring_order_kept(team.region, logged.positions[:, 0]).all()
-    assert result["converged"] is True and result["ctime"] > 300
+    assert result.outcome.converged is True and result.outcome.ctime > 300
     outage_drops = [event for event in log.events if event.get("reason") == "outage"]
     assert outage_drops and all(100 <= event["step"] <= 299 for event in outage_drops)
     assert {frozenset((event["sender"], event["receiver"])) for event in outage_drops} <= {frozenset((2, 3)), frozenset((5, 0))}
     clean = engine.run(load_scenario("paper-stationary", max_steps=1200), until_converged=True)
-    inflation = result["ctime"] - int(clean.ctime[0])
-    print(f"partition: Ctime {result['ctime']} against {int(clean.ctime[0])} without it (+{inflation} steps, "
+    inflation = result.outcome.ctime - int(clean.ctime[0])
+    print(f"partition: Ctime {result.outcome.ctime} against {int(clean.ctime[0])} without it (+{inflation} steps, "
           f"{inflation / clean.ctime[0]:+.1%})")
     assert inflation > 0  # the partition costs time (deterministic: lockstep with seeded faults)
 
@@ -361,11 +363,10 @@ def test_duplicates_and_delays_leave_a_lockstep_run_unchanged_and_are_logged(tmp
 def test_realtime_polls_settle_by_timeout_when_replies_are_late(tmp_path: Path) -> None:
     late = tmp_path / "late.toml"
     late.write_text(FAST_RING.replace("max_steps = 100000", "max_steps = 150") + "\n[faults]\ndelay_ms = 60.0\n")
-    from ringtrack.tools.team.spawn import spawn_team
 
-    result = spawn_team(load_scenario(str(late)), clock="realtime", rate=5.0, runs=tmp_path / "runs", quiet=True)
-    assert result["exit_code"] == 0 and result["end_reason"] == "done"
-    log = read_log(Path(result["log"]))
+    result = spawn_team(TeamPlan(scenario=load_scenario(str(late)), clock="realtime", rate=5.0, runs=tmp_path / "runs", quiet=True))
+    assert result.exit_code == 0 and result.end_reason == "done"
+    log = read_log(Path(result.log))
     # Replies 60 ms late against a 20 ms poll deadline (one step of 0.1 s at 5x): robots go on
     # without them, so the world keeps its schedule and every late reply is ignored.
     assert 150 * 0.1 / 5 * 0.8 < log.end["wall_s"] < 150 * 0.1 / 5 * 3

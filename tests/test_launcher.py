@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.tools.team.supervisor import Supervisor
 from tests.helpers import assert_equals_engine, command_words, processes_mentioning, scenario
@@ -23,11 +24,11 @@ pytestmark = [pytest.mark.processes, pytest.mark.timeout(180)]
 def test_forked_and_started_teams_equal_the_engine_and_count_the_same_messages(tmp_path: Path) -> None:
     runs = {}
     for start in ("fork", "exec"):
-        result = spawn_team(scenario(max_steps=40), clock="lockstep", runs=tmp_path / start, dashboard=False,
-                            start=start)
-        assert result["exit_code"] == 0 and result["monitor_equals_senders"], result
-        assert (Path(result["folder"]) / "launcher.stderr").exists() == (start == "fork")
-        log = read_log(Path(result["log"]))
+        result = spawn_team(TeamPlan(scenario=scenario(max_steps=40), clock="lockstep", runs=tmp_path / start, dashboard=False,
+                            start=start))
+        assert result.exit_code == 0 and result.monitor_equals_senders, result
+        assert (Path(result.folder) / "launcher.stderr").exists() == (start == "fork")
+        log = read_log(Path(result.log))
         assert_equals_engine(log)
         runs[start] = log
     assert runs["fork"].steps == runs["exec"].steps  # the same seed: the same run, message for message

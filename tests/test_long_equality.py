@@ -11,6 +11,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.tools.runlog.log import history_from_log, read_log
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 
@@ -35,11 +36,11 @@ def lockstep_equals_engine_exactly(tmp_path: Path, steps: int, name: str, estima
     scenario = load_scenario(name, estimation=estimation, max_steps=steps)
     with ThreadPoolExecutor(1) as pool:
         future = pool.submit(engine.run, scenario, seeds=scenario.seed, steps=steps, record_positions=True)
-        result = spawn_team(scenario, runs=tmp_path, dashboard=False, quiet=True,
-                            robots_per_process=robots_per_process)
+        result = spawn_team(TeamPlan(scenario=scenario, runs=tmp_path, dashboard=False, quiet=True,
+                            robots_per_process=robots_per_process))
         twin = future.result()
-    assert result["exit_code"] == 0
-    log = read_log(Path(result["log"]))
+    assert result.exit_code == 0
+    log = read_log(Path(result.log))
     assert len(log.steps) == steps
     assert log.header["seed"] == scenario.seed and log.scenario.to_toml() == scenario.to_toml()
     logged = history_from_log(log)

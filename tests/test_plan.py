@@ -35,6 +35,7 @@ from ringtrack.bus.messages import (
 from ringtrack.tools.cli import build_parser
 from ringtrack.tools.cli.options import scenario_from_arguments
 from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import ring_order_kept
@@ -246,7 +247,7 @@ def test_lockstep_plan_team_equals_the_engine(tmp_path: Path, drop: float) -> No
     assert twin.sent_bytes is not None
     logged_bytes = np.array([record["sent_bytes"] for record in log.steps])
     assert np.array_equal(logged_bytes, twin.sent_bytes[:, 0])
-    assert result["messages"]["robot"] == int(twin.sent[:, 0].sum())
+    assert result.messages["robot"] == int(twin.sent[:, 0].sum())
 
 
 @pytest.mark.processes
@@ -258,9 +259,9 @@ def test_dashboard_monitor_and_run_log_count_plan_replies_with_faults(tmp_path: 
     monkeypatch.setenv("COLUMNS", "120")
     monkeypatch.setenv("LINES", "60")
     scenario = load_scenario("paper-stationary", strategy="plan", max_steps=80, drop=0.2)
-    result = spawn_team(scenario, runs=tmp_path, dashboard=True, quiet=True)
-    assert result["exit_code"] == 0
-    folder = Path(result["folder"])
+    result = spawn_team(TeamPlan(scenario=scenario, runs=tmp_path, dashboard=True, quiet=True))
+    assert result.exit_code == 0
+    folder = Path(result.folder)
     log = read_log(folder / "log.jsonl")
     assert log.end is not None and log.end["consistent"] is True and log.end["late"] == 0
     robot = totals_by_category([tuple(row) for row in log.end["traffic"]])["robot"]

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from ringtrack.bus.counting import totals_by_category
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from tests.helpers import processes_mentioning, scenario, start_spawn, stop_all, wait_for_steps
 
@@ -20,7 +21,7 @@ def role_pid(folder: Path, role: str) -> int:
     """The pid of the ``role`` process (world, monitor) of the spawn run in ``folder``."""
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
-        pids = processes_mentioning(f"roles {role} {folder / 'scenario.toml'}")
+        pids = processes_mentioning(f"ringtrack.tools.cli {role} {folder / 'scenario.toml'}")
         if pids:
             return pids[0]
         time.sleep(0.05)
@@ -57,7 +58,7 @@ def test_a_monitor_ended_after_the_world_died_is_no_crash_and_the_summary_counts
 
 @pytest.mark.processes
 def test_the_summary_memory_figure_includes_the_monitor(tmp_path: Path) -> None:
-    result = spawn_team(scenario(max_steps=20), runs=tmp_path, dashboard=False, quiet=True)
-    assert result["exit_code"] == 0
-    assert set(result["rss_kib"]) == {"world", "monitor", *(f"r{i}" for i in range(6))}
-    assert all(kib > 10_000 for kib in result["rss_kib"].values())  # Python + Zenoh: tens of MiB each
+    result = spawn_team(TeamPlan(scenario=scenario(max_steps=20), runs=tmp_path, dashboard=False, quiet=True))
+    assert result.exit_code == 0
+    assert set(result.rss_kib) == {"world", "monitor", *(f"r{i}" for i in range(6))}
+    assert all(kib > 10_000 for kib in result.rss_kib.values())  # Python + Zenoh: tens of MiB each

@@ -100,11 +100,11 @@ def test_radio_fates_and_energy_equal_in_engine_and_lockstep_team(tmp_path: Path
     expected = engine_drops(twin)
     assert logged == expected and {"radio", "drop"} <= {drop[-1] for drop in expected}
     faults = engine.fault_totals(twin)
-    assert {name: result["faults"][name] for name in engine.FAULT_COLUMNS} == \
+    assert {name: result.faults[name] for name in engine.FAULT_COLUMNS} == \
         {name: faults[name] for name in engine.FAULT_COLUMNS}
     assert twin.energy is not None and twin.sent_bytes is not None
-    wire = np.array([result["energy"]["transmit_j"], result["energy"]["receive_j"]]).T
+    wire = np.array([result.energy.transmit_j, result.energy.receive_j]).T
     assert np.allclose(wire, twin.energy[:, 0].sum(axis=0), rtol=1e-9, atol=0.0)
-    assert result["energy"]["team_j"] == pytest.approx(float(twin.energy.sum()), rel=1e-9)
-    assert result["bytes"]["robot"] == int(twin.sent_bytes.sum())  # the engine knows every wire size
+    assert result.energy.team_j == pytest.approx(float(twin.energy.sum()), rel=1e-9)
+    assert result.bytes["robot"] == int(twin.sent_bytes.sum())  # the engine knows every wire size
     assert log.end["energy_j"] == {f"r{robot}": list(wire[robot]) for robot in range(team.robots)}

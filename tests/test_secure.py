@@ -16,6 +16,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -35,7 +36,11 @@ from ringtrack.bus.security import (
     load_team,
     team_names,
 )
+from ringtrack.tools.bench.bench import isolation_works
+from ringtrack.tools.cli import main
 from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.plan import TeamPlan
+from ringtrack.tools.team.spawn import spawn_team
 from tests.helpers import RINGTRACK, assert_equals_engine, scenario, start_spawn, stop_all, wait_for_steps
 
 CONVERGED_AT = 712  # paper-stationary's worked example
@@ -183,8 +188,6 @@ def test_a_secure_participant_pointed_at_a_plain_one_or_another_team_is_told_so(
 
 
 def wait_for_listener(port: int, timeout_s: float = 30.0) -> None:
-    import time
-
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         with socket.socket() as probe:
@@ -198,13 +201,11 @@ def wait_for_listener(port: int, timeout_s: float = 30.0) -> None:
 @pytest.mark.processes
 @pytest.mark.timeout(300)
 def test_a_secure_lockstep_team_of_six_converges_and_equals_the_engine(team: Path, tmp_path: Path) -> None:
-    from ringtrack.tools.team.spawn import spawn_team
-
-    result = spawn_team(scenario(), clock="lockstep", runs=tmp_path, dashboard=False, until_converged=True,
-                        secure=team)
-    assert result["exit_code"] == 0, result
-    assert json.loads((Path(result["folder"]) / "world-endpoints.json").read_text())["endpoints"][0].startswith("tls/")
-    log = read_log(Path(result["log"]))
+    result = spawn_team(TeamPlan(scenario=scenario(), clock="lockstep", runs=tmp_path, dashboard=False, until_converged=True,
+                        secure=team))
+    assert result.exit_code == 0, result
+    assert json.loads((Path(result.folder) / "world-endpoints.json").read_text())["endpoints"][0].startswith("tls/")
+    log = read_log(Path(result.log))
     assert log.end["reason"] == "converged" and len(log.steps) == CONVERGED_AT
     assert log.end["consistent"] is True
     assert_equals_engine(log)
@@ -286,9 +287,6 @@ def test_a_security_config_is_tls_only_and_carries_the_policy_for_peers_not_clie
 @pytest.mark.processes
 @pytest.mark.timeout(300)
 def test_the_benchmark_compares_plain_and_secure_runs(tmp_path: Path) -> None:
-    from ringtrack.tools.bench.bench import isolation_works
-    from ringtrack.tools.cli import main
-
     path = tmp_path / "bench.json"
     assert main(["bench", "emulator", "--robots", "3", "--steps", "40", "--secure", "compare",
                  "--runs", str(tmp_path / "runs"), "--json", str(path)]) == 0

@@ -19,6 +19,7 @@ from ringtrack.tools.dashboard.startup import READY, StartupView, started_at, ta
 from ringtrack.tools.dashboard.views import LiveView
 from ringtrack.tools.monitor.state import TeamModel, startup_names
 from ringtrack.tools.team import supervisor
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 
@@ -63,7 +64,7 @@ def test_the_first_frame_is_drawn_before_any_process_starts(monkeypatch, tmp_pat
     monkeypatch.setattr(supervisor.Supervisor, "start", lambda self, name, argv, stdout=None: record(name, argv))
     monkeypatch.setattr(supervisor.Supervisor, "fork", fork)
     with pytest.raises(Stop):
-        spawn_team(load_scenario("paper-stationary"), runs=tmp_path, start="fork")
+        spawn_team(TeamPlan(scenario=load_scenario("paper-stationary"), runs=tmp_path, start="fork"))
     (launcher, _, before_world), (monitor, monitor_argv, _), (world, world_argv, _) = started
     assert (launcher, monitor, world) == ("launcher", "monitor", "world")
     # On the terminal before any process was started: the start-up state of every participant.
@@ -89,7 +90,7 @@ def test_no_start_up_frame_without_a_terminal(monkeypatch, tmp_path: Path) -> No
 
     monkeypatch.setattr(supervisor.Supervisor, "start", start)
     with pytest.raises(Stop):
-        spawn_team(load_scenario("paper-stationary"), runs=tmp_path, start="exec")
+        spawn_team(TeamPlan(scenario=load_scenario("paper-stationary"), runs=tmp_path, start="exec"))
     assert console.export_text() == "" and "--display-handover" not in started["monitor"]
 
 

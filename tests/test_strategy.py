@@ -8,11 +8,16 @@ import re
 import subprocess
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 
 from ringtrack.agents import engine
 from ringtrack.agents.laws import Trigger
+from ringtrack.agents.summary import summarise
+from ringtrack.bus.messages import robot_message_bytes
+from ringtrack.tools.team.plan import TeamPlan
+from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK, assert_equals_engine, lockstep_run, scenario
 
@@ -91,13 +96,14 @@ def test_a_scenario_file_names_its_strategy(tmp_path: Path) -> None:
 
 def test_summary_figures_of_a_moving_target_are_settled_means() -> None:
     moving = engine.run(load_scenario("authors-moving", max_steps=400))
-    result = engine.summary(moving, settle=300)
-    assert result["from_step"] == 300
-    assert result["cerr_mean_deg"] == pytest.approx(float(moving.cerr_true[300:, 0].mean()), rel=1e-12)
-    assert result["terr_mean"] == pytest.approx(float(moving.terr[300:, 0].mean()), rel=1e-12)
-    assert result["robot_messages"] == int(moving.sent.sum()) == 4 * int((moving.triggers != 0).sum())
-    still = engine.summary(engine.run(scenario(max_steps=100)))
-    assert "cerr_mean_deg" not in still and still["robot_messages"] == int(engine.run(scenario(max_steps=100)).sent.sum())
+    result = summarise(moving, settle=300)
+    assert result.from_step == 300
+    assert result.cerr_mean_deg == pytest.approx(float(moving.cerr_true[300:, 0].mean()), rel=1e-12)
+    assert result.terr_mean == pytest.approx(float(moving.terr[300:, 0].mean()), rel=1e-12)
+    assert result.robot_messages == int(moving.sent.sum()) == 4 * int((moving.triggers != 0).sum())
+    still = summarise(engine.run(scenario(max_steps=100)))
+    assert still.cerr_mean_deg is None and "cerr_mean_deg" not in msgspec.json.encode(still).decode()
+    assert still.robot_messages == int(engine.run(scenario(max_steps=100)).sent.sum())
 
 
 CARRYING = '''
@@ -118,8 +124,6 @@ class Carrying(SelfTriggered):
 def test_the_engine_counts_the_bytes_of_replies_that_carry_a_strategys_content(tmp_path: Path) -> None:
     """A reply with ``reply_fields`` floats is a CarryingReply: the engine counts its exact size, and
     a lockstep team publishes the same bytes per robot and step (assert_equals_engine compares them)."""
-    from ringtrack.bus.messages import robot_message_bytes
-
     path = tmp_path / "carrying.py"
     path.write_text(CARRYING)
     plain = engine.run(load_scenario("paper-stationary", strategy="self", max_steps=60), record_positions=False)
@@ -144,19 +148,16 @@ def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tm
     identity, the monitor equal to the senders) and plan's own traffic is there (replies longer
     than plain ones). What the team achieves depends on the load; what is
     counted does not."""
-    from ringtrack.bus.messages import robot_message_bytes
-    from ringtrack.tools.team.spawn import spawn_team
-
     name_of = {"plan": "paper-stationary", "belief": "authors-moving"}[name]
     team = load_scenario(name_of, strategy=name, max_steps=150, drop=0.2, duplicate=0.1)
-    result = spawn_team(team, clock="realtime", rate=10.0, runs=tmp_path, dashboard=False)
-    assert result["exit_code"] == 0 and result["end_reason"] in ("done", "converged")
-    assert result["monitor_equals_senders"] is True
-    faults = result["faults"]
+    result = spawn_team(TeamPlan(scenario=team, clock="realtime", rate=10.0, runs=tmp_path, dashboard=False))
+    assert result.exit_code == 0 and result.end_reason in ("done", "converged")
+    assert result.monitor_equals_senders is True
+    faults = result.faults
     assert faults["dropped"] > 0 and faults["duplicated"] > 0
     assert faults["sent"] + faults["duplicated"] == faults["delivered"] + faults["dropped"]
     if name == "plan":  # a realtime team's first steps always poll; whether a belief is pushed depends on
         # the load (tests/test_belief.py holds lockstep pushes to the engine's, message for message)
-        traffic = result["by_kind"]["reply"]
+        traffic = result.by_kind["reply"]
         assert traffic["messages"] > 0
         assert traffic["bytes"] > traffic["messages"] * int(robot_message_bytes("reply", 1, 0, 1))

@@ -248,10 +248,11 @@ class ConvexRegion:
 
     def move_along(self, start: ArrayLike, goal: ArrayLike, max_distance: float | None) -> FloatArray:
         """Move from boundary point ``start`` towards ``goal`` along the shorter boundary arc, at most
-        ``max_distance`` metres (``None``: no cap). Returns ``goal`` itself whenever it is reachable."""
+        ``max_distance`` metres (``None``: no cap). Returns a new array (``goal``'s values wherever it
+        is reachable): a caller that changes ``goal`` afterwards does not move what it got."""
         goal = np.asarray(goal, dtype=float)
         if max_distance is None:
-            return goal
+            return goal.copy()
         s_start = self.arc_length(start)
         half = 0.5 * self.perimeter
         shift = np.mod(self.arc_length(goal) - s_start + half, self.perimeter) - half

@@ -21,8 +21,9 @@ import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import msgspec
 from rich.console import Console
 from rich.progress import TaskID
 
@@ -31,9 +32,10 @@ from ringtrack.agents.team import run_team
 from ringtrack.bus.keys import new_run_id
 from ringtrack.bus.security import create_team
 from ringtrack.tools.bench.latency import endpoints_path
-from ringtrack.tools.bench.wire import UNSHARE
+from ringtrack.tools.bench.wire import UNSHARE, WireRun
 from ringtrack.tools.output.console import UsageError, err, progress_bar
 from ringtrack.tools.studies.experiment import STRATEGIES, stationary_experiment
+from ringtrack.tools.team.plan import TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.tools.team.supervisor import Supervisor
 from ringtrack.world.scenario import Scenario, load_scenario
@@ -146,8 +148,8 @@ class BenchFailed(RuntimeError):
 
 
 def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 1, dashboard: str = "off",
-                 runs: Path = Path("runs"), robots_per_process: int = 1, topology: str | None = None,
-                 secure: str = "off") -> dict:
+                 runs: Path = Path("runs"), robots_per_process: int = 1,
+                 topology: Literal["mesh", "star"] | None = None, secure: str = "off") -> dict:
     """Run ``repeat`` lockstep teams of ``robots`` robots for ``steps`` steps and report medians of
     steps per second and start-up seconds (spawn to the first logged step), payload bytes per message
     kind and resident memory (MiB) of the largest robot process. With ``dashboard`` "compare"
@@ -168,7 +170,7 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
         variants = [(dashboard == "on", secure == "on")]
     isolated = secure == "compare" and dashboard == "off" and isolation_works()
     scenario = load_scenario("paper-stationary", robots=robots, strategy=strategy, max_steps=steps)
-    results: dict[tuple[bool, bool], list[dict]] = {variant: [] for variant in variants}
+    results: dict[tuple[bool, bool], list[WireRun]] = {variant: [] for variant in variants}
     startups: list[float] = []
     with tempfile.TemporaryDirectory(prefix="ringtrack-bench-") as scratch:
         team = Path(scratch) / "team"
@@ -181,61 +183,63 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
                           f"{', own network namespace' if isolated else ''} (run {attempt + 1}/{repeat}) ...")
                 secured = team if with_security else None
                 if isolated:
-                    result = isolated_run(scenario, runs, secured, Path(scratch))
+                    measured = isolated_run(scenario, runs, secured, Path(scratch))
                 else:
-                    result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=with_dashboard, quiet=True,
-                                        robots_per_process=robots_per_process, topology=topology, secure=secured)
-                if result["exit_code"] != 0 or "steps_per_s" not in result:
-                    raise BenchFailed(f"the {robots}-robot run failed: {result.get('failures')}; see "
-                                      f"{result['folder']}")
-                results[(with_dashboard, with_security)].append(result)
-                if result.get("startup_s") is not None:
-                    startups.append(result["startup_s"])
+                    measured = WireRun(spawn_team(TeamPlan(
+                        scenario=scenario, clock="lockstep", runs=runs, dashboard=with_dashboard, quiet=True,
+                        robots_per_process=robots_per_process, topology=topology, secure=secured)))
+                if measured.team.exit_code != 0 or measured.team.steps_per_s is None:
+                    raise BenchFailed(f"the {robots}-robot run failed: {measured.team.failures}; see "
+                                      f"{measured.team.folder}")
+                results[(with_dashboard, with_security)].append(measured)
+                if measured.team.startup_s is not None:
+                    startups.append(measured.team.startup_s)
     first = variants[0]
-    result = results[first][-1]
+    result = results[first][-1].team
     # Every participant reports its process's peak RSS: participants of one process report the same.
-    robot_rss = [kib for name, kib in result["rss_kib"].items() if name.startswith("r")]
-    row = {
+    robot_rss = [kib for name, kib in result.rss_kib.items() if name.startswith("r")]
+    row: dict[str, Any] = {
         "robots": robots,
         "robots_per_process": robots_per_process,
-        "topology": result["topology"],
-        "steps": result["steps"],
+        "topology": result.topology,
+        "steps": result.outcome.steps if result.outcome else 0,
         "secure": first[1],
-        "steps_per_s": median_of(results[first], "steps_per_s"),
-        "runs_steps_per_s": [run["steps_per_s"] for run in results[first]],
+        "steps_per_s": speed(results[first]),
+        "runs_steps_per_s": [run.team.steps_per_s for run in results[first]],
         "startup_s": statistics.median(startups) if startups else None,
         "bytes_per_message": payload_bytes(result),
         "robot_process_rss_mib": max(robot_rss) / 1024 if robot_rss else None,
-        "world_rss_mib": result["rss_kib"].get("world", 0) / 1024,
-        "run_folder": result["folder"],
+        "world_rss_mib": result.rss_kib.get("world", 0) / 1024,
+        "run_folder": result.folder,
     }
     if dashboard == "compare":
         drawn = results[variants[1]]
-        row["runs_steps_per_s_with_dashboard"] = [run["steps_per_s"] for run in drawn]
-        row["steps_per_s_with_dashboard"] = median_of(drawn, "steps_per_s")
+        row["runs_steps_per_s_with_dashboard"] = [run.team.steps_per_s for run in drawn]
+        row["steps_per_s_with_dashboard"] = speed(drawn)
         row["dashboard_cost"] = 1.0 - row["steps_per_s_with_dashboard"] / row["steps_per_s"]
     if secure == "compare":
         plain, secured_runs = results[variants[0]], results[variants[1]]
-        row["runs_steps_per_s_secure"] = [run["steps_per_s"] for run in secured_runs]
-        row["steps_per_s_secure"] = median_of(secured_runs, "steps_per_s")
+        row["runs_steps_per_s_secure"] = [run.team.steps_per_s for run in secured_runs]
+        row["steps_per_s_secure"] = speed(secured_runs)
         row["security_cost"] = 1.0 - row["steps_per_s_secure"] / row["steps_per_s"]
-        row["bytes_per_message_secure"] = payload_bytes(secured_runs[-1])
+        row["bytes_per_message_secure"] = payload_bytes(secured_runs[-1].team)
         row["wire_bytes_per_message"] = (
-            {"plain": median_of(plain, "wire_bytes_per_message"),
-             "secure": median_of(secured_runs, "wire_bytes_per_message")} if isolated else None)
+            {"plain": statistics.median(run.wire_bytes_per_message for run in plain),
+             "secure": statistics.median(run.wire_bytes_per_message for run in secured_runs)} if isolated else None)
         row["startup_wire_bytes"] = (
-            {"plain": median_of(plain, "startup_wire_bytes"),
-             "secure": median_of(secured_runs, "startup_wire_bytes")} if isolated else None)
+            {"plain": statistics.median(run.startup_wire_bytes or 0 for run in plain),
+             "secure": statistics.median(run.startup_wire_bytes or 0 for run in secured_runs)} if isolated else None)
     return row
 
 
-def median_of(results: list[dict], key: str) -> float:
-    return statistics.median(result[key] for result in results)
+def speed(runs: list[WireRun]) -> float:
+    """The median steps per second of ``runs`` (every one of which stepped)."""
+    return statistics.median(run.team.steps_per_s or 0.0 for run in runs)
 
 
-def payload_bytes(result: dict) -> dict[str, float]:
-    """Payload bytes per message of each kind in a run's summary."""
-    return {kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(result["by_kind"].items())
+def payload_bytes(result: TeamResult) -> dict[str, float]:
+    """Payload bytes per message of each kind in a team's result."""
+    return {kind: entry["bytes"] / entry["messages"] for kind, entry in sorted(result.by_kind.items())
             if entry["messages"]}
 
 
@@ -247,7 +251,7 @@ def isolation_works() -> bool:
         return False
 
 
-def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: Path) -> dict:
+def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: Path) -> WireRun:
     """One lockstep team in a private network namespace (``tools/wire.py``): its summary with
     ``wire_bytes_per_message``, the bytes its loopback carried while stepping divided by the
     messages of the run, and ``startup_wire_bytes``, those before its first step."""
@@ -259,10 +263,7 @@ def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: P
     completed = subprocess.run(command, capture_output=True, text=True)
     if completed.returncode != 0 or not out.exists():
         raise BenchFailed(f"the isolated run failed: {completed.stderr.strip()[-300:]}")
-    result = json.loads(out.read_text())
-    messages = sum(entry["messages"] for entry in result.get("by_kind", {}).values())
-    result["wire_bytes_per_message"] = result["wire_bytes"] / messages if messages else float("nan")
-    return result
+    return msgspec.json.decode(out.read_bytes(), type=WireRun)
 
 
 

@@ -6,8 +6,8 @@ run.
 
     unshare --net --map-root-user -- python -m ringtrack.tools.bench.wire OUT.json SCENARIO.toml RUNS [SECURE_DIR]
 
-writes the summary of :func:`ringtrack.tools.team.spawn.spawn_team` plus ``wire_bytes`` (while stepping)
-and ``startup_wire_bytes`` (before the first step) to ``OUT.json``.
+writes a :class:`WireRun` (the team's result, ``wire_bytes`` while stepping and ``startup_wire_bytes``
+before the first step) to ``OUT.json``.
 ``ringtrack bench emulator`` starts it; it needs ``unshare`` (util-linux) and either root or
 unprivileged user namespaces.
 """
@@ -22,9 +22,27 @@ import sys
 import threading
 from pathlib import Path
 
+import msgspec
+
 from ringtrack.tools.output.console import write_json
+from ringtrack.tools.team.plan import TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
+
+
+class WireRun(msgspec.Struct):
+    """A team's result and the bytes its loopback carried: while it stepped, and before its first step."""
+
+    team: TeamResult
+    wire_bytes: int | None = None
+    startup_wire_bytes: int | None = None
+
+    @property
+    def wire_bytes_per_message(self) -> float:
+        """Bytes on the wire per message of the run (NaN when not measured or nothing was sent)."""
+        messages = sum(entry["messages"] for entry in self.team.by_kind.values())
+        return self.wire_bytes / messages if messages and self.wire_bytes is not None else float("nan")
+
 
 NETWORK_DEVICES = Path("/proc/self/net/dev")  # this namespace's counters (/sys shows the mounter's)
 SIOCGIFFLAGS, SIOCSIFFLAGS, IFF_UP = 0x8913, 0x8914, 0x1
@@ -64,15 +82,13 @@ def main(out: Path, scenario_path: str, runs: Path, secure: Path | None) -> None
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
     try:
-        result = spawn_team(load_scenario(scenario_path), clock="lockstep", runs=runs, log_path=log_path,
-                            dashboard=False, quiet=True, secure=secure)
+        result = spawn_team(TeamPlan(scenario=load_scenario(scenario_path), clock="lockstep", runs=runs,
+                                     log_path=log_path, dashboard=False, quiet=True, secure=secure))
     finally:
         stop.set()
         watcher.join()
     start = at_first_step[0] if at_first_step else before
-    result["startup_wire_bytes"] = start - before
-    result["wire_bytes"] = transmitted() - start
-    write_json(out, result)
+    write_json(out, WireRun(result, wire_bytes=transmitted() - start, startup_wire_bytes=start - before))
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from ringtrack.tools.bench.bench import (
 )
 from ringtrack.tools.cli.experiment import robot_list
 from ringtrack.tools.cli.options import JSON_FILE, at_least
-from ringtrack.tools.output.console import UsageError, err, out, write_json
+from ringtrack.tools.output.console import UsageError, err, show, write_json
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -112,7 +112,7 @@ def engine_table(results: dict, cores: object) -> Table:
 def run_engine_bench(args: argparse.Namespace) -> int:
     results: dict[str, Any] = {"benchmark": "engine", "machine": machine(),
                                **engine_results(args.trials, parse_range(args.sweep))}
-    out.print(engine_table(results, results["machine"]["cores"]))
+    show(engine_table(results, results["machine"]["cores"]))
     if args.json:
         write_json(args.json, results)
     return 0
@@ -161,7 +161,7 @@ def run_emulator_bench(args: argparse.Namespace) -> int:
     if len(rows) == 1:
         results["steps_per_s"] = rows[0]["steps_per_s"]
     cores = results["machine"]["cores"]
-    out.print(emulator_table(rows, f"lockstep emulator ({cores} cores, {args.strategy} strategy)"))
+    show(emulator_table(rows, f"lockstep emulator ({cores} cores, {args.strategy} strategy)"))
     if args.json:
         write_json(args.json, results)
     return 0
@@ -184,7 +184,7 @@ def run_latency_bench(args: argparse.Namespace) -> int:
         err.print(str(failure), highlight=False)
         return 1
     results: dict[str, Any] = {"benchmark": "latency", "machine": machine(), **result}
-    out.print(latency_table(result, results["machine"]["cores"]))
+    show(latency_table(result, results["machine"]["cores"]))
     if args.json:
         write_json(args.json, results)
     return 0
@@ -220,11 +220,11 @@ def run_suite(args: argparse.Namespace) -> int:
     except BenchFailed as failure:
         err.print(str(failure), highlight=False)
         return 1
-    out.print(engine_table(results["engine"], cores))
-    out.print(latency_table(results["latency"], cores))
-    out.print(emulator_table(results["emulator"], f"lockstep emulator ({cores} cores, self strategy)"))
+    show(engine_table(results["engine"], cores))
+    show(latency_table(results["latency"], cores))
+    show(emulator_table(results["emulator"], f"lockstep emulator ({cores} cores, self strategy)"))
     results["ratios"] = suite_ratios(results)
-    out.print(ratios_table(results["ratios"]))
+    show(ratios_table(results["ratios"]))
     if args.json:
         write_json(args.json, results)
     return 0

@@ -12,7 +12,7 @@ from rich.table import Table
 
 from ringtrack.bus.security import create_team, list_team, load_team
 from ringtrack.tools.cli.options import at_least
-from ringtrack.tools.output.console import UsageError, out
+from ringtrack.tools.output.console import UsageError, out, show
 
 HOST = re.compile(r"^([0-9A-Fa-f:.]+|[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}"
                   r"[A-Za-z0-9])?)*)$")
@@ -47,7 +47,7 @@ def hosts_from(values: list[str]) -> tuple[str, ...]:
 
 def run_certs(args: argparse.Namespace) -> int:
     if args.show:
-        out.print(team_table(args.directory))
+        show(team_table(args.directory))
         return 0
     if args.robots is None:
         raise UsageError("certs: give the team size with --robots N (or --show to list DIR)")

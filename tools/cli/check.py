@@ -21,7 +21,7 @@ from rich.table import Table
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import loss_probability, message_bits, receive_energy, transmit_energy
 from ringtrack.tools.cli.options import add_scenario_arguments, scenario_from_arguments
-from ringtrack.tools.output.console import err, out
+from ringtrack.tools.output.console import err, show
 from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
 from ringtrack.world.scenario import Scenario
 
@@ -67,8 +67,8 @@ def run_check(args: argparse.Namespace) -> int:
         table.add_row(name, f"{value:.4f}", meaning)
     table.add_row("scenario r_c", "unlimited" if r_c is None else f"{r_c:.4f}", "limits.communication_range")
     table.add_row("scenario r_s", "unlimited" if r_s is None else f"{r_s:.4f}", "sensing.range")
-    out.print(table)
-    out.print(link_table(scenario))
+    show(table)
+    show(link_table(scenario))
     broken = False
     if r_c is not None and r_c < bounds.necessary_communication:
         broken = True

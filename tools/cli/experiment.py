@@ -19,7 +19,7 @@ from ringtrack.tools.cli.options import (
     plan_horizon,
     strategy_argument,
 )
-from ringtrack.tools.output.console import err, out, progress_bar, write_csv, write_json
+from ringtrack.tools.output.console import err, progress_bar, show, write_csv, write_json
 from ringtrack.tools.studies.experiment import (
     MAIN_STRATEGIES,
     MOVING_COLUMNS,
@@ -143,7 +143,7 @@ def run_stationary(args: argparse.Namespace) -> int:
                                        **overrides)
         for task in tasks.values():
             progress.update(task, completed=limit)
-    out.print(results_table(result))
+    show(results_table(result))
     if args.json:
         write_json(args.json, result)
     if args.csv:
@@ -205,7 +205,7 @@ def run_moving(args: argparse.Namespace) -> int:
 
         result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step,
                                    velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies)
-    out.print(moving_table(result))
+    show(moving_table(result))
     if args.json:
         write_json(args.json, result)
     if args.csv:

@@ -15,7 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from ringtrack.tools.cli.options import CSV_FILE, FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
-from ringtrack.tools.output.console import UsageError, err, out, write_csv, write_json
+from ringtrack.tools.output.console import UsageError, err, show, write_csv, write_json
 from ringtrack.tools.studies.figures import robustness_curves
 from ringtrack.tools.studies.robustness import (
     OUTAGE_START,
@@ -126,7 +126,7 @@ def run_faults(args: argparse.Namespace) -> int:
         result, histories = faults_experiment(args.scenario, cells, args.trials, args.seed, args.steps, args.settle,
                                               on_step)
         progress.update(task, completed=runs * probe.max_steps, description=f"{runs} runs x {args.trials} trials")
-    out.print(faults_table(result))
+    show(faults_table(result))
     code = 0
     if args.verify:
         with tempfile.TemporaryDirectory(prefix="ringtrack-verify-") as folder:

@@ -25,7 +25,7 @@ from ringtrack.tools.introspect.watch import (
     list_table,
     observer,
 )
-from ringtrack.tools.output.console import UsageError, err, out
+from ringtrack.tools.output.console import UsageError, err, out, show
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -125,7 +125,7 @@ def run_list(args: argparse.Namespace) -> int:
     for run, participants in sorted(runs.items()):
         for name in target.expected if run == target.run else []:
             participants.setdefault(name, Seen(alive=False))
-        out.print(list_table(run, participants, args.duration))
+        show(list_table(run, participants, args.duration))
     return 0
 
 
@@ -170,7 +170,7 @@ def run_hz(args: argparse.Namespace) -> int:
         while not ended:
             if quiet.over():
                 if quiet.run_ended and messages:  # what was counted since the last report
-                    out.print(hz_table(messages, sizes, time.monotonic() - started), highlight=False)
+                    show(hz_table(messages, sizes, time.monotonic() - started))
                 err.print(f"hz: {quiet.reason}", highlight=False)
                 return 0 if quiet.run_ended else 1
             for item in bus.poll():
@@ -182,7 +182,7 @@ def run_hz(args: argparse.Namespace) -> int:
                     ended = ended or item.route.kind == "end"
             elapsed = time.monotonic() - started
             if elapsed >= args.period or ended:
-                out.print(hz_table(messages, sizes, elapsed), highlight=False)
+                show(hz_table(messages, sizes, elapsed))
                 reports += 1
                 if args.reports and reports >= args.reports:
                     return 0

@@ -13,7 +13,7 @@ from typing import NoReturn
 
 from rich.console import Console
 
-from ringtrack.agents.engine import summary
+from ringtrack.agents.summary import RunSummary, summarise
 from ringtrack.bus.config import announced_endpoints
 from ringtrack.bus.keys import MONITOR
 from ringtrack.tools.cli.options import LOG_FILE, scenario_from_arguments
@@ -95,10 +95,10 @@ def wait_for_endpoints(path: Path, timeout_s: float = ENDPOINTS_TIMEOUT_S) -> li
     return endpoints
 
 
-def run_outcome(log_path: Path) -> dict | None:
+def run_outcome(log_path: Path) -> RunSummary | None:
     """The summary (Ctime, Com-bar, ...) of the run a log holds, None when it has no step."""
     log = read_log(log_path)
-    return summary(history_from_log(log)) if log.steps else None
+    return summarise(history_from_log(log)) if log.steps else None
 
 
 def log_write_failed(error: Exception) -> NoReturn:

@@ -8,6 +8,7 @@ import statistics
 from rich.table import Table
 
 from ringtrack.agents import engine
+from ringtrack.agents.summary import RunSummary, summarise
 from ringtrack.tools.cli.options import (
     JSON_FILE,
     LOG_FILE,
@@ -16,7 +17,7 @@ from ringtrack.tools.cli.options import (
     scenario_from_arguments,
 )
 from ringtrack.tools.monitor.state import messages_saved
-from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE, out, warn_if_threshold_loose, write_json
+from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE, show, warn_if_threshold_loose, write_json
 from ringtrack.tools.runlog.log import write_engine_log
 
 
@@ -40,8 +41,8 @@ def run(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
     warn_if_threshold_loose(scenario)
     history = engine.run(scenario, until_converged=args.steps is None, record_positions=args.log is not None)
-    result = engine.summary(history, settle=args.from_step)
-    out.print(summary_table(result, args.all_robots))
+    result = summarise(history, settle=args.from_step)
+    show(summary_table(result, args.all_robots))
     if args.json:
         write_json(args.json, result)
     if args.log:
@@ -49,35 +50,38 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def summary_table(result: dict, all_robots: bool = False) -> Table:
+SUMMARY_VALUE_WIDTH = 58  # columns of the summary's values, so that the table stays under 80
+
+
+def summary_table(result: RunSummary, all_robots: bool = False) -> Table:
     """A two-column rich table of a run summary (under 80 columns). Polls per robot are listed for at
     most ``SUMMARISED_ABOVE`` robots (or with ``all_robots``), else summarised: min, median, max and
     the ``BUSIEST``."""
-    robot_messages = result["robot_messages"]
-    table = Table(title=f"{result['scenario']}: {result['strategy']} strategy", show_header=False)
+    robot_messages = result.robot_messages
+    table = Table(title=f"{result.scenario}: {result.strategy} strategy", show_header=False)
     table.add_column(style="bold")
-    table.add_column()
-    ctime, triggers = result["ctime"], result["triggers"]
-    saved, share = messages_saved(result["robots"], result["steps"], robot_messages)
+    table.add_column(max_width=SUMMARY_VALUE_WIDTH)  # prose: wraps rather than widening the table past 80
+    ctime, triggers = result.ctime, result.triggers
+    saved, share = messages_saved(result.robots, result.steps, robot_messages)
     rows = [
-        ("robots", str(result["robots"])),
-        ("seed", str(result["seed"])),
-        ("steps run", str(result["steps"])),
+        ("robots", str(result.robots)),
+        ("seed", str(result.seed)),
+        ("steps run", str(result.steps)),
         ("converged", f"yes, Ctime = {ctime} steps" if ctime else "no"),
-        ("Com-bar", f"{result['com_bar']:.3f} polls per robot-step to Ctime (constant: 1)" if ctime else "-"),
-        ("polls", f"{triggers['total']}; per robot {polls_text(triggers['per_robot'], all_robots)}"),
+        ("Com-bar", f"{result.com_bar:.3f} polls per robot-step to Ctime (constant: 1)" if ctime else "-"),
+        ("polls", f"{triggers.total}; per robot {polls_text(triggers.per_robot, all_robots)}"),
         ("robot-to-robot", f"{robot_messages} messages; {saved} saved ({share:.0%}) vs constant"),
-        ("final Cerr", f"{result['cerr_final_deg']:.4f} deg (true {result['cerr_true_final_deg']:.4f} deg)"),
+        ("final Cerr", f"{_figure(result.cerr_final_deg, '.4f')} deg (true {result.cerr_true_final_deg:.4f} deg)"),
     ]
-    if result["estimation"] != "known":
-        settled = f" after step {result['from_step']}" if "from_step" in result else ""
-        rows.append(("Terr", f"mean{settled} {_figure(result['terr_mean'], '.3f')} m, final "
-                             f"{result['terr_final']:.3f} m ({result['estimation']} estimation)"))
-    if "cerr_mean_deg" in result:
-        rows.append(("Cerr", f"mean after step {result['from_step']} {_figure(result['cerr_mean_deg'], '.2f')} deg "
+    if result.estimation != "known":
+        settled = f" after step {result.from_step}" if result.from_step is not None else ""
+        rows.append(("Terr", f"mean{settled} {_figure(result.terr_mean, '.3f')} m, final "
+                             f"{result.terr_final:.3f} m ({result.estimation} estimation)"))
+    if result.from_step is not None:
+        rows.append(("Cerr", f"mean after step {result.from_step} {_figure(result.cerr_mean_deg, '.2f')} deg "
                              "(true)"))
-    if "energy" in result:
-        team, per_robot = 1e3 * result["energy"]["team_j"], [1e3 * j for j in result["energy"]["per_robot_j"]]
+    if result.energy is not None:
+        team, per_robot = 1e3 * result.energy.team_j, [1e3 * j for j in result.energy.per_robot_j]
         rows.append(("radio energy", f"team {team:.3f} mJ, per robot {min(per_robot):.3f}-{max(per_robot):.3f} mJ"))
     for name, value in rows:
         table.add_row(name, value)

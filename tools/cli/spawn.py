@@ -16,7 +16,8 @@ from ringtrack.tools.cli.options import (
     scenario_from_arguments,
 )
 from ringtrack.tools.output.console import out, write_json
-from ringtrack.tools.team.spawn import LOCKSTEP_WAIT_S, MESH_LIMIT, spawn_team
+from ringtrack.tools.team.plan import LOCKSTEP_WAIT_S, TeamPlan, TeamResult
+from ringtrack.tools.team.spawn import MESH_LIMIT, spawn_team
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -68,9 +69,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run_spawn(args: argparse.Namespace) -> int:
-    scenario = scenario_from_arguments(args)
-    result = spawn_team(
-        scenario,
+    plan = TeamPlan(
+        scenario=scenario_from_arguments(args),
         clock=args.clock,
         rate=args.rate,
         runs=args.runs,
@@ -87,20 +87,22 @@ def run_spawn(args: argparse.Namespace) -> int:
         settle=args.from_step,
         start=args.start,
     )
+    result = spawn_team(plan)
     if args.json:
         write_json(args.json, result)
-    out.print(_summary_line(result), highlight=False, soft_wrap=True)
-    return int(result["exit_code"])
+    out.print(summary_line(result), highlight=False, soft_wrap=True)
+    return result.exit_code
 
 
-def _summary_line(result: dict) -> str:
+def summary_line(result: TeamResult) -> str:
     """Speed and run folder (the monitor's report above it gives Ctime, Com-bar and the traffic)."""
-    if "ctime" not in result:
-        return f"spawn: run folder {result['folder']}"
-    speed = f" at {result['steps_per_s']:.0f} steps/s" if result.get("steps_per_s") else ""
-    line = f"spawn: {result['steps']} steps{speed}"
-    if result.get("monitor_lost"):  # no monitor's report above: say what the senders counted
-        converged = f"converged at step {result['ctime']}" if result.get("converged") else "did not converge"
-        robot = result.get("messages", {}).get("robot", 0)
-        line += f"; {converged}; robot-to-robot messages {robot} (the senders' counts: the monitor was lost)"
-    return f"{line}\nrun folder: {result['folder']}"
+    outcome = result.outcome
+    if outcome is None:
+        return f"spawn: run folder {result.folder}"
+    speed = f" at {result.steps_per_s:.0f} steps/s" if result.steps_per_s else ""
+    line = f"spawn: {outcome.steps} steps{speed}"
+    if result.monitor_lost:  # no monitor's report above: say what the senders counted
+        converged = f"converged at step {outcome.ctime}" if outcome.converged else "did not converge"
+        line += (f"; {converged}; robot-to-robot messages {result.messages.get('robot', 0)} (the senders' counts: "
+                 "the monitor was lost)")
+    return f"{line}\nrun folder: {result.folder}"

@@ -10,7 +10,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ringtrack.agents.strategy import StrategyDescription, StrategyError, describe_strategies
-from ringtrack.tools.output.console import UsageError, out
+from ringtrack.tools.output.console import UsageError, out, show
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     for description in described:
         out.print(strategy_heading(description))
         if description.parameters:
-            out.print(parameter_table(description))
+            show(parameter_table(description))
         else:
             out.print("  no parameters", style="dim")
         out.print()
@@ -56,11 +56,14 @@ def strategy_heading(description: StrategyDescription) -> Text:
     return heading
 
 
+HELP_WIDTH = 60  # columns of a parameter's help text: prose wraps
+
+
 def parameter_table(description: StrategyDescription) -> Table:
     """The strategy's parameters: key, type, default, units, what values it takes and what it does."""
     table = Table(box=None, padding=(0, 1, 0, 2), show_edge=False)
     for column in ("parameter", "type", "default", "units", "values", "help"):
-        table.add_column(column, overflow="fold")
+        table.add_column(column, overflow="fold", max_width=HELP_WIDTH if column == "help" else None)
     for parameter in description.parameters:
         table.add_row(parameter.name, parameter.type.__name__, json.dumps(parameter.default), parameter.units or "-",
                       parameter.expects, parameter.help)

@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from ringtrack.agents.summary import RunSummary
 from ringtrack.bus.counting import category_of, robot_link_totals
 from ringtrack.bus.keys import robot_index
 from ringtrack.bus.messages import EndReason
@@ -27,7 +28,7 @@ from ringtrack.tools.dashboard.dashboard import Dashboard
 from ringtrack.tools.dashboard.startup import take_over
 from ringtrack.tools.monitor.monitor import COMPARED, MonitorReport
 from ringtrack.tools.monitor.state import TeamModel, messages_saved
-from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE
+from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE, show
 
 LINE_PERIOD_S = 2.0
 FINAL_WAIT_S = 5.0  # leaving the view waits at most this long (wall seconds) for the drawer's last frame
@@ -207,20 +208,20 @@ def per_link_table(report: MonitorReport, all_robots: bool = False) -> Table:
     return table
 
 
-def outcome_lines(outcome: dict, robot_messages: int) -> list[str]:
+def outcome_lines(outcome: RunSummary, robot_messages: int) -> list[str]:
     """Ctime, Com-bar (against the constant strategy's 1) and the robot-to-robot messages saved,
-    from a run summary (:func:`agents.engine.summary`), each line under 80 columns."""
-    steps, robots = outcome["steps"], outcome["robots"]
-    converged = f"converged at step {outcome['ctime']} (Ctime)" if outcome.get("converged") else \
+    from a run summary (:func:`agents.summary.summarise`), each line under 80 columns."""
+    steps, robots = outcome.steps, outcome.robots
+    converged = f"converged at step {outcome.ctime} (Ctime)" if outcome.converged else \
         f"did not converge in {steps} steps"
-    com_bar = f"Com-bar {outcome['com_bar']:.3f} (constant 1)" if outcome.get("com_bar") is not None else \
+    com_bar = f"Com-bar {outcome.com_bar:.3f} (constant 1)" if outcome.com_bar is not None else \
         "Com-bar - (not converged)"
     saved, share = messages_saved(robots, steps, robot_messages)
     return [f"outcome: {converged}; {com_bar}",
             f"robot-to-robot messages {robot_messages}: {saved} saved ({share:.0%}) against the constant strategy"]
 
 
-def print_report(console: Console, report: MonitorReport, outcome: dict | None = None,
+def print_report(console: Console, report: MonitorReport, outcome: RunSummary | None = None,
                  all_robots: bool = False) -> None:
     """Traffic by category as the monitor saw it and as the senders counted it, per robot and per
     robot-to-robot link (summarised above ``SUMMARISED_ABOVE`` robots unless ``all_robots``), the
@@ -237,9 +238,9 @@ def print_report(console: Console, report: MonitorReport, outcome: dict | None =
         compared = category in COMPARED
         table.add_row(CATEGORY_NAMES[category], str(seen["messages"]), str(seen["bytes"]),
                       str(sent["messages"]) if compared else "-", str(sent["bytes"]) if compared else "-", per_message)
-    console.print(table)
-    console.print(per_robot_table(report.received, all_robots))
-    console.print(per_link_table(report, all_robots))
+    show(table, console)
+    show(per_robot_table(report.received, all_robots), console)
+    show(per_link_table(report, all_robots), console)
     verdict = "equal on every link" if report.consistent() else "DIFFERENT"
     rejected = ", ".join(f"{reason} {count}" for reason, count in report.rejected.items()) or "none"
     ending = f"{report.end.reason.text(report.end.step)} after {report.end.step} steps" if report.end \
@@ -252,7 +253,7 @@ def print_report(console: Console, report: MonitorReport, outcome: dict | None =
         print_outcome(console, outcome, report)
 
 
-def print_outcome(console: Console, outcome: dict, report: MonitorReport) -> None:
+def print_outcome(console: Console, outcome: RunSummary, report: MonitorReport) -> None:
     """The lines of :func:`outcome_lines` for a run summary and the robot-to-robot messages seen."""
     for line in outcome_lines(outcome, report.monitor_totals().get("robot", {"messages": 0})["messages"]):
         console.print(line, highlight=False)

@@ -11,7 +11,9 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rich.console import Console
+import msgspec
+from rich.console import Console, RenderableType
+from rich.measure import Measurement
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ringtrack.world.scenario import Scenario
@@ -25,6 +27,7 @@ out = Console()
 err = Console(stderr=True, soft_wrap=True)
 
 
+UNBOUNDED_WIDTH = 10_000  # columns a table may take off a terminal (a pipe or a file has no width)
 SUMMARISED_ABOVE = 20  # robots (or links) from which a table shows min/median/max and the busiest only
 BUSIEST = 5  # rows of the busiest robots (or links) such a summary keeps
 
@@ -40,6 +43,27 @@ class OutputError(ValueError):
     exit_code = 1
 
 
+def show(renderable: RenderableType, console: Console | None = None) -> None:
+    """Print a table (or any renderable) on ``console`` (default stdout), never cut: on a terminal at
+    its width; off one (a pipe, a file: no width of its own) at the width the table needs, wider
+    than the console if need be. A column of prose that should wrap says so with ``max_width``."""
+    console = console or out
+    if console.is_terminal:
+        console.print(renderable)
+        return
+    unbounded = console.options.update(width=UNBOUNDED_WIDTH, max_width=UNBOUNDED_WIDTH)
+    needed = min(Measurement.get(console, unbounded, renderable).maximum, UNBOUNDED_WIDTH)
+    width = console.width
+    if needed <= width:
+        console.print(renderable)
+        return
+    console.width = needed  # a console never prints wider than itself
+    try:
+        console.print(renderable)
+    finally:
+        console.width = width
+
+
 def progress_bar(console: Console | None = None, disable: bool = False) -> Progress:
     """The progress display of a long command: on ``console`` (default stderr), one bar per task with
     its count done and the time elapsed; ``disable`` shows nothing at all."""
@@ -48,13 +72,14 @@ def progress_bar(console: Console | None = None, disable: bool = False) -> Progr
 
 
 def write_json(path: Path, data: Any) -> None:
-    """Write ``data`` as indented JSON, creating the parent folder. Atomic: the file is written
-    whole under a temporary name and renamed, so a full disk leaves either the complete file or
-    none (never a torn one) and raises :class:`OutputError` saying why."""
+    """Write ``data`` (plain values, msgspec structs, enums) as indented JSON, creating the parent
+    folder. Atomic: the file is written whole under a temporary name and renamed, so a full disk
+    leaves either the complete file or none (never a torn one) and raises :class:`OutputError`
+    saying why."""
     temporary = path.with_name(f".{path.name}.partial")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        temporary.write_text(json.dumps(data, indent=2) + "\n")
+        temporary.write_text(json.dumps(msgspec.to_builtins(data), indent=2) + "\n")
         os.replace(temporary, path)
     except OSError as error:
         with contextlib.suppress(OSError):

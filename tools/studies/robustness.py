@@ -25,6 +25,7 @@ import numpy as np
 from ringtrack.agents import engine
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.runlog.log import history_from_log, read_log
+from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.scenario_schema import OutageSpec, ScenarioSpec
@@ -239,21 +240,21 @@ def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History],
         history = histories[cell_index, strategy, mode]
         trial_seed = history.seeds[trial]
         scenario = cell_scenario(spec, label, cells[cell_index], strategy, mode, history.steps, trial_seed)
-        result = spawn_team(scenario, clock="lockstep", runs=runs, dashboard=False, quiet=True)
+        result = spawn_team(TeamPlan(scenario=scenario, clock="lockstep", runs=runs, dashboard=False, quiet=True))
         check = {"cell": cell_index, **cells[cell_index].label(), "strategy": strategy, "estimation": mode,
-                 "trial": trial, "seed": trial_seed, "steps": history.steps, "exit_code": result["exit_code"]}
-        if result["exit_code"] == 0:
-            logged = history_from_log(read_log(Path(result["log"])))
+                 "trial": trial, "seed": trial_seed, "steps": history.steps, "exit_code": result.exit_code}
+        if result.exit_code == 0 and result.energy is not None:
+            logged = history_from_log(read_log(Path(result.log)))
             engine_faults = engine.fault_totals(history, trial)
             energy = history.energy[:, trial].sum(axis=0)  # type: ignore[index]
-            wire_energy = np.array([result["energy"]["transmit_j"], result["energy"]["receive_j"]]).T
+            wire_energy = np.array([result.energy.transmit_j, result.energy.receive_j]).T
             check.update(
                 steps_logged=logged.steps,
                 max_angle_difference=float(np.max(np.abs(logged.angles[:, 0] - history.angles[:, trial])))
                 if logged.steps == history.steps else None,
                 triggers_equal=logged.steps == history.steps
                 and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, trial])),
-                faults_equal=all(result["faults"].get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS),
+                faults_equal=all(result.faults.get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS),
                 energy_equal=bool(np.allclose(wire_energy, energy, rtol=1e-9, atol=0.0)),
             )
             difference = check["max_angle_difference"]

@@ -19,27 +19,23 @@ import math
 import signal
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from ringtrack.agents import engine  # here: spawn's first frame comes before these imports
-from ringtrack.bus.config import LEASE_S, LOOPBACK_ANY_PORT
+from ringtrack.agents.summary import summarise
+from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import FUSION, MONITOR, WORLD, new_run_id, participants, robot_name
-from ringtrack.bus.radio import energy_report
+from ringtrack.bus.messages import EndReason
+from ringtrack.bus.radio import EnergyReport, energy_report
 from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
 from ringtrack.tools.dashboard.startup import StartupView
 from ringtrack.tools.output.console import OutputError, UsageError, err, out, warn_if_threshold_loose, write_json
 from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
+from ringtrack.tools.team.plan import Clock, Stop, TeamPlan, TeamResult
 from ringtrack.tools.team.supervisor import FORK_WORKS, ROLE_COMMAND, Supervisor, Terminated, terminate_as_exception
 from ringtrack.world.scenario import Scenario
 
-if TYPE_CHECKING:
-    from ringtrack.tools.dashboard.startup import StartupView
-    from ringtrack.tools.team.supervisor import Supervisor
-
 STALL_TIMEOUT_S = 60.0
 STARTUP_S_PER_PROCESS = 2.0  # start-up allowance per process on top of STALL_TIMEOUT_S (startup_limit)
-LOCKSTEP_WAIT_S = LEASE_S  # a frozen robot is seen gone (liveliness) after about as long
 CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure ends the run
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
 PROCESS_MIB = 80  # resident memory of one robot process (measured 55-75 MiB), for the process budget
@@ -64,42 +60,12 @@ def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
     return folder
 
 
-def spawn_team(
-    scenario: Scenario,
-    clock: str = "lockstep",
-    rate: float = 1.0,
-    runs: Path = Path("runs"),
-    log_path: Path | None = None,
-    dashboard: bool | None = None,
-    until_converged: bool = False,
-    quiet: bool = False,
-    topology: str | None = None,
-    robots_per_process: int = 1,
-    secure: Path | None = None,
-    all_robots: bool = False,
-    lockstep_wait: float = LOCKSTEP_WAIT_S,
-    lease: float = LEASE_S,
-    audit: bool = False,
-    settle: int = 300,
-    start: str | None = None,
-) -> dict:
-    """Run a whole team and return its summary (also written to ``RUN_FOLDER/summary.json``); with
-    ``until_converged`` the world ends the run at convergence (at most ``scenario.max_steps``). The
-    monitor draws its dashboard when ``dashboard`` is True, summary lines when False, and decides by
-    its terminal when None; ``quiet`` sends its display to ``RUN_FOLDER/monitor.stdout``. ``topology``
-    "mesh" links every pair of processes directly (Zenoh peers), "star" makes the world a Zenoh
-    router that every other process reaches as a client; None picks mesh up to
-    ``MESH_LIMIT`` participants. ``robots_per_process`` packs that many robots into one process, each
-    still its own Zenoh participant. ``secure`` (a team folder of ``ringtrack certs``) makes every link
-    mutual TLS and every participant enforce the team's access control; ``all_robots`` lists every
-    robot in the monitor's report. In lockstep the world treats a robot silent for ``lockstep_wait``
-    seconds in one step as gone, and a robot's poll gives up on a reply after half of that; every
-    process announces a liveliness ``lease`` of that many seconds. With ``audit`` the monitor
-    receives a copy of every message (else, in lockstep, the world's digests account for
-    measurements and commands). A moving target's summary means leave out the first ``settle``
-    steps (:func:`agents.engine.summary`). ``start`` "fork" forks the robot processes from one
-    launcher that has imported their code (:mod:`tools.launcher`), "exec" starts each as a fresh
-    interpreter; None picks fork where it works (Linux)."""
+def spawn_team(plan: TeamPlan) -> TeamResult:
+    """Run the team ``plan`` describes and return what it came to (also written to
+    ``RUN_FOLDER/summary.json``)."""
+    scenario, clock, rate, quiet, start = plan.scenario, plan.clock, plan.rate, plan.quiet, plan.start
+    robots_per_process, secure, lockstep_wait, dashboard = (plan.robots_per_process, plan.secure,
+                                                            plan.lockstep_wait, plan.dashboard)
     if robots_per_process < 1:
         raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
     processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
@@ -112,7 +78,7 @@ def spawn_team(
     secure_listen = None if secure is None else secured(secure, scenario)
     warn_if_threshold_loose(scenario)
     run = new_run_id()
-    folder = run_folder(runs, scenario, run)
+    folder = run_folder(plan.runs, scenario, run)
     # The start-up frame before anything else: on a terminal only (a pipe nobody reads must not hold
     # spawn up), and only where the monitor draws its dashboard.
     handover = folder / "display.handover"
@@ -126,16 +92,17 @@ def spawn_team(
     listen = secure_listen or LOOPBACK_ANY_PORT
     scenario_path = folder / "scenario.toml"
     scenario_path.write_bytes(scenario.to_toml())
-    log_path = log_path or folder / "log.jsonl"
+    log_path = plan.log_path or folder / "log.jsonl"
     announce = folder / "world-endpoints.json"
-    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent", "--lease", str(lease)]
+    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent", "--lease", str(plan.lease)]
     common += [] if secure is None else ["--secure", str(secure.resolve())]
-    common += ["--audit"] if audit else []
+    common += ["--audit"] if plan.audit else []
     started = time.perf_counter()
-    interrupted = ""
+    stop: Stop | None = None
+    stalled = ""
     stop_signal = signal.SIGTERM
     sessions = len(participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True))
-    topology = topology or ("mesh" if sessions <= MESH_LIMIT else "star")
+    topology = plan.topology or ("mesh" if sessions <= MESH_LIMIT else "star")
     world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
     first_step = FirstStep(log_path, started)
     if not quiet:
@@ -148,11 +115,11 @@ def spawn_team(
             with terminate_as_exception(), view or contextlib.nullcontext():
                 if start == "fork":
                     supervisor.preload()  # it imports while the world and the monitor come up
-                stop_rule = [] if until_converged else ["--steps", str(scenario.max_steps)]
+                stop_rule = [] if plan.until_converged else ["--steps", str(scenario.max_steps)]
                 world = ["world", *common, *world_mode, "--clock", clock, "--rate", str(rate), "--listen", listen,
                          "--announce", str(announce), "--lockstep-wait", str(lockstep_wait), *stop_rule]
                 monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
-                monitor_flags += ["--all-robots"] if all_robots else []
+                monitor_flags += ["--all-robots"] if plan.all_robots else []
                 monitor_flags += [] if view is None else ["--display-handover", str(handover)]
                 say(view, "starting the world and the monitor")
                 with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
@@ -175,7 +142,7 @@ def spawn_team(
                 reply_timeout = ["--reply-timeout", str(reply_wait)]
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "secure": None if secure is None else str(secure.resolve()),
-                                                 "reply_timeout": reply_wait, "lease_s": lease})
+                                                 "reply_timeout": reply_wait, "lease_s": plan.lease})
                 if scenario.estimation.mode == "centralized":
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 robots = []
@@ -196,35 +163,34 @@ def spawn_team(
                                 started=lambda: first_step.after is not None,
                                 startup_s=startup_limit(len(supervisor.children)))
         except KeyboardInterrupt:
-            interrupted, stop_signal = "interrupted by the user (Ctrl-C)", signal.SIGINT  # the children say so too
+            stop, stop_signal = Stop.INTERRUPTED, signal.SIGINT  # the children say so too
         except Terminated:
-            interrupted = "terminated (SIGTERM)"
+            stop = Stop.TERMINATED
         except TimeoutError as error:
-            interrupted = f"stalled: {error} {stalled_at(log_path, folder)}"
+            stop, stalled = Stop.STALLED, f"{error} {stalled_at(log_path, folder)}"
         finally:
             supervisor.stop(stop_signal=stop_signal)
     failures = {child.name: child.process.returncode for child in supervisor.crashed()}
-    if not interrupted:
+    if stop is None:
         for line in _failure_lines(supervisor, log_path):
             err.print(line, highlight=False, markup=False)
-    result = _summary(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started, settle)
-    result["topology"] = topology
-    result["startup_s"] = first_step.after
-    result["failures"] = failures
-    result["stopped"] = interrupted or None
-    stopped_by_signal = interrupted.startswith(("interrupted", "terminated"))
-    result["exit_code"] = 130 if stopped_by_signal else int(bool(failures or interrupted))
+    result = _result(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started, plan.settle)
+    result.topology = topology
+    result.startup_s = first_step.after
+    result.failures = failures
+    result.stopped = None if stop is None else f"{stop.value}: {stalled}" if stalled else stop.value
+    result.exit_code = 130 if stop is not None and stop.by_signal else int(bool(failures or stop))
     try:
         write_json(folder / "summary.json", result)
     except OutputError as error:
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
-        result["exit_code"] = result["exit_code"] or 1
-    if interrupted:
-        err.print(f"ringtrack: run {interrupted}; every process stopped; log: {log_path}", highlight=False)
-    if result.get("id_collisions"):
+        result.exit_code = result.exit_code or 1
+    if stop is not None:
+        err.print(f"ringtrack: run {result.stopped}; every process stopped; log: {log_path}", highlight=False)
+    if result.id_collisions:
         err.print("ringtrack: warning: two processes ran as the same robot (an id collision; see the robots' stderr)",
                   highlight=False)
-    if result.get("monitor_equals_senders") is False:
+    if result.monitor_equals_senders is False:
         err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
     return result
 
@@ -305,40 +271,41 @@ class FirstStep:
             self.after = time.perf_counter() - self.started
 
 
-def _summary(scenario: Scenario, folder: Path, log_path: Path, clock: str, run: int, supervisor: Supervisor,
-             wall_s: float, settle: int = 300) -> dict:
-    """The summary of ``ringtrack simulate --json`` plus traffic, pids and timing of the run."""
-    result: dict = {"run": f"{run:08x}", "clock": clock, "folder": str(folder), "log": str(log_path),
-                    "pids": {child.name: child.pid for child in supervisor.children}, "wall_s": wall_s}
+def _result(scenario: Scenario, folder: Path, log_path: Path, clock: Clock, run: int, supervisor: Supervisor,
+            wall_s: float, settle: int) -> TeamResult:
+    """What the run folder's log and the senders' counts say of the run: its outcome, traffic,
+    faults, memory, energy and speed, with its pids and wall time."""
+    result = TeamResult(run=f"{run:08x}", clock=clock, folder=str(folder), log=str(log_path),
+                        pids={child.name: child.pid for child in supervisor.children}, wall_s=wall_s)
     if not log_path.exists():
         return result
-
     log = read_log(log_path)
     if log.steps:
-        result.update(engine.summary(history_from_log(log), settle=settle))
+        result.outcome = summarise(history_from_log(log), settle=settle)
     end = log.end or {}
     senders = supervisor.senders_counts()
     if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it
         traffic = [tuple(row) for counts in senders.values() for row in counts["sent"]]
-        result["monitor_lost"] = True
+        result.monitor_lost = True
     else:
         traffic = [tuple(row) for row in end.get("traffic", [])]
-    result["messages"] = {category: entry["messages"] for category, entry in totals_by_category(traffic).items()}
-    result["bytes"] = {category: entry["bytes"] for category, entry in totals_by_category(traffic).items()}
-    result["by_kind"] = totals_by_kind(traffic)
-    result["monitor_equals_senders"] = end.get("consistent")
-    result["faults"] = end.get("faults", {})
-    result["rejected"] = end.get("rejected", {})
-    result["rss_kib"] = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
-    result["end_reason"] = end.get("reason")
-    result["id_collisions"] = end.get("notes", {}).get("id_collisions", 0)
-    result["energy"] = robot_energy(end.get("energy_j", {}), scenario.robots)
+    by_category = totals_by_category(traffic)
+    result.messages = {category: entry["messages"] for category, entry in by_category.items()}
+    result.bytes = {category: entry["bytes"] for category, entry in by_category.items()}
+    result.by_kind = totals_by_kind(traffic)
+    result.monitor_equals_senders = end.get("consistent")
+    result.faults = end.get("faults", {})
+    result.rejected = end.get("rejected", {})
+    result.rss_kib = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
+    result.end_reason = EndReason(end["reason"]) if "reason" in end else None
+    result.id_collisions = end.get("notes", {}).get("id_collisions", 0)
+    result.energy = robot_energy(end.get("energy_j", {}), scenario.robots)
     if end.get("wall_s") and end.get("steps"):
-        result["steps_per_s"] = end["steps"] / end["wall_s"]
+        result.steps_per_s = end["steps"] / end["wall_s"]
     return result
 
 
-def robot_energy(by_name: dict[str, list[float]], robots: int) -> dict[str, object] | None:
+def robot_energy(by_name: dict[str, list[float]], robots: int) -> EnergyReport | None:
     """The summary's energy section from an end record's ``energy_j`` (None unless every robot
     reported: a crashed robot's energy is unknown)."""
     names = [f"r{robot}" for robot in range(robots)]
