@@ -38,6 +38,7 @@ def self_triggered_rule(controller: MidpointController) -> Mask:
     return trigger_reasons(controller.theta, controller.m_minus, controller.m_plus, controller.predecessor_age,
                            controller.successor_age, controller.params)
 
+
 class MidpointController:
     """Memory and decisions of the midpoint strategies; ``rule(controller)`` is the trigger rule of
     steps after the first (default: the self-triggered rule, :func:`agents.laws.trigger_reasons`;

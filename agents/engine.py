@@ -537,11 +537,3 @@ def replies(neighbours: tuple[FloatArray, FloatArray], outcome: Exchange,
 def _to_sides(values: NDArray) -> tuple[NDArray, NDArray]:
     """What each robot's predecessor and successor hold of ``values`` (robots on axis 1)."""
     return predecessor_values(values, axis=1), successor_values(values, axis=1)
-
-
-
-
-
-
-
-

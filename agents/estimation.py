@@ -123,7 +123,6 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
     return np.asarray(estimate, dtype=float), np.asarray(covariance, dtype=float)
 
 
-
 # ---------------------------------------------------------------------------- configured estimators
 
 

@@ -50,8 +50,6 @@ UNCERTAINTY_BIT, SUCCESSOR_BIT, PREDECESSOR_BIT = (int(Trigger.UNCERTAINTY), int
 START_BIT, UNKNOWN_BIT = int(Trigger.START), int(Trigger.UNKNOWN)
 
 
-
-
 def uncertainty_bound(c_minus: Values, c_plus: Values, params: ControlParams) -> Values:
     """``ubd = omega_max (tau_minus + tau_plus) / 4`` (radians), ``tau = c * dt``."""
     return params.omega_max * (c_minus + c_plus) * params.dt / 4.0

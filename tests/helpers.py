@@ -62,6 +62,7 @@ def examples(count: int, profile: str = PROFILE) -> int:
     ``profile``: scaled by :data:`EXAMPLE_SCALE`, never below :data:`MIN_EXAMPLES` (nor ``count``)."""
     return max(min(count, MIN_EXAMPLES), round(count * EXAMPLE_SCALE[profile]))
 
+
 # Authors' polygon and target (docs/algorithms.md sections 10, 11, 13).
 AUTHORS_VERTICES = [[3.0, 7.0], [8.0, 17.0], [5.0, 26.0], [1.0, 22.0]]
 AUTHORS_TARGET = (4.0, 20.0)

@@ -43,7 +43,6 @@ def test_a_team_through_a_standalone_router_equals_the_engine(tmp_path: Path) ->
     assert_equals_engine(log)
 
 
-
 def test_a_burst_through_a_router_arrives_whole(tmp_path: Path) -> None:
     """A router forwarding a burst larger than a link's transmit queue (2 batches of 64 KiB) delivers
     all of it. On a single Zenoh thread it stalled until Zenoh closed the link (5 s), losing what was

@@ -72,7 +72,6 @@ class ControlParams:
         return self.omega_max * self.dt
 
 
-
 @dataclass(frozen=True)
 class EstimationParams:
     """How the team estimates the target (section ``[estimation]`` of a scenario).

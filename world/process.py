@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
-from ringtrack.bus.keys import BROADCAST, FUSION, MONITOR, WORLD, Keys, participants, robot_index, robot_name
+from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
 from ringtrack.bus.messages import SCHEMA, Command, Digest, DigestEntry, End, EndReason, Tick, digest_entries
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
@@ -77,9 +77,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
     """Serve one run; returns the process exit code (0 done, 1 failed, 130 interrupted)."""
     keys = Keys(run)
     team = participants(range(scenario.robots), centralized=False, monitor=options.expect_monitor) - {WORLD}
-    centralized = scenario.estimation.mode == "centralized"
-    admission = Admission({WORLD} | ({MONITOR} if options.expect_monitor else set()) | ({FUSION} if centralized
-                                                                                          else set()), scenario.robots)
+    everyone = scenario.participants(monitor=options.expect_monitor)
+    admission = Admission({name for name in everyone if robot_index(name) is None}, scenario.robots)
     tokens: list[ReachTokens] = []
 
     async def main(participant: Participant, roster: Roster, _held: list) -> int:
@@ -127,7 +126,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
 
     role = Role(
         name=WORLD,
-        needed=participants(range(scenario.robots), centralized, options.expect_monitor) - {WORLD},
+        needed=everyone - {WORLD},
         main=main,
         listen=(keys.inbox(WORLD),),
         start_on="ready",

@@ -17,6 +17,7 @@ import msgspec
 import numpy as np
 
 from ringtrack.bus.faults import NO_FAULTS, FaultPlan, LinkRates, Outage, link
+from ringtrack.bus.keys import participants
 from ringtrack.bus.radio import Radio
 from ringtrack.world.geometry import ConvexRegion, FloatArray, RegionError
 from ringtrack.world.params import DEFAULT_STRATEGY, ControlParams, EstimationParams, StrategyChoice
@@ -85,6 +86,16 @@ class Scenario:
     def moving(self) -> bool:
         return not isinstance(self.spec.target, Stationary)
 
+    @property
+    def centralized(self) -> bool:
+        """Whether a fusion centre estimates the target for the team (``estimation.mode``)."""
+        return self.estimation.mode == "centralized"
+
+    def participants(self, monitor: bool = True) -> set[str]:
+        """Every participant a run of this scenario starts with: the world, the robots, the fusion
+        centre of centralized estimation and (``monitor``) the monitor (:func:`bus.keys.participants`)."""
+        return participants(range(self.robots), self.centralized, monitor)
+
     def target_path(self, seed: int, steps: int) -> FloatArray:
         """Target positions (metres) at steps 1..``steps``, shape (steps, 2)."""
         margin = TARGET_MARGIN * self.region.outer_diameter
@@ -144,7 +155,6 @@ OVERRIDABLE: dict[str, tuple[str | None, str]] = {
 }
 # The override that sets keys of [strategy] (a mapping key -> value, merged into the section).
 STRATEGY_PARAMETERS = "strategy_parameters"
-
 
 
 class OverrideError(ScenarioError):

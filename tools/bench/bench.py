@@ -49,8 +49,6 @@ MESSAGE_KINDS = ("request", "reply", "measurement", "command")
 SUITE_TEAMS = ((6, 1, 1000, 3), (24, 1, 500, 1), (64, 1, 300, 3), (64, 16, 300, 3), (256, 16, 100, 3))
 
 
-
-
 def machine() -> dict[str, Any]:
     """Core count, Python and library versions that a benchmark result depends on."""
     versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy",
@@ -61,8 +59,6 @@ def machine() -> dict[str, Any]:
         "platform": platform.platform(),
         "versions": versions,
     }
-
-
 
 
 # ---------------------------------------------------------------------------------------- engine
@@ -136,10 +132,6 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
         "sweep": {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": trials, "runs": 2 * trials * len(sizes),
                   "converged": converged(sweep), "wall_s": sweep["wall_s"]},
     }
-
-
-
-
 
 
 # -------------------------------------------------------------------------------------- emulator
@@ -266,12 +258,6 @@ def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: P
     return msgspec.json.decode(out.read_bytes(), type=WireRun)
 
 
-
-
-
-
-
-
 # --------------------------------------------------------------------------------------- latency
 def neighbour_round_trip(rounds: int, warmup: int) -> dict[str, object]:
     """Time ``rounds`` polls of one robot process by another (after ``warmup`` untimed ones):
@@ -304,10 +290,6 @@ def neighbour_round_trip(rounds: int, warmup: int) -> dict[str, object]:
     }
 
 
-
-
-
-
 # ----------------------------------------------------------------------------------------- suite
 # The team configurations whose speed the suite reports relative to its own round trip.
 RATIO_TEAMS = ((6, 1), (64, 1), (64, 16), (256, 16))
@@ -336,7 +318,3 @@ def suite_ratios(results: dict[str, Any]) -> dict[str, Any]:
         if memory:
             ratios[f"robot_process_rss_mib_{per_process}_per_process"] = max(memory)
     return ratios
-
-
-
-

@@ -109,8 +109,6 @@ def strategy_list(text: str) -> list[str]:
     return values
 
 
-
-
 def robot_list(text: str) -> list[int]:
     """Parse ``6`` or ``3,6,10,20`` into team sizes of at least 3."""
     try:

@@ -111,8 +111,6 @@ def flag(override: str) -> str:
     return FLAGS.get(override, "--" + override.replace("_", "-"))
 
 
-
-
 def positive(text: str) -> float:
     """An argparse type: a finite number > 0 (a rate, a speed factor, seconds)."""
     try:

@@ -29,22 +29,10 @@ REASON_WIDTH = 19  # characters of the last-trigger column at most ("T1+T2+T3+un
 LINK_STYLES = {"ok": "green", "dup": "yellow", "delay": "yellow"}  # any other state (a loss) is red
 
 
-
-
-
-
-
-
-
-
 def robot_label(robot: int) -> str:
     """One character per robot on the map: 0-9, then a-z, then A-Z, then '*'."""
     digits = "0123456789abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
     return digits[robot] if robot < len(digits) else "*"
-
-
-
-
 
 
 # ---------------------------------------------------------------------------- rendering

@@ -12,10 +12,6 @@ from ringtrack.tools.runlog.log import RunLog
 FRAME_S = 0.1  # at most ten redraws per wall second
 
 
-
-
-
-
 def ending(log: RunLog) -> str:
     """The status the last frame shows: why the run ended, or that its log stops short."""
     return EndReason(log.end["reason"]).text(log.end["steps"]) if log.end else "log ends here (the run was stopped)"

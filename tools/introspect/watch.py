@@ -20,20 +20,14 @@ import msgspec
 from rich.table import Table
 
 from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
-from ringtrack.bus.keys import robot_name
 from ringtrack.bus.messages import AnyMessage
 from ringtrack.bus.observer import Heard, Observer, Token
+from ringtrack.tools.monitor.state import startup_names
 from ringtrack.world.scenario import load_scenario
 
 POLL_S = 0.05
 QUIET_S = 3.0  # echo and hz give up on a run heard nothing of for this long (default of --give-up)
 HEX_RUN = re.compile(r"^[0-9a-fA-F]{1,8}$")
-
-
-
-
-
-
 
 
 @dataclass
@@ -47,13 +41,9 @@ class Target:
     expected: list[str] = field(default_factory=list)
 
 
-
-
 def expected_names(folder: Path) -> list[str]:
     """The participants a spawn run folder's scenario starts with (world, fusion, monitor, robots)."""
-    scenario = load_scenario(str(folder / "scenario.toml"))
-    fusion = ["fusion"] if scenario.estimation.mode == "centralized" else []
-    return ["world", *fusion, "monitor", *(robot_name(robot) for robot in range(scenario.robots))]
+    return startup_names(load_scenario(str(folder / "scenario.toml")))
 
 
 def observer(target: Target, mode: str) -> Observer:
@@ -69,8 +59,6 @@ class Seen:
     alive: bool | None = None  # None: no token seen either way
     published: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))  # kind -> destinations
     messages: int = 0
-
-
 
 
 def list_table(run: int, participants: dict[str, Seen], duration: float) -> Table:
@@ -120,8 +108,6 @@ class Quiet:
         return bool(self.reason)
 
 
-
-
 def echo_line(heard: Heard, message: AnyMessage | None) -> str:
     """``kind source>destination size B step k: field=value ...`` (floats to 4 significant digits,
     fields that are None left out)."""
@@ -145,8 +131,6 @@ def _short(value: object) -> str:
     if isinstance(value, dict):
         return "{" + ",".join(f"{key}:{_short(item)}" for key, item in value.items()) + "}"
     return str(value)
-
-
 
 
 def hz_table(messages: Counter[tuple[str, str]], sizes: Counter[tuple[str, str]], seconds: float) -> Table:

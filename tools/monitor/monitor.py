@@ -21,7 +21,7 @@ from pathlib import Path
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
 from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic, team_faults
-from ringtrack.bus.keys import MONITOR, WORLD, Keys, Route, participants, robot_index, robot_name
+from ringtrack.bus.keys import MONITOR, WORLD, Keys, Route, robot_index, robot_name
 from ringtrack.bus.messages import (
     KINDS,
     ROBOT_TRAFFIC_KINDS,
@@ -240,7 +240,7 @@ class Recorder:
 
 def senders(scenario: Scenario) -> set[str]:
     """Everyone who sends in a run of ``scenario`` (the monitor only listens)."""
-    return participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=False)
+    return scenario.participants(monitor=False)
 
 
 @dataclass

@@ -17,7 +17,7 @@ import numpy as np
 
 from ringtrack.agents.laws import uncertainty_bound
 from ringtrack.bus.faults import FAULTS, POLL_MESSAGES
-from ringtrack.bus.keys import FUSION, MONITOR, WORLD, participants, robot_index
+from ringtrack.bus.keys import FUSION, MONITOR, WORLD, robot_index
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario
@@ -36,14 +36,11 @@ def messages_saved(robots: int, steps: int, spent: int) -> tuple[int, float]:
     return constant - spent, (constant - spent) / constant if constant else 0.0
 
 
-
-
 def startup_names(scenario: Scenario) -> list[str]:
     """Everyone a run of ``scenario`` starts with, the monitor included, in the order the start-up
     frame lists them: world, fusion centre, monitor, robots."""
     order = {WORLD: -3, FUSION: -2, MONITOR: -1}
-    team = participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True)
-    return sorted(team, key=lambda name: order.get(name, robot_index(name) or 0))
+    return sorted(scenario.participants(), key=lambda name: order.get(name, robot_index(name) or 0))
 
 
 @dataclass

@@ -23,10 +23,6 @@ STEP_COLUMNS = ["step", "time_s", "robot", "live", "x_m", "y_m", "angle_deg", "o
 LINK_COLUMNS = ["kind", "source", "destination", "messages_seen", "bytes_seen", "messages_sent", "bytes_sent"]
 
 
-
-
-
-
 def step_rows(log: RunLog) -> Iterator[dict]:
     """One row per step and robot (angles in degrees, CCW, about the robot's own centre)."""
     for record in log.steps:

@@ -177,7 +177,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     scenario = history.scenario
     robots = scenario.robots
     sent, received = history.sent[:, trial], history.received[:, trial]
-    estimation_messages = robots + 1 if scenario.estimation.mode == "centralized" else 0
+    estimation_messages = robots + 1 if scenario.centralized else 0
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
         assert history.estimates is not None
@@ -267,7 +267,6 @@ class EventRecord(Record, tag="event"):
     delay_s: float | None = None
     robot: str | None = None
     wall: float | None = None
-
 
 
 class EndRecord(Record, tag="end"):
@@ -425,4 +424,3 @@ def history_from_log(log: RunLog) -> History:
         faults=np.zeros((len(log.steps), 1, len(FAULT_COLUMNS)), dtype=np.int64),  # per run only: see the end record
         probes=np.zeros((len(log.steps), 1), dtype=np.int64),
     )
-

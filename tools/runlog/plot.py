@@ -15,10 +15,6 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
-
-
-
-
 PANELS = ("(a) trajectories (open: start, filled: end)", "(b) convergence and target errors",
           "(c) polls per robot over time", "(d) robot-to-robot traffic per link (sender>receiver)")
 

@@ -26,14 +26,6 @@ MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "esti
                   "estimation_messages_per_step"]
 
 
-
-
-
-
-
-
-
-
 def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = STRATEGIES,
                            **overrides: object) -> dict[str, Scenario]:
     """The base scenario with ``robots`` robots, random starts and default threshold, per strategy
@@ -146,12 +138,6 @@ def stationary_experiment(
         "ratios": ratios,
         "rows": rows,
     }
-
-
-
-
-
-
 
 
 # ---------------------------------------------------------------------------- moving target
@@ -275,8 +261,6 @@ def moving_figures(history: engine.History, trials: list[int], settle: int, mode
         "robot_bytes_per_step": float(payload.mean()),
         "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
     }
-
-
 
 
 def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:

@@ -39,8 +39,6 @@ def gates_experiment(base: str, gates: list[float], trials: int, settle: int) ->
             "centralized": point(central, settle), "points": points, "wall_s": time.perf_counter() - started}
 
 
-
-
 def plot_gates(result: dict, path: Path) -> None:
     figure, axis = plt.subplots(figsize=(6, 4.2), layout="constrained")
     points = result["points"]

@@ -46,16 +46,6 @@ METRICS = (
 MOVING_METRICS = (("cerr", "Cerr (true)", "deg"), ("terr", "Terr", "m"))
 
 
-
-
-
-
-
-
-
-
-
-
 # ---------------------------------------------------------------------------- runs
 @dataclass(frozen=True)
 class Cell:
@@ -264,9 +254,3 @@ def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History],
             check["equal"] = False
         checks.append(check)
     return checks
-
-
-
-
-
-

@@ -23,7 +23,7 @@ from pathlib import Path
 from ringtrack.agents.summary import summarise
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
-from ringtrack.bus.keys import FUSION, MONITOR, WORLD, new_run_id, participants, robot_name
+from ringtrack.bus.keys import new_run_id
 from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport, energy_report
 from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
@@ -40,10 +40,6 @@ CRITICAL = frozenset({"world", "monitor", "fusion"})  # processes whose failure 
 MESH_LIMIT = 16  # Zenoh participants: more use the star topology (a full mesh of n needs n(n-1)/2 links)
 PROCESS_MIB = 80  # resident memory of one robot process (measured 55-75 MiB), for the process budget
 MAX_PROCESSES = 1024
-
-
-
-
 
 
 def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
@@ -101,12 +97,12 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
     stop: Stop | None = None
     stalled = ""
     stop_signal = signal.SIGTERM
-    sessions = len(participants(range(scenario.robots), scenario.estimation.mode == "centralized", monitor=True))
+    sessions = len(scenario.participants())
     topology = plan.topology or ("mesh" if sessions <= MESH_LIMIT else "star")
     world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
     first_step = FirstStep(log_path, started)
     if not quiet:
-        fusion = ", the fusion centre" if scenario.estimation.mode == "centralized" else ""
+        fusion = ", the fusion centre" if scenario.centralized else ""
         err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
                   f"robots in {processes} processes", highlight=False)
     with Supervisor(folder) as supervisor:
@@ -143,7 +139,7 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
                 write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
                                                  "secure": None if secure is None else str(secure.resolve()),
                                                  "reply_timeout": reply_wait, "lease_s": plan.lease})
-                if scenario.estimation.mode == "centralized":
+                if scenario.centralized:
                     supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
                 robots = []
                 for first in range(0, scenario.robots, robots_per_process):
@@ -209,9 +205,10 @@ def say(view: StartupView | None, note: str) -> None:
 def secured(directory: Path, scenario: Scenario) -> str:
     """Check the team folder serves every participant of ``scenario`` (before anything starts) and
     return the endpoint the world listens on."""
-    names = [WORLD, MONITOR, *([FUSION] if scenario.estimation.mode == "centralized" else [])]
-    check_team(directory, [*names, *(robot_name(robot) for robot in range(scenario.robots))], scenario.robots)
+    check_team(directory, sorted(scenario.participants()), scenario.robots)
     return SECURE_LOOPBACK_ANY_PORT
+
+
 def stalled_at(log_path: Path, folder: Path) -> str:
     """What a stalled run waited for: the step after the last one logged, and, from the world's
     standard error, the robot its lockstep wait last named."""
@@ -312,5 +309,3 @@ def robot_energy(by_name: dict[str, list[float]], robots: int) -> EnergyReport |
     if not all(name in by_name for name in names):
         return None
     return energy_report([by_name[name][0] for name in names], [by_name[name][1] for name in names])
-
-
