@@ -111,7 +111,7 @@ def test_a_run_that_ends_ends_echo_and_hz_cleanly_with_what_they_heard(
     import json
 
     from ringtrack.bus.observer import Token
-    from ringtrack.tools.cli import introspect
+    from ringtrack.tools.introspect import watch as introspect
     from ringtrack.world.scenario import load_scenario
 
     folder = tmp_path / "20261201T000000Z-paper-stationary-0000abcd"

@@ -10,9 +10,11 @@ of the run), or found under ``--runs``.
 
 from __future__ import annotations
 
+import json
 import re
 import time
 from collections import Counter, defaultdict
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,9 +22,10 @@ import msgspec
 from rich.table import Table
 
 from ringtrack.bus.config import LOOPBACK_ANY_PORT, BusConfig
-from ringtrack.bus.messages import AnyMessage
+from ringtrack.bus.messages import AnyMessage, Rejected, peek
 from ringtrack.bus.observer import Heard, Observer, Token
 from ringtrack.tools.monitor.state import startup_names
+from ringtrack.tools.output.console import UsageError
 from ringtrack.world.scenario import load_scenario
 
 POLL_S = 0.05
@@ -39,6 +42,32 @@ class Target:
     connect: list[str]
     folder: Path | None = None
     expected: list[str] = field(default_factory=list)
+
+
+def find_run(run: str | None, connect: list[str] | None, runs: Path) -> Target:
+    """The run to watch and the endpoints to reach it through: ``run`` a spawn run folder (holding
+    ``run.json``) or a run id in hex (found under ``runs`` unless ``connect`` names endpoints), or
+    None for every run heard; ``connect`` else the endpoints of the run folders under ``runs``."""
+    folder: Path | None = None
+    if run is not None and (Path(run) / "run.json").is_file():
+        folder = Path(run)
+    elif run is not None and HEX_RUN.match(run):
+        matches = sorted(runs.glob(f"*-{int(run, 16):08x}/run.json"))
+        folder = matches[-1].parent if matches and not connect else None
+    elif run is not None:
+        raise UsageError(f"RUN {run!r}: give a run folder (holding run.json) or a run id in hex like 1f2e3d4c")
+    if folder is not None:
+        info = json.loads((folder / "run.json").read_text())
+        return Target(int(info["run"], 16), list(connect or info["connect"]), folder, expected_names(folder))
+    endpoints = list(connect or [])
+    if not endpoints:
+        for run_file in sorted(runs.glob("*/run.json")):
+            endpoints += [endpoint for endpoint in json.loads(run_file.read_text())["connect"]
+                          if endpoint not in endpoints]
+    if not endpoints:
+        raise UsageError("no endpoint to reach the bus: give --connect ENDPOINT (a router or a peer of the run) "
+                         "or a run folder")
+    return Target(None if run is None else int(run, 16), endpoints)
 
 
 def expected_names(folder: Path) -> list[str]:
@@ -59,6 +88,28 @@ class Seen:
     alive: bool | None = None  # None: no token seen either way
     published: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))  # kind -> destinations
     messages: int = 0
+
+
+def listen(target: Target, mode: str, duration_s: float) -> dict[int, dict[str, Seen]]:
+    """Every run heard on the bus in ``duration_s`` seconds (or the target run, heard or not), with
+    its participants as heard; the target's expected participants that were not heard are gone."""
+    runs: dict[int, dict[str, Seen]] = defaultdict(dict)
+    with observer(target, mode) as bus:
+        deadline = time.monotonic() + duration_s
+        while time.monotonic() < deadline:
+            for item in bus.poll():
+                if isinstance(item, Token):
+                    runs[item.run].setdefault(item.name, Seen()).alive = item.up
+                else:
+                    seen = runs[item.run].setdefault(item.route.source, Seen())
+                    seen.published[item.route.kind].add(item.route.destination)
+                    seen.messages += 1
+            time.sleep(POLL_S)
+    if target.run is not None:
+        participants = runs[target.run]
+        for name in target.expected:
+            participants.setdefault(name, Seen(alive=False))
+    return dict(runs)
 
 
 def list_table(run: int, participants: dict[str, Seen], duration: float) -> Table:
@@ -108,6 +159,27 @@ class Quiet:
         return bool(self.reason)
 
 
+def messages(target: Target, mode: str, quiet: Quiet, kinds: set[str],
+             robot: str | None = None) -> Iterator[tuple[Heard, AnyMessage | None]]:
+    """The target run's messages of ``kinds`` (from or to ``robot``, if named) as they pass, each
+    with its decoded message (None: not a message, every participant drops it), until ``quiet``
+    says the watch is over."""
+    with observer(target, mode) as bus:
+        while not quiet.over():
+            for item in bus.poll():
+                quiet.heard(item)
+                if not isinstance(item, Heard) or item.route.kind not in kinds:
+                    continue
+                if robot is not None and robot not in (item.route.source, item.route.destination):
+                    continue
+                try:
+                    message: AnyMessage | None = peek(item.payload)
+                except Rejected:
+                    message = None
+                yield item, message
+            time.sleep(POLL_S)
+
+
 def echo_line(heard: Heard, message: AnyMessage | None) -> str:
     """``kind source>destination size B step k: field=value ...`` (floats to 4 significant digits,
     fields that are None left out)."""
@@ -133,8 +205,46 @@ def _short(value: object) -> str:
     return str(value)
 
 
-def hz_table(messages: Counter[tuple[str, str]], sizes: Counter[tuple[str, str]], seconds: float) -> Table:
-    """Messages and payload bytes per second over ``seconds``, per kind then per link."""
+@dataclass
+class Window:
+    """What passed in ``seconds`` of a watch: messages and payload bytes per ``("kind", kind)`` and
+    per ``("link", "source>destination")``."""
+
+    seconds: float
+    messages: Counter[tuple[str, str]] = field(default_factory=Counter)
+    sizes: Counter[tuple[str, str]] = field(default_factory=Counter)
+
+
+def rates(target: Target, mode: str, quiet: Quiet, period_s: float) -> Iterator[Window]:
+    """Every ``period_s`` seconds what the target run sent in that time, until its world's End (the
+    last window up to it) or until ``quiet`` says the watch is over (with what was counted since
+    the last window when the run ended)."""
+    with observer(target, mode) as bus:
+        window, started, ended = Window(0.0), time.monotonic(), False
+        while not ended:
+            if quiet.over():
+                if quiet.run_ended and window.messages:
+                    window.seconds = time.monotonic() - started
+                    yield window
+                return
+            for item in bus.poll():
+                quiet.heard(item)
+                if isinstance(item, Heard):
+                    for key in (("kind", item.route.kind), ("link", f"{item.route.source}>{item.route.destination}")):
+                        window.messages[key] += 1
+                        window.sizes[key] += len(item.payload)
+                    ended = ended or item.route.kind == "end"
+            elapsed = time.monotonic() - started
+            if elapsed >= period_s or ended:
+                window.seconds = elapsed
+                yield window
+                window, started = Window(0.0), time.monotonic()
+            time.sleep(POLL_S)
+
+
+def hz_table(window: Window) -> Table:
+    """Messages and payload bytes per second over the window, per kind then per link."""
+    messages, sizes, seconds = window.messages, window.sizes, window.seconds
     table = Table(title=f"over {seconds:.2f} s", title_justify="left", show_edge=False, pad_edge=False)
     for column in ("kind / link", "msg/s", "B/s", "B/msg"):
         table.add_column(column, justify="right")
