@@ -68,6 +68,19 @@ class RangeBounds:
     safe_sensing: float  # D_out
 
 
+PATH_SAMPLES = 48  # target positions checked along a moving target's path
+
+
+def safe_communication_range(region: ConvexRegion, path: ArrayLike, robots: int) -> float:
+    """The communication range (metres) a team of ``robots`` needs to stay linked in its
+    angle-uniform configuration about every target position of ``path`` (shape ``(K, 2)``,
+    metres): the longest link of :func:`uniform_link_requirement`, worst over at most
+    ``PATH_SAMPLES`` evenly spread positions."""
+    positions = np.asarray(path, dtype=float)
+    samples = positions[np.linspace(0, len(positions) - 1, min(PATH_SAMPLES, len(positions))).astype(int)]
+    return max(uniform_link_requirement(region, point, robots)[0] for point in samples)
+
+
 def range_bounds(region: ConvexRegion, centre: ArrayLike, robots: int) -> RangeBounds:
     """All bounds of docs/algorithms.md section 11 for ``robots`` robots around ``centre``."""
     d_in = region.inner_diameter

@@ -22,10 +22,14 @@ from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.bus.radio import loss_probability, message_bits, receive_energy, transmit_energy
 from ringtrack.tools.cli.options import add_scenario_arguments, scenario_from_arguments
 from ringtrack.tools.output.console import err, show
-from ringtrack.world.ranges import link_lengths, range_bounds, uniform_link_requirement, uniform_ring
+from ringtrack.world.ranges import (
+    link_lengths,
+    range_bounds,
+    safe_communication_range,
+    uniform_link_requirement,
+    uniform_ring,
+)
 from ringtrack.world.scenario import Scenario
-
-PATH_SAMPLES = 48  # target positions checked along a moving target's path
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -34,17 +38,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run_check)
 
 
-def safe_communication_range(scenario: Scenario) -> float:
-    """The longest uniform-configuration link needed, worst over the target's path."""
-    path = scenario.target_path(scenario.seed, scenario.max_steps)
-    samples = path[np.linspace(0, len(path) - 1, min(PATH_SAMPLES, len(path))).astype(int)]
-    return max(uniform_link_requirement(scenario.region, point, scenario.robots)[0] for point in samples)
-
-
 def run_check(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
     bounds = range_bounds(scenario.region, scenario.target, scenario.robots)
-    safe_rc = safe_communication_range(scenario)
+    safe_rc = safe_communication_range(scenario.region, scenario.target_path(scenario.seed, scenario.max_steps),
+                                       scenario.robots)
     r_c = scenario.communication_range
     r_s = scenario.spec.sensing.range
     table = Table(title=f"{scenario.name}: {scenario.robots} robots, target at {scenario.target.tolist()}"
