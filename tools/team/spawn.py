@@ -18,6 +18,7 @@ import datetime
 import math
 import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from ringtrack.agents.summary import summarise
@@ -58,102 +59,38 @@ def run_folder(runs: Path, scenario: Scenario, run: int) -> Path:
 
 def spawn_team(plan: TeamPlan) -> TeamResult:
     """Run the team ``plan`` describes and return what it came to (also written to
-    ``RUN_FOLDER/summary.json``)."""
-    scenario, clock, rate, quiet, start = plan.scenario, plan.clock, plan.rate, plan.quiet, plan.start
-    robots_per_process, secure, lockstep_wait, dashboard = (plan.robots_per_process, plan.secure,
-                                                            plan.lockstep_wait, plan.dashboard)
-    if robots_per_process < 1:
-        raise UsageError(f"--robots-per-process {robots_per_process}: give at least 1")
-    processes, budget = math.ceil(scenario.robots / robots_per_process), process_budget()
-    if processes > budget:
-        raise UsageError(
-            f"--robots {scenario.robots}: {processes} robot processes of about {PROCESS_MIB} MiB each are more than "
-            f"this machine holds ({budget}); host several per process with --robots-per-process "
-            f"{math.ceil(scenario.robots / budget)}"
-        )
-    secure_listen = None if secure is None else secured(secure, scenario)
+    ``RUN_FOLDER/summary.json``). Completion, Ctrl-C, SIGTERM and a stall all end every process."""
+    scenario = plan.scenario
+    processes = robot_processes(plan)
+    if plan.start == "fork" and not FORK_WORKS:
+        raise UsageError("--start fork: forking robot processes needs Linux (os.fork and pidfd); use --start exec")
+    start = plan.start or ("fork" if FORK_WORKS else "exec")
+    listen = LOOPBACK_ANY_PORT if plan.secure is None else secured(plan.secure, scenario)
     warn_if_threshold_loose(scenario)
     run = new_run_id()
     folder = run_folder(plan.runs, scenario, run)
     # The start-up frame before anything else: on a terminal only (a pipe nobody reads must not hold
     # spawn up), and only where the monitor draws its dashboard.
     handover = folder / "display.handover"
-    view = startup_view(scenario, clock, handover) if not quiet and dashboard is not False and out.is_terminal \
-        else None
-
-    if start == "fork" and not FORK_WORKS:
-        raise UsageError("--start fork: forking robot processes needs Linux (os.fork and pidfd); use --start exec")
-    start = start or ("fork" if FORK_WORKS else "exec")
-
-    listen = secure_listen or LOOPBACK_ANY_PORT
-    scenario_path = folder / "scenario.toml"
-    scenario_path.write_bytes(scenario.to_toml())
+    view = startup_view(scenario, plan.clock, handover) \
+        if not plan.quiet and plan.dashboard is not False and out.is_terminal else None
+    (folder / "scenario.toml").write_bytes(scenario.to_toml())
     log_path = plan.log_path or folder / "log.jsonl"
-    announce = folder / "world-endpoints.json"
-    common = [str(scenario_path), "--run", f"{run:08x}", "--monitor", "--exit-with-parent", "--lease", str(plan.lease)]
-    common += [] if secure is None else ["--secure", str(secure.resolve())]
-    common += ["--audit"] if plan.audit else []
+    topology = plan.topology or ("mesh" if len(scenario.participants()) <= MESH_LIMIT else "star")
     started = time.perf_counter()
-    stop: Stop | None = None
-    stalled = ""
-    stop_signal = signal.SIGTERM
-    sessions = len(scenario.participants())
-    topology = plan.topology or ("mesh" if sessions <= MESH_LIMIT else "star")
-    world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if topology == "star" else ([], [])
     first_step = FirstStep(log_path, started)
-    if not quiet:
+    if not plan.quiet:
         fusion = ", the fusion centre" if scenario.centralized else ""
         err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
                   f"robots in {processes} processes", highlight=False)
+    stop: Stop | None = None
+    stalled = ""
+    stop_signal = signal.SIGTERM
     with Supervisor(folder) as supervisor:
         supervisor.leader = "world"
         try:
             with terminate_as_exception(), view or contextlib.nullcontext():
-                if start == "fork":
-                    supervisor.preload()  # it imports while the world and the monitor come up
-                stop_rule = [] if plan.until_converged else ["--steps", str(scenario.max_steps)]
-                world = ["world", *common, *world_mode, "--clock", clock, "--rate", str(rate), "--listen", listen,
-                         "--announce", str(announce), "--lockstep-wait", str(lockstep_wait), *stop_rule]
-                monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[dashboard]
-                monitor_flags += ["--all-robots"] if plan.all_robots else []
-                monitor_flags += [] if view is None else ["--display-handover", str(handover)]
-                say(view, "starting the world and the monitor")
-                with (folder / "monitor.stdout").open("wb") if quiet else contextlib.nullcontext() as display:
-                    # Started at once: it comes up (and takes the start-up frame over) while the world does.
-                    supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
-                                                 str(announce), "--log", str(log_path), "--clock", clock,
-                                                 *monitor_flags], stdout=display)
-                if start == "fork":  # the launcher's imports are those of the world too
-                    supervisor.fork([("world", world)])
-                else:
-                    supervisor.start("world", [*ROLE_COMMAND, *world])
-                endpoints = supervisor.endpoints(announce, "world")
-                listening = f"the world listens on {', '.join(endpoints)} after {time.perf_counter() - started:.1f} s"
-                if view is not None:  # said on the frame: a line above it would push its top off the screen
-                    say(view, f"{listening}; starting {processes} robot processes")
-                elif not quiet:
-                    err.print(f"spawn: {listening}; starting the others", highlight=False)
-                connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
-                reply_wait = lockstep_wait / 2 if clock == "lockstep" else scenario.control.dt / rate
-                reply_timeout = ["--reply-timeout", str(reply_wait)]
-                write_json(folder / "run.json", {"run": f"{run:08x}", "connect": endpoints, "clock": clock,
-                                                 "secure": None if secure is None else str(secure.resolve()),
-                                                 "reply_timeout": reply_wait, "lease_s": plan.lease})
-                if scenario.centralized:
-                    supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
-                robots = []
-                for first in range(0, scenario.robots, robots_per_process):
-                    last = min(first + robots_per_process, scenario.robots) - 1
-                    ids = str(first) if first == last else f"{first}-{last}"
-                    robots.append((f"r{ids}", ["robot", *common, *connect, *reply_timeout, "--id", ids]))
-                if start == "fork":
-                    supervisor.fork(robots)
-                else:
-                    for name, argv in robots:
-                        supervisor.start(name, [*ROLE_COMMAND, *argv])
-                if view is not None:
-                    say(view, "every process started; the monitor takes over this screen once it is up")
-                    view.started_all()
+                start_team(supervisor, plan, TeamLaunch(run, folder, log_path, topology, listen, start, view, started))
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
                                 started=lambda: first_step.after is not None,
@@ -166,22 +103,117 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
             stop, stalled = Stop.STALLED, f"{error} {stalled_at(log_path, folder)}"
         finally:
             supervisor.stop(stop_signal=stop_signal)
-    failures = {child.name: child.process.returncode for child in supervisor.crashed()}
     if stop is None:
         for line in _failure_lines(supervisor, log_path):
             err.print(line, highlight=False, markup=False)
-    result = _result(scenario, folder, log_path, clock, run, supervisor, time.perf_counter() - started, plan.settle)
+    result = _result(scenario, folder, log_path, plan.clock, run, supervisor, time.perf_counter() - started,
+                     plan.settle)
     result.topology = topology
     result.startup_s = first_step.after
-    result.failures = failures
+    result.failures = {child.name: child.process.returncode for child in supervisor.crashed()}
     result.stopped = None if stop is None else f"{stop.value}: {stalled}" if stalled else stop.value
-    result.exit_code = 130 if stop is not None and stop.by_signal else int(bool(failures or stop))
+    result.exit_code = 130 if stop is not None and stop.by_signal else int(bool(result.failures or stop))
+    return reported(result, folder, log_path)
+
+
+def robot_processes(plan: TeamPlan) -> int:
+    """How many robot processes the plan needs; a :class:`UsageError` when this machine cannot hold
+    them (:func:`process_budget`) or ``robots_per_process`` is below 1."""
+    robots, per_process = plan.scenario.robots, plan.robots_per_process
+    if per_process < 1:
+        raise UsageError(f"--robots-per-process {per_process}: give at least 1")
+    processes, budget = math.ceil(robots / per_process), process_budget()
+    if processes > budget:
+        raise UsageError(
+            f"--robots {robots}: {processes} robot processes of about {PROCESS_MIB} MiB each are more than "
+            f"this machine holds ({budget}); host several per process with --robots-per-process "
+            f"{math.ceil(robots / budget)}"
+        )
+    return processes
+
+
+@dataclass(frozen=True)
+class TeamLaunch:
+    """Where and how one run's processes start: its id, run folder and log, the topology of its
+    Zenoh sessions, the endpoint the world listens on, "fork" or "exec", the start-up frame, and
+    when spawn started (``time.perf_counter``, seconds)."""
+
+    run: int
+    folder: Path
+    log_path: Path
+    topology: str
+    listen: str
+    start: str
+    view: StartupView | None
+    started: float
+
+
+def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> None:
+    """Start the monitor and the world, wait for the world's endpoints, then start the fusion centre
+    (centralized estimation) and the robot processes, all told to connect to the world."""
+    scenario, folder, view = plan.scenario, launch.folder, launch.view
+    announce, handover = folder / "world-endpoints.json", folder / "display.handover"
+    common = [str(folder / "scenario.toml"), "--run", f"{launch.run:08x}", "--monitor", "--exit-with-parent",
+              "--lease", str(plan.lease)]
+    common += [] if plan.secure is None else ["--secure", str(plan.secure.resolve())]
+    common += ["--audit"] if plan.audit else []
+    world_mode, others_mode = (["--mode", "router"], ["--mode", "client"]) if launch.topology == "star" else ([], [])
+    if launch.start == "fork":
+        supervisor.preload()  # it imports while the world and the monitor come up
+    stop_rule = [] if plan.until_converged else ["--steps", str(scenario.max_steps)]
+    world = ["world", *common, *world_mode, "--clock", plan.clock, "--rate", str(plan.rate), "--listen", launch.listen,
+             "--announce", str(announce), "--lockstep-wait", str(plan.lockstep_wait), *stop_rule]
+    monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[plan.dashboard]
+    monitor_flags += ["--all-robots"] if plan.all_robots else []
+    monitor_flags += [] if view is None else ["--display-handover", str(handover)]
+    say(view, "starting the world and the monitor")
+    with (folder / "monitor.stdout").open("wb") if plan.quiet else contextlib.nullcontext() as display:
+        # Started at once: it comes up (and takes the start-up frame over) while the world does.
+        supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
+                                     str(announce), "--log", str(launch.log_path), "--clock", plan.clock,
+                                     *monitor_flags], stdout=display)
+    if launch.start == "fork":  # the launcher's imports are those of the world too
+        supervisor.fork([("world", world)])
+    else:
+        supervisor.start("world", [*ROLE_COMMAND, *world])
+    endpoints = supervisor.endpoints(announce, "world")
+    processes = math.ceil(scenario.robots / plan.robots_per_process)
+    listening = f"the world listens on {', '.join(endpoints)} after {time.perf_counter() - launch.started:.1f} s"
+    if view is not None:  # said on the frame: a line above it would push its top off the screen
+        say(view, f"{listening}; starting {processes} robot processes")
+    elif not plan.quiet:
+        err.print(f"spawn: {listening}; starting the others", highlight=False)
+    connect = [flag for endpoint in endpoints for flag in ("--connect", endpoint)] + others_mode
+    reply_wait = plan.lockstep_wait / 2 if plan.clock == "lockstep" else scenario.control.dt / plan.rate
+    write_json(folder / "run.json", {"run": f"{launch.run:08x}", "connect": endpoints, "clock": plan.clock,
+                                     "secure": None if plan.secure is None else str(plan.secure.resolve()),
+                                     "reply_timeout": reply_wait, "lease_s": plan.lease})
+    if scenario.centralized:
+        supervisor.start("fusion", [*ROLE_COMMAND, "fusion", *common, *connect])
+    robots = []
+    for first in range(0, scenario.robots, plan.robots_per_process):
+        last = min(first + plan.robots_per_process, scenario.robots) - 1
+        ids = str(first) if first == last else f"{first}-{last}"
+        robots.append((f"r{ids}", ["robot", *common, *connect, "--reply-timeout", str(reply_wait), "--id", ids]))
+    if launch.start == "fork":
+        supervisor.fork(robots)
+    else:
+        for name, argv in robots:
+            supervisor.start(name, [*ROLE_COMMAND, *argv])
+    if view is not None:
+        say(view, "every process started; the monitor takes over this screen once it is up")
+        view.started_all()
+
+
+def reported(result: TeamResult, folder: Path, log_path: Path) -> TeamResult:
+    """Write ``result`` to ``RUN_FOLDER/summary.json`` (a failed write is an error line and exit code
+    1) and say on standard error why the run stopped early and what went wrong."""
     try:
         write_json(folder / "summary.json", result)
     except OutputError as error:
         err.print(f"ringtrack: error: {error}", highlight=False, markup=False)
         result.exit_code = result.exit_code or 1
-    if stop is not None:
+    if result.stopped is not None:
         err.print(f"ringtrack: run {result.stopped}; every process stopped; log: {log_path}", highlight=False)
     if result.id_collisions:
         err.print("ringtrack: warning: two processes ran as the same robot (an id collision; see the robots' stderr)",
