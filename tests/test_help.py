@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from importlib import metadata
 
-from ringtrack.tools.cli import COMMANDS, build_parser, modules_for
+import pytest
+
+from ringtrack.tools.cli import COMMANDS, build_parser, main, modules_for
 
 
 def walk(parser: argparse.ArgumentParser, path: str = "ringtrack") -> list[tuple[str, argparse.Action]]:
@@ -50,3 +53,10 @@ def test_a_command_line_builds_only_its_module() -> None:
     assert modules_for(["--help"], tuple(COMMANDS)) == list(COMMANDS)
     assert modules_for(["spwan"], tuple(COMMANDS)) == list(COMMANDS)  # the error lists every command
     assert modules_for([], ("roles",)) == ["roles"]
+
+
+def test_version_names_the_installed_distribution(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exited:
+        main(["--version"])
+    assert exited.value.code == 0
+    assert capsys.readouterr().out.strip() == f"ringtrack {metadata.version('ringtrack')}"
