@@ -1,4 +1,4 @@
-"""The live dashboard, replay and plot (tools/dashboard.py, tools/views.py, tools/replay.py, tools/plot.py)."""
+"""The live dashboard, replay and plot (tools/dashboard/dashboard.py, tools/dashboard/views.py, tools/dashboard/replay.py, tools/runlog/plot.py)."""
 
 from __future__ import annotations
 

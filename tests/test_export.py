@@ -1,4 +1,4 @@
-"""CSV tables of a run (``ringtrack export``, tools/export.py) and of the experiments (``--csv``),
+"""CSV tables of a run (``ringtrack export``, tools/runlog/export.py) and of the experiments (``--csv``),
 read back with the csv module against the log and the results they came from."""
 
 from __future__ import annotations

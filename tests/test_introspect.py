@@ -1,4 +1,4 @@
-"""Looking at a live run from outside: ``ringtrack list``, ``echo`` and ``hz`` (tools/introspect.py,
+"""Looking at a live run from outside: ``ringtrack list``, ``echo`` and ``hz`` (tools/introspect/watch.py,
 bus/observer.py) see it as it is and change nothing."""
 
 from __future__ import annotations

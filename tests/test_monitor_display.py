@@ -1,4 +1,4 @@
-"""The monitor's display never holds up the monitor (tools/views.py LiveView): a stream that blocks
+"""The monitor's display never holds up the monitor (tools/dashboard/views.py LiveView): a stream that blocks
 delays only the drawer thread, never whoever refreshes, and a team whose dashboard nobody reads
 still completes its run and its log."""
 

@@ -1,5 +1,5 @@
-"""The monitor's verdict and end-of-run report (tools/monitor.py MonitorReport, tools/views.py
-print_report), and the records it hands the dashboard (tools/monitor.py Recorder)."""
+"""The monitor's verdict and end-of-run report (tools/monitor/monitor.py MonitorReport, tools/dashboard/views.py
+print_report), and the records it hands the dashboard (tools/monitor/monitor.py Recorder)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Reading run logs back (tools/runlog.py read_log): every damaged record is one line of error
+"""Reading run logs back (tools/runlog/log.py read_log): every damaged record is one line of error
 naming its line and problem, exit code 2, never a traceback."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""spawn's start-up frame (tools/startup.py): drawn before any process starts, then handed to the monitor.
+"""spawn's start-up frame (tools/dashboard/startup.py): drawn before any process starts, then handed to the monitor.
 
 These tests assert the order the code guarantees, never a wall-clock bound: the frame is on the
 terminal before the first process is started, it shows the start-up state, and spawn and the monitor

@@ -244,7 +244,7 @@ def isolation_works() -> bool:
 
 
 def isolated_run(scenario: Scenario, runs: Path, secure: Path | None, scratch: Path) -> WireRun:
-    """One lockstep team in a private network namespace (``tools/wire.py``): its summary with
+    """One lockstep team in a private network namespace (``tools/bench/wire.py``): its summary with
     ``wire_bytes_per_message``, the bytes its loopback carried while stepping divided by the
     messages of the run, and ``startup_wire_bytes``, those before its first step."""
     scenario_path, out = scratch / "scenario.toml", scratch / "isolated.json"

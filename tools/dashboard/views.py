@@ -1,6 +1,6 @@
 """What the monitor shows while a team runs, and its end-of-run report.
 
-On a terminal the live dashboard (:mod:`tools.dashboard`), refreshed a few times per second by the
+On a terminal the live dashboard (:mod:`tools.dashboard.dashboard`), refreshed a few times per second by the
 monitor and never per message; without one, a plain summary line every few seconds. Either is
 written by a drawer thread of its own, so a display nobody reads (a full pipe) never holds up the
 monitor, and through it the robots.
@@ -74,7 +74,7 @@ class LiveView:
     Leaving the ``with`` block waits at most ``final_wait_s`` for the last frame; a drawer still
     stuck on its output then finishes on its own once the stream is read (it is a daemon thread).
     With ``handover`` (spawn draws the start-up frame until the monitor is ready) the drawer first
-    waits for the terminal (:func:`tools.startup.take_over`); the monitor meanwhile goes on."""
+    waits for the terminal (:func:`tools.dashboard.startup.take_over`); the monitor meanwhile goes on."""
 
     def __init__(self, console: Console, model: TeamModel, dashboard: bool,
                  final_wait_s: float = FINAL_WAIT_S, handover: Path | None = None) -> None:

@@ -1,7 +1,7 @@
 """The monitor's picture of a team: :class:`TeamModel`, updated one run-log record at a time.
 
 The monitor feeds it live as it writes the log, ``ringtrack replay`` reads it back from a log in file
-order, so both hold exactly the same thing; the dashboard (:mod:`tools.dashboard`) only renders it.
+order, so both hold exactly the same thing; the dashboard (:mod:`tools.dashboard.dashboard`) only renders it.
 Angles in degrees, counter-clockwise, about each robot's own centre; positions in metres.
 """
 

@@ -7,8 +7,7 @@ listens on a free loopback port and announces it; the others connect to it and g
 rest. Completion, Ctrl-C and SIGTERM all end every process within 2 s.
 
 On a terminal, spawn draws the dashboard's start-up frame itself before it starts any process, and
-hands the terminal to the monitor once the monitor is ready to draw (:mod:`tools.startup`). What it
-needs only after that first frame (Zenoh, the supervisor, the run log reader) is imported then.
+hands the terminal to the monitor once the monitor is ready to draw (:mod:`tools.dashboard.startup`).
 """
 
 from __future__ import annotations
@@ -224,7 +223,7 @@ def reported(result: TeamResult, folder: Path, log_path: Path) -> TeamResult:
 
 
 def startup_view(scenario: Scenario, clock: str, handover: Path) -> StartupView:
-    """The start-up frame, drawn on stdout when the block is entered (:class:`tools.startup.StartupView`)."""
+    """The start-up frame, drawn on stdout when the block is entered (:class:`tools.dashboard.startup.StartupView`)."""
     return StartupView(out, scenario, clock, handover)
 
 

@@ -1,6 +1,6 @@
 """Starting role processes and always ending them.
 
-Children are started with ``subprocess``, or forked by the launcher (:mod:`tools.launcher`), a
+Children are started with ``subprocess``, or forked by the launcher (:mod:`tools.team.launcher`), a
 child of the supervisor that has imported a robot's code once and opened no Zenoh session (a
 forked child of a process that opened one hangs). Either way each runs in its own session, so a
 terminal's Ctrl-C reaches only the supervisor, which then ends them in order, by pid (a forked
@@ -84,7 +84,7 @@ class Forked:
 
 
 class Launcher:
-    """The launcher process and the children it forked (see :mod:`tools.launcher`)."""
+    """The launcher process and the children it forked (see :mod:`tools.team.launcher`)."""
 
     def __init__(self, folder: Path, env: dict[str, str]) -> None:
         lifeline, self.lifeline = os.pipe()
