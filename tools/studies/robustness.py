@@ -151,7 +151,7 @@ class Saving(msgspec.Struct, frozen=True):
     saved_share: float
 
 
-class Check(FaultVariant, frozen=True, kw_only=True):
+class VerifyCheck(FaultVariant, frozen=True, kw_only=True):
     """One run re-run as a lockstep team over Zenoh (``--verify``) for the ``steps`` the engine ran
     it: the team's exit code and, when it ran, the steps logged, the largest difference of an angle
     (radians; None: not as many steps as the engine's) and whether every trigger, the fault counts and
@@ -175,7 +175,7 @@ class Verification(msgspec.Struct, frozen=True):
     requested: int
     wall_s: float
     all_equal: bool
-    runs: list[Check]
+    runs: list[VerifyCheck]
 
 
 class FaultStudy(msgspec.Struct, frozen=True, kw_only=True):
@@ -374,7 +374,7 @@ def _run_label(cell: Cell, strategy: str, mode: str) -> str:
 
 # ---------------------------------------------------------------------------- verification
 def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History], count: int, seed: int,
-           runs: Path) -> list[Check]:
+           runs: Path) -> list[VerifyCheck]:
     """Re-run ``count`` (cell, variant, trial) runs drawn by ``seed`` as lockstep teams over Zenoh
     for as many steps as the engine ran them; each must equal its engine run: angles to 1e-9, every
     trigger, the fault counts, and each robot's radio energy to a relative 1e-9."""
@@ -403,11 +403,11 @@ def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History],
             triggers_equal = same_steps and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, trial]))
             faults_equal = all(result.faults.get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS)
             energy_equal = bool(np.allclose(wire_energy, energy, rtol=1e-9, atol=0.0))
-            checks.append(Check(
+            checks.append(VerifyCheck(
                 **run, steps_logged=logged.steps, max_angle_difference=difference, triggers_equal=triggers_equal,
                 faults_equal=faults_equal, energy_equal=energy_equal,
                 equal=bool(difference is not None and difference < 1e-9 and triggers_equal and faults_equal
                            and energy_equal)))
         else:
-            checks.append(Check(**run, equal=False))
+            checks.append(VerifyCheck(**run, equal=False))
     return checks
