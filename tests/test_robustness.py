@@ -25,19 +25,20 @@ pytestmark = pytest.mark.timeout(600)
 def test_drop_sweep_slows_convergence_and_raises_com_bar_of_the_self_triggered_strategy() -> None:
     drops = [0.0, 0.2, 0.5]
     result, _ = faults_experiment("paper-stationary", [Cell(drop, 0, None) for drop in drops], trials=30, seed=0)
-    triggered = [entry for entry in result["summary"] if entry["strategy"] == "self"]
-    assert [entry["drop"] for entry in triggered] == drops
-    assert all(entry["converged_mean"] == 1.0 for entry in triggered)
-    ctime = [entry["ctime_mean"] for entry in triggered]
-    com_bar = [entry["com_bar_mean"] for entry in triggered]
+    triggered = [entry for entry in result.summary if entry.strategy == "self"]
+    assert [entry.drop for entry in triggered] == drops
+    assert all(entry.converged_mean == 1.0 for entry in triggered)
+    ctime = [entry.ctime_mean for entry in triggered]
+    com_bar = [entry.com_bar_mean for entry in triggered]
     assert ctime[0] <= ctime[1] <= ctime[2] and ctime[2] - ctime[0] > 10  # 516.4, 520.2, 553.3 steps
     assert com_bar[0] < com_bar[1] < com_bar[2] and com_bar[2] > 1.5 * com_bar[0]  # 0.199, 0.278, 0.381
-    constant = [entry for entry in result["summary"] if entry["strategy"] == "constant"]
-    assert all(entry["com_bar_mean"] == 1.0 for entry in constant)
-    for saving in result["savings"]:  # self-triggered polls spend far less radio energy
-        assert saving["saved_per_robot_j"] > 0 and saving["saved_share"] > 0.5
-    rows = [row for row in result["rows"] if row["strategy"] == "self" and row["drop"] == 0.5]
-    assert len(rows) == 30 and np.mean([row["ctime"] for row in rows]) == pytest.approx(ctime[2])
+    constant = [entry for entry in result.summary if entry.strategy == "constant"]
+    assert all(entry.com_bar_mean == 1.0 for entry in constant)
+    assert [(saving.strategy, saving.baseline) for saving in result.savings] == [("self", "constant")] * len(drops)
+    for saving in result.savings:  # self-triggered polls spend far less radio energy
+        assert saving.saved_per_robot_j > 0 and saving.saved_share > 0.5
+    rows = [row for row in result.rows if row.strategy == "self" and row.drop == 0.5]
+    assert len(rows) == 30 and np.mean([row.ctime for row in rows]) == pytest.approx(ctime[2])
 
 
 @pytest.mark.processes

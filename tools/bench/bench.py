@@ -28,13 +28,14 @@ from rich.console import Console
 from rich.progress import TaskID
 
 from ringtrack.agents import engine
+from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
 from ringtrack.agents.team import run_team
 from ringtrack.bus.keys import new_run_id
 from ringtrack.bus.security import create_team
 from ringtrack.tools.bench.latency import endpoints_path
 from ringtrack.tools.bench.wire import UNSHARE, WireRun
 from ringtrack.tools.output.console import UsageError, err, progress_bar
-from ringtrack.tools.studies.experiment import STRATEGIES, stationary_experiment
+from ringtrack.tools.studies.experiment import STRATEGIES, StationaryStudy, stationary_experiment
 from ringtrack.tools.team.plan import TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.tools.team.supervisor import Supervisor
@@ -106,9 +107,10 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
     progress = EngineProgress(scenario.max_steps, console)
     with progress.bar:
         progress.part(f"one run, N = {scenario.robots}", 1)
+        name = strategy_for(scenario.strategy).name
         started = time.perf_counter()
         history = engine.run(scenario, steps=scenario.max_steps, record_positions=False,
-                             on_step=lambda step: progress.on_step(scenario.robots, "self", step))
+                             on_step=lambda step: progress.on_step(scenario.robots, name, step))
         elapsed = time.perf_counter() - started
         team_started = time.perf_counter()
         team = run_team(scenario, PROTOCOL_STEPS, new_run_id())
@@ -119,8 +121,8 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
         sweep = stationary_experiment("paper-stationary", sizes, trials, 0, progress.on_step)
         progress.close()
 
-    def converged(result: dict) -> int:
-        return sum(entry["converged"] for entry in result["summary"])
+    def converged(result: StationaryStudy) -> int:
+        return sum(entry.converged for entry in result.summary)
 
     return {
         "single_run": {"robots": scenario.robots, "steps": history.steps, "steps_per_s": history.steps / elapsed},
@@ -128,9 +130,9 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
                            "steps_per_s": PROTOCOL_STEPS / team_elapsed,
                            "messages_per_step": team.messages / PROTOCOL_STEPS},
         "experiment_n6": {"trials": trials, "runs": 2 * trials, "converged": converged(experiment),
-                          "wall_s": experiment["wall_s"]},
+                          "wall_s": experiment.wall_s},
         "sweep": {"robots": f"{sizes[0]}..{sizes[-1]}", "trials": trials, "runs": 2 * trials * len(sizes),
-                  "converged": converged(sweep), "wall_s": sweep["wall_s"]},
+                  "converged": converged(sweep), "wall_s": sweep.wall_s},
     }
 
 
@@ -162,6 +164,10 @@ def emulator_row(robots: int, steps: int, strategy: str = "self", repeat: int = 
         variants = [(dashboard == "on", secure == "on")]
     isolated = secure == "compare" and dashboard == "off" and isolation_works()
     scenario = load_scenario("paper-stationary", robots=robots, strategy=strategy, max_steps=steps)
+    try:
+        check_strategy(scenario)  # a strategy that needs another estimation mode: one line, before any team
+    except StrategyError as error:
+        raise UsageError(f"--strategy {strategy}: {error}") from None
     results: dict[tuple[bool, bool], list[WireRun]] = {variant: [] for variant in variants}
     startups: list[float] = []
     with tempfile.TemporaryDirectory(prefix="ringtrack-bench-") as scratch:

@@ -8,6 +8,7 @@ from typing import Any
 
 from rich.table import Table
 
+from ringtrack.agents.strategy import REGISTRY
 from ringtrack.tools.bench.bench import (
     MESSAGE_KINDS,
     SUITE_TEAMS,
@@ -41,7 +42,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     emulator_parser.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 6,12,24")
     emulator_parser.add_argument("--steps", type=at_least(1), default=1000, help="steps per run (default 1000)")
-    emulator_parser.add_argument("--strategy", choices=["self", "constant"], default="self",
+    emulator_parser.add_argument("--strategy", choices=list(REGISTRY), default="self",
                                  help="communication strategy (default self)")
     emulator_parser.add_argument("--repeat", type=at_least(1), default=1,
                                  help="runs per configuration; medians reported")

@@ -27,6 +27,8 @@ from ringtrack.tools.studies.experiment import (
     STRATEGIES,
     VELOCITY_SETTINGS,
     VELOCITY_STRATEGIES,
+    MovingStudy,
+    StationaryStudy,
     circle_of,
     moving_experiment,
     moving_scenario,
@@ -145,38 +147,38 @@ def run_stationary(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result)
     if args.csv:
-        write_csv(args.csv, result["rows"], STATIONARY_COLUMNS)
+        write_csv(args.csv, result.rows, STATIONARY_COLUMNS)
     if args.plot:
         stationary_comparison(result, args.plot)
-    failed = [entry for entry in result["summary"] if entry["converged"] < entry["trials"]]
+    failed = [entry for entry in result.summary if entry.converged < entry.trials]
     for entry in failed:
         err.print(
-            f"warning: {entry['trials'] - entry['converged']} of {entry['trials']} {entry['strategy']} trials "
-            f"with {entry['robots']} robots did not converge within the step limit",
+            f"warning: {entry.trials - entry.converged} of {entry.trials} {entry.strategy} trials "
+            f"with {entry.robots} robots did not converge within the step limit",
             highlight=False,
         )
     return 1 if failed else 0
 
 
-def results_table(result: dict) -> Table:
+def results_table(result: StationaryStudy) -> Table:
     """Mean +- std of Ctime and Com-bar per team size and strategy, with the ratios to the first
     strategy (by default self / constant)."""
-    baseline = result.get("strategies", STRATEGIES)[0]
-    table = Table(title=f"stationary target, {result['trials']} trials (seeds {result['seed']}..), Ctime in steps, "
+    baseline = result.strategies[0]
+    table = Table(title=f"stationary target, {result.trials} trials (seeds {result.seed}..), Ctime in steps, "
                   f"mean ± 1 sd; ÷: ratio to {baseline}", title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
     for column in ("N", "strategy", "done", "Ctime", "Com-bar", "Ctime ÷", "Com ÷"):
         table.add_column(column, justify="right", no_wrap=True)
-    ratios = {(entry["robots"], entry.get("strategy", "self")): entry for entry in result["ratios"]}
-    for entry in result["summary"]:
-        ratio = ratios.get((entry["robots"], entry["strategy"]))
+    ratios = {(entry.robots, entry.strategy): entry for entry in result.ratios}
+    for entry in result.summary:
+        ratio = ratios.get((entry.robots, entry.strategy))
         table.add_row(
-            str(entry["robots"]),
-            entry["strategy"],
-            f"{entry['converged']}/{entry['trials']}",
-            _mean_std(entry["ctime_mean"], entry["ctime_std"], ".1f"),
-            _mean_std(entry["com_bar_mean"], entry["com_bar_std"], ".3f"),
-            f"{ratio['ctime_ratio']:.3f}" if ratio else "",
-            f"{ratio['com_bar_ratio']:.3f}" if ratio else "",
+            str(entry.robots),
+            entry.strategy,
+            f"{entry.converged}/{entry.trials}",
+            _mean_std(entry.ctime_mean, entry.ctime_std, ".1f"),
+            _mean_std(entry.com_bar_mean, entry.com_bar_std, ".3f"),
+            f"{ratio.ctime_ratio:.3f}" if ratio else "",
+            f"{ratio.com_bar_ratio:.3f}" if ratio else "",
         )
     return table
 
@@ -187,9 +189,9 @@ def _mean_std(mean: float | None, std: float | None, spec: str) -> str:
 
 def run_moving(args: argparse.Namespace) -> int:
     main = circle_of(args.scenario)
-    steps = moving_scenario(args.scenario, "self", "decentralized", *main, args.steps).max_steps
-    settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
     variants = moving_variants(args.strategies) if args.strategies else None
+    steps = moving_scenario(args.scenario, *(variants or MAIN_STRATEGIES)[0], *main, args.steps).max_steps
+    settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
     distinct = (len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES) if variants is None
                 else len(variants) * (1 + len(settings)))
     with progress_bar() as progress:
@@ -207,7 +209,7 @@ def run_moving(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, result)
     if args.csv:
-        write_csv(args.csv, result["rows"], MOVING_COLUMNS)
+        write_csv(args.csv, result.rows, MOVING_COLUMNS)
     if args.plot:
         moving_comparison(result, args.plot)
         if not args.no_velocities:
@@ -215,25 +217,25 @@ def run_moving(args: argparse.Namespace) -> int:
     return 0
 
 
-def moving_table(result: dict) -> Table:
+def moving_table(result: MovingStudy) -> Table:
     """Means from step ``settle`` on, per run (the velocity setting equal to the main one is shown once)."""
-    table = Table(title=f"moving target, {result['trials']} trials, means from step {result['settle']} of "
-                  f"{result['steps']}; msg and B: robot-to-robot traffic (per step: over all steps)",
+    table = Table(title=f"moving target, {result.trials} trials, means from step {result.settle} of "
+                  f"{result.steps}; msg and B: robot-to-robot traffic (per step: over all steps)",
                   title_justify="left", box=box.SIMPLE_HEAD)
     for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "msg/rs", "B/step"):
         table.add_column(column, justify="right", no_wrap=True)
-    main = {(run["speed"], run["angular_speed"]) for run in result["runs"] if run["group"] == "comparison"}
-    for run in result["runs"]:
-        if run["group"] == "velocities" and (run["speed"], run["angular_speed"]) in main:
+    main = {(run.speed, run.angular_speed) for run in result.runs if run.group == "comparison"}
+    for run in result.runs:
+        if run.group == "velocities" and (run.speed, run.angular_speed) in main:
             continue
         table.add_row(
-            f"{run['speed']:g}, {run['angular_speed']:g}",
-            run_label(run["strategy"], run["estimation"]),
-            f"{run['cerr_mean_deg']:.1f}",
-            f"{run['terr_mean']:.3f}",
-            f"{run['poll_rate']:.3f}",
-            f"{run['robot_messages_per_step']:.2f}",
-            f"{run['robot_messages_per_robot_step']:.3f}",
-            f"{run['robot_bytes_per_step']:.0f}",
+            f"{run.speed:g}, {run.angular_speed:g}",
+            run_label(run.strategy, run.estimation),
+            f"{run.cerr_mean_deg:.1f}",
+            f"{run.terr_mean:.3f}",
+            f"{run.poll_rate:.3f}",
+            f"{run.robot_messages_per_step:.2f}",
+            f"{run.robot_messages_per_robot_step:.3f}",
+            f"{run.robot_bytes_per_step:.0f}",
         )
     return table

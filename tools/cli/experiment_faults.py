@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import msgspec
 import numpy as np
 from rich import box
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -19,11 +20,16 @@ from ringtrack.tools.output.console import UsageError, err, show, write_csv, wri
 from ringtrack.tools.studies.figures import robustness_curves
 from ringtrack.tools.studies.robustness import (
     OUTAGE_START,
+    STRATEGIES,
     Cell,
+    FaultStudy,
+    FaultSummary,
+    Verification,
     _run_label,
     base_spec,
     cell_scenario,
     faults_experiment,
+    summary_columns,
     variants,
     verify,
 )
@@ -108,7 +114,7 @@ def run_faults(args: argparse.Namespace) -> int:
     spec, label = base_spec(args.scenario)
     ranges = args.communication_range or [spec.limits.communication_range]
     cells = [Cell(*values) for values in itertools.product(args.drop, args.outage_steps, ranges)]
-    probe = cell_scenario(spec, label, cells[0], "self", None, args.steps)  # flags checked before any work
+    probe = cell_scenario(spec, label, cells[0], STRATEGIES[0], None, args.steps)  # flags checked before any work
     if max(args.outage_steps) and probe.robots < 4:
         raise UsageError("--outage-steps: a partition needs at least 4 robots")
     runs = len(cells) * len(variants(probe))
@@ -133,37 +139,39 @@ def run_faults(args: argparse.Namespace) -> int:
             err.print(f"verifying {args.verify} runs as lockstep teams over Zenoh ...", highlight=False)
             started = time.perf_counter()
             checks = verify(args.scenario, cells, histories, args.verify, args.seed, Path(folder))
-        result["verify"] = {"requested": args.verify, "wall_s": time.perf_counter() - started,
-                            "all_equal": all(check["equal"] for check in checks), "runs": checks}
+        verified = Verification(requested=args.verify, wall_s=time.perf_counter() - started,
+                                all_equal=all(check.equal for check in checks), runs=checks)
+        result = msgspec.structs.replace(result, verify=verified)
         for check in checks:
-            err.print(f"verify {_run_label(cells[check['cell']], check['strategy'], check['estimation'])} trial "
-                      f"{check['trial']} (seed {check['seed']}, {check['steps']} steps): "
-                      + ("equal to the engine" if check["equal"] else f"DIFFERS {check}"), highlight=False)
-        code = 0 if result["verify"]["all_equal"] else 1
+            err.print(f"verify {_run_label(cells[check.cell], check.strategy, check.estimation)} trial "
+                      f"{check.trial} (seed {check.seed}, {check.steps} steps): "
+                      + ("equal to the engine" if check.equal else f"DIFFERS {msgspec.to_builtins(check)}"),
+                      highlight=False)
+        code = 0 if verified.all_equal else 1
     if args.json:
         write_json(args.json, result)
     if args.csv:
-        write_csv(args.csv, result["summary"], list(result["summary"][0]))
+        write_csv(args.csv, result.summary, summary_columns(result))
     if args.plot:
         robustness_curves(result, args.plot)
     return code
 
 
-def faults_table(result: dict) -> Table:
+def faults_table(result: FaultStudy) -> Table:
     """Mean +- sd per cell and variant."""
-    moving = result["moving"]
-    table = Table(title=f"{result['scenario']}: {result['trials']} trials per cell (seeds {result['seed']}..), "
-                  "mean ± sd; costs to Ctime" + (f", Cerr/Terr from step {result['settle']}" if moving else ""),
+    moving = result.moving
+    table = Table(title=f"{result.scenario}: {result.trials} trials per cell (seeds {result.seed}..), "
+                  "mean ± sd; costs to Ctime" + (f", Cerr/Terr from step {result.settle}" if moving else ""),
                   title_justify="left", box=box.SIMPLE_HEAD)
     headers = ["drop", "outage", "r_c", "strategy", "done", "Ctime", "Com-bar", "msgs", "J/robot"]
     headers += ["Cerr deg", "Terr m"] if moving else []
     for column in headers:
         table.add_column(column, justify="right", no_wrap=True)
-    for entry in result["summary"]:
-        reach = "-" if entry["communication_range"] is None else f"{entry['communication_range']:g}"
-        strategy = entry["strategy"] + (f"+{entry['estimation'][:7]}" if moving else "")
-        cells = [f"{entry['drop']:g}", str(entry["outage_steps"]), reach, strategy,
-                 f"{entry['converged_mean']:.0%}",
+    for entry in result.summary:
+        reach = "-" if entry.communication_range is None else f"{entry.communication_range:g}"
+        strategy = entry.strategy + (f"+{entry.estimation[:7]}" if moving else "")
+        cells = [f"{entry.drop:g}", str(entry.outage_steps), reach, strategy,
+                 f"{entry.converged_mean:.0%}",
                  _mean_sd(entry, "ctime", ".0f"), _mean_sd(entry, "com_bar", ".3f"),
                  _mean_sd(entry, "messages", ".0f"), _mean_sd(entry, "energy_per_robot", ".2e")]
         cells += [_mean_sd(entry, "cerr", ".2f"), _mean_sd(entry, "terr", ".3f")] if moving else []
@@ -171,6 +179,6 @@ def faults_table(result: dict) -> Table:
     return table
 
 
-def _mean_sd(entry: dict, key: str, spec: str) -> str:
-    mean, sd = entry[f"{key}_mean"], entry[f"{key}_sd"]
+def _mean_sd(entry: FaultSummary, metric: str, spec: str) -> str:
+    mean, sd = entry.mean(metric), entry.sd(metric)
     return "-" if mean is None else f"{mean:{spec}} ± {sd:{spec}}"

@@ -6,7 +6,7 @@ import argparse
 
 from ringtrack.tools.cli.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
 from ringtrack.tools.output.console import out, write_json
-from ringtrack.tools.studies.gates import gates_experiment, plot_gates
+from ringtrack.tools.studies.gates import GATED, REFERENCE, gates_experiment, plot_gates
 
 
 def register(kinds: argparse._SubParsersAction) -> None:
@@ -38,13 +38,15 @@ def gate_list(text: str) -> list[float]:
 
 def run_gates(args: argparse.Namespace) -> int:
     result = gates_experiment(args.scenario, args.gates, args.trials, args.settle)
-    central = result["centralized"]
-    out.print(f"self + centralized: Terr {central['terr_mean']:.3f} m, Cerr {central['cerr_mean_deg']:.1f} deg, "
-              f"{central['robot_messages_per_robot_step']:.3f} msg/robot-step", highlight=False)
-    for entry in result["points"]:
-        out.print(f"belief g = {entry['gate']:g}: Terr {entry['terr_mean']:.3f} m "
-                  f"({entry['terr_mean'] / central['terr_mean']:.2f} x), Cerr {entry['cerr_mean_deg']:.1f} deg, "
-                  f"{entry['robot_messages_per_robot_step']:.3f} msg/robot-step", highlight=False)
+    central = result.centralized
+    reference, mode = REFERENCE
+    out.print(f"{reference} + {mode}: Terr {central.terr_mean:.3f} m, Cerr {central.cerr_mean_deg:.1f} deg, "
+              f"{central.robot_messages_per_robot_step:.3f} msg/robot-step", highlight=False)
+    for entry in result.points:
+        ratio = entry.terr_mean / central.terr_mean  # type: ignore[operator]  # settled means of settle < steps
+        out.print(f"{GATED} g = {entry.gate:g}: Terr {entry.terr_mean:.3f} m "
+                  f"({ratio:.2f} x), Cerr {entry.cerr_mean_deg:.1f} deg, "
+                  f"{entry.robot_messages_per_robot_step:.3f} msg/robot-step", highlight=False)
     if args.json:
         write_json(args.json, result)
     if args.plot:

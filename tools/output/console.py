@@ -87,18 +87,25 @@ def write_json(path: Path, data: Any) -> None:
         raise OutputError(f"{path}: not written ({error.strerror or error})") from None
 
 
-def write_csv(path: Path, rows: Iterable[Mapping[str, Any]], columns: list[str]) -> int:
-    """Write ``rows`` as CSV with a header of ``columns`` (None as an empty cell), creating the parent
-    folder; returns the rows written. Any CSV reader loads it (``pandas.read_csv``, ``readtable``)."""
+def write_csv(path: Path, rows: Iterable[msgspec.Struct | Mapping[str, Any]], columns: list[str]) -> int:
+    """Write ``rows`` (msgspec structs, or mappings) as CSV with a header of ``columns`` (a row
+    type's: :func:`struct_columns`; None as an empty cell), creating the parent folder; returns the
+    rows written. Any CSV reader loads it (``pandas.read_csv``, ``readtable``)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     count = 0
     with path.open("w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         for row in rows:
-            writer.writerow(row)
+            writer.writerow(msgspec.structs.asdict(row) if isinstance(row, msgspec.Struct) else row)
             count += 1
     return count
+
+
+def struct_columns(kind: type[msgspec.Struct], leave_out: Iterable[str] = ()) -> list[str]:
+    """The CSV columns of a row type: its field names in order, but those in ``leave_out``."""
+    left_out = set(leave_out)
+    return [field.name for field in msgspec.structs.fields(kind) if field.name not in left_out]
 
 
 def unwritable(path: Path) -> str | None:

@@ -6,24 +6,189 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from typing import Literal
 
 import msgspec
 import numpy as np
 
 from ringtrack.agents import engine
 from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
-from ringtrack.tools.output.console import UsageError
+from ringtrack.tools.output.console import UsageError, struct_columns
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
 
 STRATEGIES = ("constant", "self")  # compared by default; the first is the baseline of the ratios
-STATIONARY_COLUMNS = ["robots", "strategy", "trial", "seed", "converged", "ctime", "ctime_true", "com_bar", "triggers"]
+
+
+class StationaryTrial(msgspec.Struct, frozen=True):
+    """One trial of one strategy and team size (a row of ``experiment stationary --csv``).
+
+    ``ctime`` is the trial's Ctime (steps; None: not converged within the steps run), ``ctime_true``
+    the same by the true Cerr (None: not reached, as a batch stops once every trial has converged by
+    the strategy's own Cerr), ``com_bar`` polls per robot per step up to Ctime (None unless
+    converged); ``triggers`` counts the polls of steps 1..Ctime (Com-bar's numerator) and
+    ``robot_bytes`` the robot-to-robot payload bytes of those steps."""
+
+    robots: int
+    strategy: str
+    trial: int
+    seed: int
+    converged: bool
+    ctime: int | None
+    ctime_true: int | None
+    com_bar: float | None
+    triggers: int
+    robot_bytes: int
+
+
+class StationaryCell(msgspec.Struct, frozen=True):
+    """One strategy at one team size over the trials: how many converged, the mean and standard
+    deviation of Ctime (steps) and Com-bar (polls per robot per step) over those that did (None when
+    none did), the mean robot-to-robot bytes of a trial, and the settings: trigger tolerance
+    ``sigma_deg`` and convergence threshold ``threshold_deg`` (degrees) and the control law."""
+
+    robots: int
+    strategy: str
+    trials: int
+    converged: int
+    ctime_mean: float | None
+    ctime_std: float | None
+    com_bar_mean: float | None
+    com_bar_std: float | None
+    robot_bytes_mean: float
+    sigma_deg: float
+    law: str
+    threshold_deg: float
+
+
+class Ratio(msgspec.Struct, frozen=True):
+    """A strategy's means to the baseline's (the study's first strategy) at one team size."""
+
+    robots: int
+    strategy: str
+    baseline: str
+    ctime_ratio: float
+    com_bar_ratio: float
+
+
+class StationaryStudy(msgspec.Struct, frozen=True, kw_only=True):
+    """What ``experiment stationary`` came to (its JSON): the strategies (as given: names or files)
+    on seeds ``seed .. seed + trials - 1`` for every team size in ``robots``; ``labels`` names each
+    strategy (by its reported name, in the order compared) for tables and figures. ``summary`` has a
+    cell per team size and strategy, ``ratios`` one per team size and strategy after the first,
+    ``rows`` a trial each. ``wall_s``: seconds the study took."""
+
+    experiment: Literal["stationary"] = "stationary"
+    scenario: str
+    seed: int
+    trials: int
+    robots: list[int]
+    strategies: list[str]
+    labels: dict[str, str]
+    wall_s: float
+    summary: list[StationaryCell]
+    ratios: list[Ratio]
+    rows: list[StationaryTrial]
+
+
+# The stationary CSV's columns (``experiment stationary --csv``): a trial's fields but its bytes.
+STATIONARY_COLUMNS = struct_columns(StationaryTrial, leave_out=("robot_bytes",))
+
+
+class MovingFigures(msgspec.Struct, frozen=True):
+    """The figures of a moving-target run over some of its trials (:func:`moving_figures`): true
+    Cerr (degrees) and Terr (metres) means once the first ``settle`` steps are left out (None: no
+    step left); over the whole run the poll rate (polls per robot per step), the polls and the
+    robot-to-robot messages (pushes included) and payload bytes (totals of a trial, averaged over the
+    trials; and per step), the robot-to-robot messages per robot-step after ``settle``, and the
+    estimation messages per step (centralized: every robot's range and the centre's estimate)."""
+
+    cerr_mean_deg: float | None
+    terr_mean: float | None
+    poll_rate: float
+    polls: float
+    robot_messages: float
+    robot_bytes: float
+    robot_messages_per_step: float
+    robot_messages_per_robot_step: float
+    robot_bytes_per_step: float
+    estimation_messages_per_step: int
+
+
+class MovingSetting(msgspec.Struct, frozen=True, kw_only=True):
+    """Where a moving-target run stands: its ``group`` ("comparison": the base scenario's circle,
+    "velocities": one of the paper's velocity settings), the target's ``speed`` (m/s),
+    ``angular_speed`` (rad/s) and circle ``radius`` (metres), the strategy, estimation mode and
+    (decentralized) fusion rule."""
+
+    group: str
+    speed: float
+    angular_speed: float
+    radius: float
+    strategy: str
+    estimation: str
+    fusion: str | None
+
+
+class MovingTrial(MovingSetting, frozen=True, kw_only=True):
+    """One trial of a distinct moving-target run (a row of ``experiment moving --csv``); the figures
+    as :class:`MovingFigures` over this trial alone."""
+
+    trial: int
+    seed: int
+    cerr_mean_deg: float | None
+    terr_mean: float | None
+    poll_rate: float
+    polls: float
+    robot_messages: float
+    robot_bytes: float
+    robot_messages_per_step: float
+    robot_messages_per_robot_step: float
+    robot_bytes_per_step: float
+    estimation_messages_per_step: int
+
+
+class MovingRun(MovingSetting, frozen=True, kw_only=True):
+    """One run of the moving-target study: the figures as :class:`MovingFigures` over every trial,
+    and the trial-mean true Cerr (degrees) and Terr (metres) every ``series_stride`` steps."""
+
+    cerr_mean_deg: float | None
+    terr_mean: float | None
+    poll_rate: float
+    polls: float
+    robot_messages: float
+    robot_bytes: float
+    robot_messages_per_step: float
+    robot_messages_per_robot_step: float
+    robot_bytes_per_step: float
+    estimation_messages_per_step: int
+    cerr_series_deg: list[float]
+    terr_series: list[float]
+
+
+class MovingStudy(msgspec.Struct, frozen=True, kw_only=True):
+    """What ``experiment moving`` came to (its JSON): ``runs`` of ``steps`` steps of ``dt`` seconds on
+    seeds ``seed .. seed + trials - 1``, means from step ``settle`` on; ``rows`` a trial of every
+    distinct run; ``labels`` names each strategy (by its reported name, in the order compared).
+    ``wall_s``: seconds the study took."""
+
+    experiment: Literal["moving"] = "moving"
+    scenario: str
+    trials: int
+    seed: int
+    steps: int
+    dt: float
+    settle: int
+    series_stride: int
+    labels: dict[str, str]
+    wall_s: float
+    runs: list[MovingRun]
+    rows: list[MovingTrial]
+
+
 # One row per trial of every distinct moving-target run (``experiment moving --csv``).
-MOVING_COLUMNS = ["group", "speed", "angular_speed", "radius", "strategy", "estimation", "fusion", "trial", "seed",
-                  "cerr_mean_deg", "terr_mean", "poll_rate", "polls", "robot_messages", "robot_bytes",
-                  "robot_messages_per_step", "robot_messages_per_robot_step", "robot_bytes_per_step",
-                  "estimation_messages_per_step"]
+MOVING_COLUMNS = struct_columns(MovingTrial)
 
 
 def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = STRATEGIES,
@@ -52,92 +217,90 @@ def stationary_experiment(
     on_step: Callable[[int, str, int], None] | None = None,
     strategies: Sequence[str] = STRATEGIES,
     **overrides: object,
-) -> dict:
+) -> StationaryStudy:
     """Run the ``strategies`` (default constant and self) for every team size on seeds ``seed ..
     seed + trials - 1``.
 
-    Returns the JSON-ready result: per-trial ``rows``, per (robots, strategy) ``summary`` with mean
-    and standard deviation of Ctime and Com-bar, and per team size and strategy after the first
-    ``ratios`` of its means to the first's (the ``baseline``; by default self / constant). A
-    row's ``triggers`` counts the polls of steps 1..Ctime of its own trial (Com-bar's numerator) and
-    ``robot_bytes`` the robot-to-robot bytes of those steps (the summary's ``robot_bytes_mean``);
-    ``ctime_true`` (convergence by the true Cerr) is None when not reached within the steps run, as
-    a batch stops once every trial has converged by the strategy's own Cerr.
-    ``on_step(robots, strategy, step)`` reports progress.
+    Returns the study: a :class:`StationaryTrial` per trial, a :class:`StationaryCell` per team size
+    and strategy (mean and standard deviation of Ctime and Com-bar), and per team size and strategy
+    after the first the :class:`Ratio` of its means to the first's (the baseline; by default
+    self / constant). ``on_step(robots, strategy, step)`` reports progress.
     """
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     seeds = list(range(seed, seed + trials))
-    rows: list[dict] = []
-    summary: list[dict] = []
-    ratios: list[dict] = []
+    rows: list[StationaryTrial] = []
+    summary: list[StationaryCell] = []
+    ratios: list[Ratio] = []
     started = time.perf_counter()
     for size in robots:
         scenarios = random_start_scenarios(base, size, strategies, **overrides)
-        means: dict[str, dict] = {}
+        means: dict[str, StationaryCell] = {}
         for strategy, scenario in scenarios.items():
             report = None if on_step is None else (lambda k, s=strategy, n=size: on_step(n, s, k))
             history = engine.run(scenario, seeds, until_converged=True, record_positions=False, on_step=report)
             ctime, com_bar = history.ctime, history.com_bar
             assert history.sent_bytes is not None  # engine runs count bytes
             sent_bytes = history.sent_bytes
-            for index, trial_seed in enumerate(seeds):
-                rows.append(
-                    {
-                        "robots": size,
-                        "strategy": strategy,
-                        "trial": index,
-                        "seed": trial_seed,
-                        "converged": bool(ctime[index] > 0),
-                        "ctime": int(ctime[index]) or None,
-                        "ctime_true": int(history.ctime_true[index]) or None,
-                        "com_bar": None if ctime[index] == 0 else float(com_bar[index]),
-                        "triggers": int((history.triggers[: ctime[index] or None, index] != 0).sum()),
-                        "robot_bytes": int(sent_bytes[: ctime[index] or None, index].sum()),
-                    }
+            trial_rows = [
+                StationaryTrial(
+                    robots=size,
+                    strategy=strategy,
+                    trial=index,
+                    seed=trial_seed,
+                    converged=bool(ctime[index] > 0),
+                    ctime=int(ctime[index]) or None,
+                    ctime_true=int(history.ctime_true[index]) or None,
+                    com_bar=None if ctime[index] == 0 else float(com_bar[index]),
+                    triggers=int((history.triggers[: ctime[index] or None, index] != 0).sum()),
+                    robot_bytes=int(sent_bytes[: ctime[index] or None, index].sum()),
                 )
+                for index, trial_seed in enumerate(seeds)
+            ]
+            rows += trial_rows
             done = ctime > 0
-            means[strategy] = {
-                "robots": size,
-                "strategy": strategy,
-                "trials": trials,
-                "converged": int(done.sum()),
-                "ctime_mean": float(ctime[done].mean()) if done.any() else None,
-                "ctime_std": float(ctime[done].std()) if done.any() else None,
-                "com_bar_mean": float(com_bar[done].mean()) if done.any() else None,
-                "com_bar_std": float(com_bar[done].std()) if done.any() else None,
-                "robot_bytes_mean": float(np.mean([row["robot_bytes"] for row in rows[-trials:]])),
-                "sigma_deg": float(np.rad2deg(scenario.control.sigma)),
-                "law": scenario.control.law,
-                "threshold_deg": float(np.rad2deg(scenario.threshold)),
-            }
+            means[strategy] = StationaryCell(
+                robots=size,
+                strategy=strategy,
+                trials=trials,
+                converged=int(done.sum()),
+                ctime_mean=float(ctime[done].mean()) if done.any() else None,
+                ctime_std=float(ctime[done].std()) if done.any() else None,
+                com_bar_mean=float(com_bar[done].mean()) if done.any() else None,
+                com_bar_std=float(com_bar[done].std()) if done.any() else None,
+                robot_bytes_mean=float(np.mean([row.robot_bytes for row in trial_rows])),
+                sigma_deg=float(np.rad2deg(scenario.control.sigma)),
+                law=scenario.control.law,
+                threshold_deg=float(np.rad2deg(scenario.threshold)),
+            )
             summary.append(means[strategy])
         first, *others = list(scenarios)
         baseline = means[first]
         for strategy in others:
             compared = means[strategy]
-            if baseline["ctime_mean"] and compared["ctime_mean"]:
-                ratios.append(
-                    {
-                        "robots": size,
-                        "strategy": strategy,
-                        "baseline": first,
-                        "ctime_ratio": compared["ctime_mean"] / baseline["ctime_mean"],
-                        "com_bar_ratio": compared["com_bar_mean"] / baseline["com_bar_mean"],
-                    }
-                )
-    return {
-        "experiment": "stationary",
-        "scenario": base,
-        "seed": seed,
-        "trials": trials,
-        "robots": list(robots),
-        "strategies": list(strategies),
-        "wall_s": time.perf_counter() - started,
-        "summary": summary,
-        "ratios": ratios,
-        "rows": rows,
-    }
+            if baseline.ctime_mean and compared.ctime_mean:
+                assert baseline.com_bar_mean is not None and compared.com_bar_mean is not None  # known when converged
+                ratios.append(Ratio(robots=size, strategy=strategy, baseline=first,
+                                    ctime_ratio=compared.ctime_mean / baseline.ctime_mean,
+                                    com_bar_ratio=compared.com_bar_mean / baseline.com_bar_mean))
+    return StationaryStudy(
+        scenario=base,
+        seed=seed,
+        trials=trials,
+        robots=list(robots),
+        strategies=list(strategies),
+        labels=strategy_labels(strategies),
+        wall_s=time.perf_counter() - started,
+        summary=summary,
+        ratios=ratios,
+        rows=rows,
+    )
+
+
+def strategy_labels(strategies: Sequence[str]) -> dict[str, str]:
+    """How tables and figures name each strategy (a registered name or a file's path), by the name
+    it is reported by, in the order given: the strategy's own :meth:`Strategy.display_label`."""
+    return {strategy_name(strategy): strategy_for(strategy).display_label() for strategy in strategies}
 
 
 # ---------------------------------------------------------------------------- moving target
@@ -179,13 +342,14 @@ def moving_experiment(
     velocities: bool = True,
     fusion: str | None = None,
     strategies: Sequence[str] | None = None,
-) -> dict:
+) -> MovingStudy:
     """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
-    settings; returns the JSON-ready result with, per run, means from step ``settle`` on and the
-    trial-mean Cerr (true, degrees) and Terr (metres) series, and per-trial ``rows`` of every
-    distinct run (the velocity setting equal to the scenario's circle repeats the comparison's runs:
-    their trials are rows of group "comparison" only). ``strategies`` replaces the paper's runs by
-    each strategy with a centralized and a decentralized EKF (:func:`moving_variants`)."""
+    settings; returns the study with, per run (:class:`MovingRun`), means from step ``settle`` on and
+    the trial-mean Cerr (true, degrees) and Terr (metres) series, and per-trial rows
+    (:class:`MovingTrial`) of every distinct run (the velocity setting equal to the scenario's circle
+    repeats the comparison's runs: their trials are rows of group "comparison" only). ``strategies``
+    replaces the paper's runs by each strategy with a centralized and a decentralized EKF
+    (:func:`moving_variants`)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     main = circle_of(base)
@@ -196,71 +360,68 @@ def moving_experiment(
                  for strategy in (VELOCITY_STRATEGIES if strategies is None else compared)]
     seeds = list(range(seed, seed + trials))
     histories: dict[tuple, engine.History] = {}
-    runs: list[dict] = []
-    rows: list[dict] = []
+    runs: list[MovingRun] = []
+    rows: list[MovingTrial] = []
     started = time.perf_counter()
     for group, (speed, angular_speed), (strategy, mode) in plan:
         key = (speed, angular_speed, strategy, mode)
         scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
         if settle >= scenario.max_steps:
             raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
-        setting = {"group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
-                   "strategy": strategy_name(strategy), "estimation": mode,
-                   "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
+        setting = msgspec.structs.asdict(MovingSetting(
+            group=group, speed=speed, angular_speed=angular_speed, radius=speed / angular_speed,
+            strategy=strategy_name(strategy), estimation=mode,
+            fusion=scenario.estimation.fusion if mode == "decentralized" else None))
         if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
             label = f"v={speed} w={angular_speed} {strategy}+{mode}"
             report = None if on_step is None else (lambda k, text=label: on_step(text, k))
             histories[key] = engine.run(scenario, seeds, record_positions=False, on_step=report)
-            rows += [{**setting, "trial": index, "seed": trial_seed,
-                      **moving_figures(histories[key], [index], settle, mode)}
+            rows += [MovingTrial(**setting, trial=index, seed=trial_seed,
+                                 **msgspec.structs.asdict(moving_figures(histories[key], [index], settle, mode)))
                      for index, trial_seed in enumerate(seeds)]
         history = histories[key]
-        runs.append({
+        runs.append(MovingRun(
             **setting,
-            **moving_figures(history, list(range(trials)), settle, mode),
-            "cerr_series_deg": history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
-            "terr_series": history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
-        })
-    any_scenario = moving_scenario(base, "self", "decentralized", *main, steps)
-    return {
-        "experiment": "moving",
-        "scenario": base,
-        "trials": trials,
-        "seed": seed,
-        "steps": any_scenario.max_steps,
-        "dt": any_scenario.control.dt,
-        "settle": settle,
-        "series_stride": SERIES_STRIDE,
-        "wall_s": time.perf_counter() - started,
-        "runs": runs,
-        "rows": rows,
-    }
+            **msgspec.structs.asdict(moving_figures(history, list(range(trials)), settle, mode)),
+            cerr_series_deg=history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
+            terr_series=history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
+        ))
+    any_scenario = moving_scenario(base, *compared[0], *main, steps)
+    return MovingStudy(
+        scenario=base,
+        trials=trials,
+        seed=seed,
+        steps=any_scenario.max_steps,
+        dt=any_scenario.control.dt,
+        settle=settle,
+        series_stride=SERIES_STRIDE,
+        labels=strategy_labels([strategy for strategy, _ in compared]),
+        wall_s=time.perf_counter() - started,
+        runs=runs,
+        rows=rows,
+    )
 
 
-def moving_figures(history: engine.History, trials: list[int], settle: int, mode: str) -> dict[str, float | int]:
-    """The figures of a moving-target run over ``trials`` (indices into the batch): true Cerr (degrees)
-    and Terr (metres) means once the first ``settle`` steps are left out (:func:`world.metrics.settled_mean`);
-    over the whole run the poll rate (polls per robot per step), the polls and the robot-to-robot
-    messages (pushes included) and payload bytes (totals of a trial, averaged over ``trials``; and per
-    step), the robot-to-robot messages per robot-step after ``settle``, and the estimation messages
-    per step (centralized: every robot's range and the centre's estimate)."""
+def moving_figures(history: engine.History, trials: list[int], settle: int, mode: str) -> MovingFigures:
+    """The figures of a moving-target run over ``trials`` (indices into the batch), means from step
+    ``settle`` on (:func:`world.metrics.settled_mean`): see :class:`MovingFigures`."""
     robots = history.triggers.shape[2]
     polled = history.triggers[:, trials] != 0
     assert history.sent_bytes is not None  # engine runs count bytes
     messages = history.sent[:, trials].sum(axis=-1)  # (K, trials) robot-to-robot messages published
     payload = history.sent_bytes[:, trials].sum(axis=-1)
-    return {
-        "cerr_mean_deg": settled_mean(history.cerr_true[:, trials], settle),
-        "terr_mean": settled_mean(history.terr[:, trials], settle),
-        "poll_rate": float(polled.mean()),
-        "polls": int(polled.sum()) / len(trials),
-        "robot_messages": int(messages.sum()) / len(trials),
-        "robot_bytes": int(payload.sum()) / len(trials),
-        "robot_messages_per_step": float(messages.mean()),
-        "robot_messages_per_robot_step": (settled_mean(messages, settle) or 0.0) / robots,
-        "robot_bytes_per_step": float(payload.mean()),
-        "estimation_messages_per_step": robots + 1 if mode == "centralized" else 0,
-    }
+    return MovingFigures(
+        cerr_mean_deg=settled_mean(history.cerr_true[:, trials], settle),
+        terr_mean=settled_mean(history.terr[:, trials], settle),
+        poll_rate=float(polled.mean()),
+        polls=int(polled.sum()) / len(trials),
+        robot_messages=int(messages.sum()) / len(trials),
+        robot_bytes=int(payload.sum()) / len(trials),
+        robot_messages_per_step=float(messages.mean()),
+        robot_messages_per_robot_step=(settled_mean(messages, settle) or 0.0) / robots,
+        robot_bytes_per_step=float(payload.mean()),
+        estimation_messages_per_step=robots + 1 if mode == "centralized" else 0,
+    )
 
 
 def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:

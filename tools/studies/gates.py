@@ -3,56 +3,107 @@ push gate g, against the centralized self-triggered team on the same random star
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
+from typing import Literal
 
 import matplotlib.pyplot as plt
+import msgspec
 
 from ringtrack.agents import engine
 from ringtrack.tools.output.console import err
+from ringtrack.tools.studies.experiment import strategy_labels
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, load_scenario, resolve
 
+GATED = "belief"  # the strategy whose push gate the study sweeps (decentralized)
+GATE_PARAMETER = "push_gate"
+REFERENCE = ("self", "centralized")  # what it is compared with: strategy and estimation mode
+
+
+class GateFigures(msgspec.Struct, frozen=True):
+    """Settled means of a run (:func:`world.metrics.settled_mean`; None: no step left): Terr
+    (metres), true Cerr (degrees) and robot-to-robot messages per robot-step."""
+
+    terr_mean: float | None
+    cerr_mean_deg: float | None
+    robot_messages_per_robot_step: float | None
+
+
+class GatePoint(msgspec.Struct, frozen=True):
+    """The gated strategy at push gate ``gate`` (dimensionless): its :class:`GateFigures`."""
+
+    gate: float
+    terr_mean: float | None
+    cerr_mean_deg: float | None
+    robot_messages_per_robot_step: float | None
+
+
+class GatesStudy(msgspec.Struct, frozen=True, kw_only=True):
+    """What ``experiment gates`` came to (its JSON): the reference run (``centralized``: the
+    self-triggered strategy with a centralized EKF) and a point per gate, ``trials`` random starts
+    each, means from step ``settle`` on; ``labels`` names the strategies. ``wall_s``: seconds the
+    study took."""
+
+    experiment: Literal["gates"] = "gates"
+    scenario: str
+    trials: int
+    settle: int
+    labels: dict[str, str]
+    centralized: GateFigures
+    points: list[GatePoint]
+    wall_s: float
+
 
 def with_gate(scenario: Scenario, gate: float) -> Scenario:
-    return resolve(apply_overrides(scenario.spec, strategy_parameters={"belief": {"push_gate": gate}}), scenario.name)
+    return resolve(apply_overrides(scenario.spec, strategy_parameters={GATED: {GATE_PARAMETER: gate}}), scenario.name)
 
 
-def point(history: engine.History, settle: int) -> dict[str, float | None]:
+def point(history: engine.History, settle: int) -> GateFigures:
     """Terr (metres), Cerr (degrees, true) and robot-to-robot messages per robot-step, settled means."""
     robots = history.angles.shape[2]
     messages = settled_mean(history.sent.sum(axis=-1), settle)
-    return {"terr_mean": settled_mean(history.terr, settle), "cerr_mean_deg": settled_mean(history.cerr_true, settle),
-            "robot_messages_per_robot_step": None if messages is None else messages / robots}
+    return GateFigures(terr_mean=settled_mean(history.terr, settle),
+                       cerr_mean_deg=settled_mean(history.cerr_true, settle),
+                       robot_messages_per_robot_step=None if messages is None else messages / robots)
 
 
-def gates_experiment(base: str, gates: list[float], trials: int, settle: int) -> dict:
+def gates_experiment(base: str, gates: list[float], trials: int, settle: int) -> GatesStudy:
     seeds = list(range(trials))
     started = time.perf_counter()
-    central = engine.run(load_scenario(base, strategy="self", estimation="centralized"), seeds, record_positions=False)
+    reference, mode = REFERENCE
+    central = engine.run(load_scenario(base, strategy=reference, estimation=mode), seeds, record_positions=False)
     points = []
     for gate in gates:
         err.print(f"gates: g = {gate:g}", highlight=False)
-        scenario = with_gate(load_scenario(base, strategy="belief", estimation="decentralized"), gate)
-        points.append({"gate": gate, **point(engine.run(scenario, seeds, record_positions=False), settle)})
-    return {"experiment": "gates", "scenario": base, "trials": trials, "settle": settle,
-            "centralized": point(central, settle), "points": points, "wall_s": time.perf_counter() - started}
+        scenario = with_gate(load_scenario(base, strategy=GATED, estimation="decentralized"), gate)
+        figures = point(engine.run(scenario, seeds, record_positions=False), settle)
+        points.append(GatePoint(gate, **msgspec.structs.asdict(figures)))
+    return GatesStudy(scenario=base, trials=trials, settle=settle, labels=strategy_labels([reference, GATED]),
+                      centralized=point(central, settle), points=points, wall_s=time.perf_counter() - started)
 
 
-def plot_gates(result: dict, path: Path) -> None:
+def plot_gates(result: GatesStudy, path: Path) -> None:
     figure, axis = plt.subplots(figsize=(6, 4.2), layout="constrained")
-    points = result["points"]
-    xs = [entry["robot_messages_per_robot_step"] for entry in points]
-    ys = [entry["terr_mean"] for entry in points]
-    axis.plot(xs, ys, "o-", color="tab:red", label="belief (decentralized)")
+    points = result.points
+    xs = [_drawn(entry.robot_messages_per_robot_step) for entry in points]
+    ys = [_drawn(entry.terr_mean) for entry in points]
+    axis.plot(xs, ys, "o-", color="tab:red", label=f"{result.labels[GATED]} (decentralized)")
     for entry, x, y in zip(points, xs, ys, strict=True):
-        axis.annotate(f"g = {entry['gate']:g}", (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
-    central = result["centralized"]
-    axis.axhline(central["terr_mean"], color="tab:orange", linestyle="--", label="self, centralized EKF")
+        axis.annotate(f"g = {entry.gate:g}", (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+    reference, mode = REFERENCE
+    axis.axhline(_drawn(result.centralized.terr_mean), color="tab:orange", linestyle="--",
+                 label=f"{result.labels[reference]}, {mode} EKF")
     axis.set_xlabel("robot-to-robot messages per robot-step (constant: 4)")
     axis.set_ylabel("Terr (m)")
-    axis.set_title(f"{result['scenario']}: {result['trials']} trials, means from step {result['settle']}", fontsize=10)
+    axis.set_title(f"{result.scenario}: {result.trials} trials, means from step {result.settle}", fontsize=10)
     axis.legend(fontsize=8)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
     plt.close(figure)
+
+
+def _drawn(value: float | None) -> float:
+    """A figure as drawn: NaN (no point) where it is unknown."""
+    return math.nan if value is None else value

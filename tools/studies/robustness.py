@@ -15,22 +15,24 @@ step, with Cerr (true, degrees) and Terr (metres) averaged from ``--settle`` on.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Literal
 
 import msgspec
 import numpy as np
+from msgspec import UNSET, UnsetType
 
 from ringtrack.agents import engine
-from ringtrack.tools.output.console import UsageError
+from ringtrack.tools.output.console import UsageError, struct_columns
 from ringtrack.tools.runlog.log import history_from_log, read_log
+from ringtrack.tools.studies.experiment import strategy_labels
 from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.scenario_schema import OutageSpec, ScenarioSpec
 
-STRATEGIES = ("constant", "self")
+STRATEGIES = ("constant", "self")  # compared by default; the first is the baseline of the savings
 MOVING_MODES = ("centralized", "decentralized")
 OUTAGE_START = 100  # first step of a swept outage
 SWEPT = ("drop", "outage_steps", "communication_range")
@@ -46,19 +48,159 @@ METRICS = (
 MOVING_METRICS = (("cerr", "Cerr (true)", "deg"), ("terr", "Terr", "m"))
 
 
-# ---------------------------------------------------------------------------- runs
-@dataclass(frozen=True)
-class Cell:
-    """One value of each swept quantity (``communication_range`` None: unlimited)."""
+# ---------------------------------------------------------------------------- types
+class Cell(msgspec.Struct, frozen=True):
+    """One value of each swept quantity: the drop probability, the length (steps) of a partition
+    outage from step ``OUTAGE_START``, and the communication range (metres; None: unlimited)."""
 
     drop: float
     outage_steps: int
     communication_range: float | None
 
-    def label(self) -> dict[str, object]:
-        return {"drop": self.drop, "outage_steps": self.outage_steps, "communication_range": self.communication_range}
+
+class FaultVariant(msgspec.Struct, frozen=True, kw_only=True):
+    """A cell (its index into the sweep's ``cells`` and its values, as :class:`Cell`) and a variant:
+    the strategy and estimation mode."""
+
+    cell: int
+    drop: float
+    outage_steps: int
+    communication_range: float | None
+    strategy: str
+    estimation: str
 
 
+class FaultTrial(FaultVariant, frozen=True, kw_only=True):
+    """One trial of a cell and variant (see the module docstring for the steps its costs count):
+    Ctime (steps; None: not converged), Com-bar (polls per robot per step; a moving target's over
+    every step, None when a stationary one did not converge), robot-to-robot messages and payload
+    bytes, radio energy (joules, the team's and per robot), the fault layer's counts, and for a
+    moving target the mean true Cerr (degrees) and Terr (metres) from ``settle`` on (else unset)."""
+
+    trial: int
+    seed: int
+    ctime: int | None
+    converged: bool
+    com_bar: float | None
+    messages: int
+    bytes: int
+    energy_j: float
+    energy_per_robot: float
+    faults: dict[str, int]
+    cerr: float | UnsetType = UNSET
+    terr: float | UnsetType = UNSET
+
+
+class FaultSummary(FaultVariant, frozen=True, kw_only=True):
+    """Mean and sd over the ``trials`` of a cell and variant of each of :data:`METRICS` (and
+    :data:`MOVING_METRICS` for a moving target, else unset), over the trials where it is known (None:
+    in none); units as :class:`FaultTrial`'s, ``converged`` a fraction. ``steps_run``: steps the
+    engine ran the batch."""
+
+    trials: int
+    steps_run: int
+    ctime_mean: float | None
+    ctime_sd: float | None
+    converged_mean: float | None
+    converged_sd: float | None
+    com_bar_mean: float | None
+    com_bar_sd: float | None
+    messages_mean: float | None
+    messages_sd: float | None
+    bytes_mean: float | None
+    bytes_sd: float | None
+    energy_per_robot_mean: float | None
+    energy_per_robot_sd: float | None
+    cerr_mean: float | None | UnsetType = UNSET
+    cerr_sd: float | None | UnsetType = UNSET
+    terr_mean: float | None | UnsetType = UNSET
+    terr_sd: float | None | UnsetType = UNSET
+
+    def mean(self, metric: str) -> float | None:
+        """The mean of the metric named ``metric`` (a key of :data:`METRICS` or :data:`MOVING_METRICS`)."""
+        return _known(getattr(self, f"{metric}_mean"))
+
+    def sd(self, metric: str) -> float | None:
+        """The standard deviation of the metric named ``metric``."""
+        return _known(getattr(self, f"{metric}_sd"))
+
+
+def _known(value: float | None | UnsetType) -> float | None:
+    return None if value is UNSET else value
+
+
+class Saving(msgspec.Struct, frozen=True):
+    """In one cell and estimation mode, the mean radio energy per robot ``strategy`` saves against
+    the ``baseline`` (the sweep's first strategy): joules, and as a fraction of the baseline's."""
+
+    cell: int
+    estimation: str
+    strategy: str
+    baseline: str
+    saved_per_robot_j: float
+    saved_share: float
+
+
+class VerifyCheck(FaultVariant, frozen=True, kw_only=True):
+    """One run re-run as a lockstep team over Zenoh (``--verify``) for the ``steps`` the engine ran
+    it: the team's exit code and, when it ran, the steps logged, the largest difference of an angle
+    (radians; None: not as many steps as the engine's) and whether every trigger, the fault counts and
+    each robot's radio energy equal the engine's; ``equal`` when all do."""
+
+    trial: int
+    seed: int
+    steps: int
+    exit_code: int
+    steps_logged: int | UnsetType = UNSET
+    max_angle_difference: float | None | UnsetType = UNSET
+    triggers_equal: bool | UnsetType = UNSET
+    faults_equal: bool | UnsetType = UNSET
+    energy_equal: bool | UnsetType = UNSET
+    equal: bool
+
+
+class Verification(msgspec.Struct, frozen=True):
+    """What ``--verify`` came to: the runs requested, the seconds the checks took, each check."""
+
+    requested: int
+    wall_s: float
+    all_equal: bool
+    runs: list[VerifyCheck]
+
+
+class FaultStudy(msgspec.Struct, frozen=True, kw_only=True):
+    """What ``experiment faults`` came to (its JSON): every cell and variant of the sweep on seeds
+    ``seed .. seed + trials - 1`` with ``robots`` robots; ``swept`` names the quantities that take
+    more than one value, ``labels`` names each strategy (in the order compared, the first the
+    baseline of the savings), ``settle`` the step a moving target's means start from (None:
+    stationary). ``summary`` has an entry per cell and variant, ``rows`` a trial each; ``verify``
+    is set by ``--verify``. ``wall_s``: seconds the sweep took."""
+
+    experiment: Literal["faults"] = "faults"
+    scenario: str
+    moving: bool
+    robots: int
+    seed: int
+    trials: int
+    settle: int | None
+    outage_start: int
+    swept: list[str]
+    cells: list[Cell]
+    labels: dict[str, str]
+    wall_s: float
+    summary: list[FaultSummary]
+    savings: list[Saving]
+    rows: list[FaultTrial]
+    verify: Verification | UnsetType = UNSET
+
+
+def summary_columns(study: FaultStudy) -> list[str]:
+    """The CSV columns of a sweep's summary: a moving target's metrics only for a moving target."""
+    unused = () if study.moving else [f"{key}_{moment}" for key, _, _ in MOVING_METRICS for moment in ("mean", "sd")]
+    return struct_columns(FaultSummary, leave_out=unused)
+
+
+# ---------------------------------------------------------------------------- runs
 def base_spec(base: str) -> tuple[ScenarioSpec, str]:
     """The base scenario with random starts (the trials' seeds place the robots)."""
     text, label = read_scenario_text(base)
@@ -81,48 +223,49 @@ def cell_scenario(spec: ScenarioSpec, label: str, cell: Cell, strategy: str, mod
                                    seed=seed), label)
 
 
-def variants(scenario: Scenario) -> list[tuple[str, str]]:
-    """(strategy, estimation mode) pairs: both strategies, and for a moving target each mode."""
+def variants(scenario: Scenario, strategies: Sequence[str] = STRATEGIES) -> list[tuple[str, str]]:
+    """(strategy, estimation mode) pairs: every strategy, and for a moving target each mode."""
     modes = MOVING_MODES if scenario.moving else (scenario.estimation.mode,)
-    return [(strategy, mode) for mode in modes for strategy in STRATEGIES]
+    return [(strategy, mode) for mode in modes for strategy in strategies]
 
 
-def trial_rows(history: engine.History, settle: int) -> list[dict[str, object]]:
-    """Per trial: Ctime, converged, Com-bar and the costs of the run (see the module docstring)."""
+def trial_rows(history: engine.History, settle: int, variant: FaultVariant) -> list[FaultTrial]:
+    """Per trial of a cell and variant: Ctime, converged, Com-bar and the costs of the run (see the
+    module docstring)."""
     scenario = history.scenario
     robots = scenario.robots
     ctime, com_bar = history.ctime, history.com_bar
     assert history.energy is not None and history.sent_bytes is not None
+    head = msgspec.structs.asdict(variant)
     rows = []
     for trial in range(len(history.seeds)):
         converged = bool(ctime[trial] > 0)
         window = slice(None) if scenario.moving or not converged else slice(0, int(ctime[trial]))
         polls = history.triggers[window, trial] != 0
-        row: dict[str, object] = {
-            "trial": trial,
-            "seed": history.seeds[trial],
-            "ctime": int(ctime[trial]) if converged else None,
-            "converged": converged,
-            "com_bar": float(polls.mean()) if scenario.moving else float(com_bar[trial]) if converged else None,
-            "messages": int(history.sent[window, trial].sum()),
-            "bytes": int(history.sent_bytes[window, trial].sum()),
-            "energy_j": float(history.energy[window, trial].sum()),
-            "energy_per_robot": float(history.energy[window, trial].sum()) / robots,
-            "faults": engine.fault_totals(history, trial),
-        }
-        if scenario.moving:
-            row["cerr"] = float(history.cerr_true[settle:, trial].mean())
-            row["terr"] = float(history.terr[settle:, trial].mean())
-        rows.append(row)
+        rows.append(FaultTrial(
+            **head,
+            trial=trial,
+            seed=history.seeds[trial],
+            ctime=int(ctime[trial]) if converged else None,
+            converged=converged,
+            com_bar=float(polls.mean()) if scenario.moving else float(com_bar[trial]) if converged else None,
+            messages=int(history.sent[window, trial].sum()),
+            bytes=int(history.sent_bytes[window, trial].sum()),
+            energy_j=float(history.energy[window, trial].sum()),
+            energy_per_robot=float(history.energy[window, trial].sum()) / robots,
+            faults=engine.fault_totals(history, trial),
+            cerr=float(history.cerr_true[settle:, trial].mean()) if scenario.moving else UNSET,
+            terr=float(history.terr[settle:, trial].mean()) if scenario.moving else UNSET,
+        ))
     return rows
 
 
-def summarise(rows: list[dict[str, object]], keys: list[str]) -> dict[str, float | None]:
-    """Mean and sd over the trials of each key (over the trials where it is known); the share
-    converged as a fraction."""
+def summarise(rows: list[FaultTrial], keys: list[str]) -> dict[str, float | None]:
+    """Mean and sd over the trials of each metric named in ``keys`` (over the trials where it is
+    known), as the fields of :class:`FaultSummary`; the share converged as a fraction."""
     summary: dict[str, float | None] = {}
     for key in keys:
-        values = np.array([row[key] for row in rows if row[key] is not None], dtype=float)
+        values = np.array([value for row in rows if (value := getattr(row, key)) is not None], dtype=float)
         summary[f"{key}_mean"] = float(values.mean()) if len(values) else None
         summary[f"{key}_sd"] = float(values.std()) if len(values) else None
     return summary
@@ -136,20 +279,23 @@ def faults_experiment(
     steps: int | None = None,
     settle: int = 300,
     on_step: Callable[[str, int], None] | None = None,
-) -> tuple[dict, dict[tuple, engine.History]]:
-    """Run every cell and variant in the engine; returns the JSON-ready result and the histories
-    by ``(cell index, strategy, mode)`` (what ``--verify`` compares with)."""
+    strategies: Sequence[str] = STRATEGIES,
+) -> tuple[FaultStudy, dict[tuple, engine.History]]:
+    """Run every cell and variant of the ``strategies`` (the first the baseline of the savings) in
+    the engine; returns the study and the histories by ``(cell index, strategy, mode)`` (what
+    ``--verify`` compares with)."""
     spec, label = base_spec(base)
     seeds = list(range(seed, seed + trials))
-    probe = cell_scenario(spec, label, cells[0], "self", None, steps)
+    probe = cell_scenario(spec, label, cells[0], strategies[0], None, steps)
     if probe.moving and settle >= probe.max_steps:
         raise UsageError(f"--settle {settle}: must be below the {probe.max_steps} steps of a run")
     keys = [key for key, _, _ in METRICS + (MOVING_METRICS if probe.moving else ())]
     started = time.perf_counter()
     histories: dict[tuple, engine.History] = {}
-    summary, rows = [], []
+    summary: list[FaultSummary] = []
+    rows: list[FaultTrial] = []
     for group in _batches(cells):
-        for strategy, mode in variants(probe):
+        for strategy, mode in variants(probe, strategies):
             scenarios = [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group]
             more = f" and {len(group) - 1} more cells" if len(group) > 1 else ""
             name = _run_label(cells[group[0]], strategy, mode) + more
@@ -160,28 +306,30 @@ def faults_experiment(
             for position, (index, scenario) in enumerate(zip(group, scenarios, strict=True)):
                 history = batch.select(slice(position * trials, (position + 1) * trials), scenario)
                 histories[index, strategy, mode] = history
-                trial = trial_rows(history, settle)
-                head = {"cell": index, **cells[index].label(), "strategy": strategy, "estimation": mode}
-                rows += [{**head, **row} for row in trial]
-                summary.append({**head, "trials": trials, "steps_run": history.steps, **summarise(trial, keys)})
-    summary.sort(key=lambda entry: (entry["cell"], entry["estimation"], entry["strategy"]))
-    rows.sort(key=lambda row: (row["cell"], row["estimation"], row["strategy"], row["trial"]))
-    return {
-        "experiment": "faults",
-        "scenario": base,
-        "moving": probe.moving,
-        "robots": probe.robots,
-        "seed": seed,
-        "trials": trials,
-        "settle": settle if probe.moving else None,
-        "outage_start": OUTAGE_START,
-        "swept": [name for name in SWEPT if len({getattr(cell, name) for cell in cells}) > 1],
-        "cells": [cell.label() for cell in cells],
-        "wall_s": time.perf_counter() - started,
-        "summary": summary,
-        "savings": savings(summary),
-        "rows": rows,
-    }, histories
+                variant = FaultVariant(cell=index, **msgspec.structs.asdict(cells[index]), strategy=strategy,
+                                       estimation=mode)
+                trial = trial_rows(history, settle, variant)
+                rows += trial
+                summary.append(FaultSummary(**msgspec.structs.asdict(variant), trials=trials, steps_run=history.steps,
+                                            **summarise(trial, keys)))  # type: ignore[arg-type]  # means, sds
+    summary.sort(key=lambda entry: (entry.cell, entry.estimation, entry.strategy))
+    rows.sort(key=lambda row: (row.cell, row.estimation, row.strategy, row.trial))
+    return FaultStudy(
+        scenario=base,
+        moving=probe.moving,
+        robots=probe.robots,
+        seed=seed,
+        trials=trials,
+        settle=settle if probe.moving else None,
+        outage_start=OUTAGE_START,
+        swept=[name for name in SWEPT if len({getattr(cell, name) for cell in cells}) > 1],
+        cells=list(cells),
+        labels=strategy_labels(strategies),
+        wall_s=time.perf_counter() - started,
+        summary=summary,
+        savings=savings(summary, strategies[0]),
+        rows=rows,
+    ), histories
 
 
 def _batches(cells: list[Cell]) -> list[list[int]]:
@@ -193,18 +341,19 @@ def _batches(cells: list[Cell]) -> list[list[int]]:
     return list(groups.values())
 
 
-def savings(summary: list[dict]) -> list[dict]:
-    """Per cell and estimation mode: the mean radio energy per robot the self-triggered strategy
-    saves against the constant one (joules, and as a fraction of the constant strategy's)."""
+def savings(summary: list[FaultSummary], baseline: str) -> list[Saving]:
+    """Per cell, estimation mode and strategy other than the ``baseline``: the mean radio energy per
+    robot it saves against the baseline (joules, and as a fraction of the baseline's)."""
     found = []
-    by_key = {(entry["cell"], entry["estimation"], entry["strategy"]): entry for entry in summary}
+    by_key = {(entry.cell, entry.estimation, entry.strategy): entry for entry in summary}
     for (cell, mode, strategy), entry in by_key.items():
-        constant = by_key.get((cell, mode, "constant"))
-        if strategy != "self" or constant is None or not constant["energy_per_robot_mean"]:
+        reference = by_key.get((cell, mode, baseline))
+        if strategy == baseline or reference is None or not reference.energy_per_robot_mean:
             continue
-        saved = constant["energy_per_robot_mean"] - entry["energy_per_robot_mean"]
-        found.append({"cell": cell, "estimation": mode, "saved_per_robot_j": saved,
-                      "saved_share": saved / constant["energy_per_robot_mean"]})
+        assert entry.energy_per_robot_mean is not None  # every trial has an energy
+        saved = reference.energy_per_robot_mean - entry.energy_per_robot_mean
+        found.append(Saving(cell=cell, estimation=mode, strategy=strategy, baseline=baseline, saved_per_robot_j=saved,
+                            saved_share=saved / reference.energy_per_robot_mean))
     return found
 
 
@@ -215,7 +364,7 @@ def _run_label(cell: Cell, strategy: str, mode: str) -> str:
 
 # ---------------------------------------------------------------------------- verification
 def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History], count: int, seed: int,
-           runs: Path) -> list[dict]:
+           runs: Path) -> list[VerifyCheck]:
     """Re-run ``count`` (cell, variant, trial) runs drawn by ``seed`` as lockstep teams over Zenoh
     for as many steps as the engine ran them; each must equal its engine run: angles to 1e-9, every
     trigger, the fault counts, and each robot's radio energy to a relative 1e-9."""
@@ -231,26 +380,24 @@ def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History],
         trial_seed = history.seeds[trial]
         scenario = cell_scenario(spec, label, cells[cell_index], strategy, mode, history.steps, trial_seed)
         result = spawn_team(TeamPlan(scenario=scenario, clock="lockstep", runs=runs, dashboard=False, quiet=True))
-        check = {"cell": cell_index, **cells[cell_index].label(), "strategy": strategy, "estimation": mode,
-                 "trial": trial, "seed": trial_seed, "steps": history.steps, "exit_code": result.exit_code}
+        run = {"cell": cell_index, **msgspec.structs.asdict(cells[cell_index]), "strategy": strategy,
+               "estimation": mode, "trial": trial, "seed": trial_seed, "steps": history.steps,
+               "exit_code": result.exit_code}
         if result.exit_code == 0 and result.energy is not None:
             logged = history_from_log(read_log(Path(result.log)))
             engine_faults = engine.fault_totals(history, trial)
             energy = history.energy[:, trial].sum(axis=0)  # type: ignore[index]
             wire_energy = np.array([result.energy.transmit_j, result.energy.receive_j]).T
-            check.update(
-                steps_logged=logged.steps,
-                max_angle_difference=float(np.max(np.abs(logged.angles[:, 0] - history.angles[:, trial])))
-                if logged.steps == history.steps else None,
-                triggers_equal=logged.steps == history.steps
-                and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, trial])),
-                faults_equal=all(result.faults.get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS),
-                energy_equal=bool(np.allclose(wire_energy, energy, rtol=1e-9, atol=0.0)),
-            )
-            difference = check["max_angle_difference"]
-            check["equal"] = bool(difference is not None and difference < 1e-9 and check["triggers_equal"]
-                                  and check["faults_equal"] and check["energy_equal"])
+            same_steps = logged.steps == history.steps
+            difference = float(np.max(np.abs(logged.angles[:, 0] - history.angles[:, trial]))) if same_steps else None
+            triggers_equal = same_steps and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, trial]))
+            faults_equal = all(result.faults.get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS)
+            energy_equal = bool(np.allclose(wire_energy, energy, rtol=1e-9, atol=0.0))
+            checks.append(VerifyCheck(
+                **run, steps_logged=logged.steps, max_angle_difference=difference, triggers_equal=triggers_equal,
+                faults_equal=faults_equal, energy_equal=energy_equal,
+                equal=bool(difference is not None and difference < 1e-9 and triggers_equal and faults_equal
+                           and energy_equal)))
         else:
-            check["equal"] = False
-        checks.append(check)
+            checks.append(VerifyCheck(**run, equal=False))
     return checks
