@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from ringtrack.tools.output.console import OutputError, write_json
+from ringtrack.tools.output.files import OutputError, write_csv, write_json
 from ringtrack.tools.runlog.log import LogWriteError, LogWriter, read_log
 from tests.helpers import RINGTRACK, processes_mentioning
 
@@ -121,6 +121,27 @@ def test_summary_json_is_written_whole_or_not_at_all(tmp_path: Path) -> None:
         assert list(small.iterdir()) == []  # neither a 0-byte summary nor a leftover temporary file
         write_json(target, {"small": 1})
         assert json.loads(target.read_text()) == {"small": 1}
+
+
+@pytest.mark.processes
+def test_csv_is_written_whole_or_not_at_all(tmp_path: Path) -> None:
+    """A table that fails halfway (a full disk, or its rows raise) leaves no file and no temporary."""
+    with mounted_tmpfs(tmp_path / "small", "size=8k") as small:
+        target = small / "rows.csv"
+        with pytest.raises(OutputError) as raised:
+            write_csv(target, ({"a": "x" * 100} for _ in range(200)), ["a"])
+        assert str(raised.value) == f"{target}: not written (No space left on device)"
+        assert list(small.iterdir()) == []
+
+    def failing() -> Iterator[dict]:
+        yield {"a": 1}
+        raise RuntimeError("the study broke")
+
+    with pytest.raises(RuntimeError):
+        write_csv(tmp_path / "rows.csv", failing(), ["a"])
+    assert [path.name for path in tmp_path.iterdir() if path.name.startswith((".rows", "rows"))] == []
+    assert write_csv(tmp_path / "rows.csv", [{"a": 1, "b": "x"}, {"a": None, "b": "y"}], ["a", "b"]) == 2
+    assert (tmp_path / "rows.csv").read_text().splitlines() == ["a,b", "1,x", ",y"]
 
 
 @pytest.mark.processes

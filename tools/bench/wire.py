@@ -24,7 +24,7 @@ from pathlib import Path
 
 import msgspec
 
-from ringtrack.tools.output.console import write_json
+from ringtrack.tools.output.files import write_json
 from ringtrack.tools.team.plan import TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario

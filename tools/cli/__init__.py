@@ -44,7 +44,7 @@ USER_ERRORS = (
     ("ringtrack.world.scenario_errors", "ScenarioError"),
     ("ringtrack.world.geometry", "RegionError"),
     ("ringtrack.tools.output.console", "UsageError"),
-    ("ringtrack.tools.output.console", "OutputError"),
+    ("ringtrack.tools.output.files", "OutputError"),
     ("ringtrack.bus.config", "BusError"),
     ("ringtrack.bus.identity", "IdCollision"),
     ("ringtrack.tools.runlog.log", "LogError"),

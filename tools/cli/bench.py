@@ -21,7 +21,8 @@ from ringtrack.tools.bench.bench import (
 )
 from ringtrack.tools.cli.experiment import robot_list
 from ringtrack.tools.cli.options import JSON_FILE, at_least
-from ringtrack.tools.output.console import UsageError, err, show, write_json
+from ringtrack.tools.output.console import UsageError, err, show
+from ringtrack.tools.output.files import write_json
 
 
 def register(commands: argparse._SubParsersAction) -> None:

@@ -19,7 +19,8 @@ from ringtrack.tools.cli.options import (
     plan_horizon,
     strategy_argument,
 )
-from ringtrack.tools.output.console import err, progress_bar, show, write_csv, write_json
+from ringtrack.tools.output.console import err, progress_bar, show
+from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.experiment import (
     MAIN_STRATEGIES,
     MOVING_COLUMNS,

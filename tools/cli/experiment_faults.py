@@ -16,7 +16,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from ringtrack.tools.cli.options import CSV_FILE, FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
-from ringtrack.tools.output.console import UsageError, err, show, write_csv, write_json
+from ringtrack.tools.output.console import UsageError, err, show
+from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.figures import robustness_curves
 from ringtrack.tools.studies.robustness import (
     OUTAGE_START,

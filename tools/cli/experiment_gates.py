@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 from ringtrack.tools.cli.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
-from ringtrack.tools.output.console import out, write_json
+from ringtrack.tools.output.console import out
+from ringtrack.tools.output.files import write_json
 from ringtrack.tools.studies.gates import GATED, REFERENCE, gates_experiment, plot_gates
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ringtrack.tools.output.console import UsageError, out, write_csv
+from ringtrack.tools.output.console import UsageError, out
+from ringtrack.tools.output.files import write_csv
 from ringtrack.tools.runlog.export import LINK_COLUMNS, STEP_COLUMNS, link_rows, step_rows
 from ringtrack.tools.runlog.log import read_log
 

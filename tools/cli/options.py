@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ringtrack.agents.strategy import REGISTRY, StrategyError, check_strategy
-from ringtrack.tools.output.console import unwritable
+from ringtrack.tools.output.files import unwritable
 from ringtrack.world.params import StrategyValue
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
 

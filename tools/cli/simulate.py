@@ -17,7 +17,8 @@ from ringtrack.tools.cli.options import (
     scenario_from_arguments,
 )
 from ringtrack.tools.monitor.state import messages_saved
-from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE, show, warn_if_threshold_loose, write_json
+from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE, show, warn_if_threshold_loose
+from ringtrack.tools.output.files import write_json
 from ringtrack.tools.runlog.log import write_engine_log
 
 

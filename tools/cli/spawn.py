@@ -15,7 +15,8 @@ from ringtrack.tools.cli.options import (
     positive,
     scenario_from_arguments,
 )
-from ringtrack.tools.output.console import out, write_json
+from ringtrack.tools.output.console import out
+from ringtrack.tools.output.files import write_json
 from ringtrack.tools.team.plan import LOCKSTEP_WAIT_S, TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import MESH_LIMIT, spawn_team
 

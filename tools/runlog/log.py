@@ -38,7 +38,7 @@ import numpy as np
 from ringtrack.agents.engine import FAULT_COLUMNS, History, fault_totals, link_traffic
 from ringtrack.bus.faults import FAULTS
 from ringtrack.bus.messages import EndReason
-from ringtrack.tools.output.console import OutputError
+from ringtrack.tools.output.files import OutputError
 from ringtrack.world.geometry import angle_of
 from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario, parse_scenario, resolve

@@ -13,7 +13,8 @@ import numpy as np
 
 from ringtrack.agents import engine
 from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
-from ringtrack.tools.output.console import UsageError, struct_columns
+from ringtrack.tools.output.console import UsageError
+from ringtrack.tools.output.files import struct_columns
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle

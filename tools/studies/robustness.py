@@ -24,7 +24,8 @@ import numpy as np
 from msgspec import UNSET, UnsetType
 
 from ringtrack.agents import engine
-from ringtrack.tools.output.console import UsageError, struct_columns
+from ringtrack.tools.output.console import UsageError
+from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.tools.studies.experiment import strategy_labels
 from ringtrack.tools.team.plan import TeamPlan

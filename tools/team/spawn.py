@@ -28,7 +28,8 @@ from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport, energy_report
 from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
 from ringtrack.tools.dashboard.startup import StartupView
-from ringtrack.tools.output.console import OutputError, UsageError, err, out, warn_if_threshold_loose, write_json
+from ringtrack.tools.output.console import UsageError, err, out, warn_if_threshold_loose
+from ringtrack.tools.output.files import OutputError, write_json
 from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
 from ringtrack.tools.team.plan import Clock, Stop, TeamPlan, TeamResult
 from ringtrack.tools.team.supervisor import FORK_WORKS, ROLE_COMMAND, Supervisor, Terminated, terminate_as_exception
