@@ -204,10 +204,8 @@ def test_the_plan_horizon_flag_sets_the_strategys_parameter() -> None:
 
     assert check_strategy(scenario_of("--strategy", "plan", "--plan-horizon", "3")).plan_horizon == 3
     assert check_strategy(scenario_of("--strategy", "plan")).plan_horizon == 10
-    with pytest.raises(ScenarioError) as refused:
+    with pytest.raises(SystemExit):  # the flag is checked by the parameter's declaration as it is parsed
         scenario_of("--strategy", "plan", "--plan-horizon", "20000")
-    assert str(refused.value) == ("paper-stationary: strategy.plan_horizon must be <= 10000 (it is 20000); give an "
-                                  "integer >= 0 and <= 10000 (default 10)")
 
 
 # ---------------------------------------------------------------------------- the robot process

@@ -21,9 +21,10 @@ from ringtrack.agents.strategy import (
     strategy_class,
     strategy_for,
 )
-from ringtrack.tools.cli import main
+from ringtrack.tools.cli import build_parser, main
+from ringtrack.tools.cli.options import scenario_from_arguments
 from ringtrack.world.metrics import converged, strategy_cerr, true_cerr
-from ringtrack.world.scenario import ScenarioError, apply_overrides, load_scenario, parse_scenario, resolve
+from ringtrack.world.scenario import Scenario, ScenarioError, apply_overrides, load_scenario, parse_scenario, resolve
 from ringtrack.world.state import WorldState
 from tests.test_strategy import example
 
@@ -202,3 +203,26 @@ def test_which_cerr_a_run_reports_is_the_strategys_to_say() -> None:
         world.positions = history.positions[-1, 0]
     assert converged(true_cerr(truly.positions, truly.target), np.rad2deg(scenario.threshold))
     assert truly.converged() and not by_memory.converged()
+
+
+def test_every_declared_parameter_has_a_flag_that_sets_it_where_its_strategy_runs() -> None:
+    """The flags come from the declarations (``plan_horizon``: ``--plan-horizon``): each sets its
+    strategy's parameter, checked by the declaration before any work; another strategy ignores it."""
+    declared = {parameter.name: name for name in REGISTRY for parameter in strategy_class(name).parameters}
+    assert declared == {"plan_horizon": "plan", "push_gate": "belief"}
+
+    def parsed(*flags: str) -> Scenario:
+        return scenario_from_arguments(build_parser(["simulate"]).parse_args(["simulate", *flags]))
+
+    assert check_strategy(parsed("authors-moving", "--strategy", "belief", "--push-gate", "3.5")).push_gate == 3.5
+    assert check_strategy(parsed("--strategy", "plan", "--plan-horizon", "4")).plan_horizon == 4
+    assert parsed("--strategy", "self", "--plan-horizon", "4").strategy.table("plan") == {"plan_horizon": 4}
+    parser = build_parser(["simulate"])
+    with pytest.raises(SystemExit):
+        parser.parse_args(["simulate", "--push-gate", "0"])
+
+
+def test_a_bad_parameter_flag_is_one_line_naming_it(capsys: pytest.CaptureFixture[str]) -> None:
+    assert pytest.raises(SystemExit, main, ["simulate", "--plan-horizon", "-1"]).value.code == 2
+    assert capsys.readouterr().err == ("ringtrack: error: argument --plan-horizon: '-1': must be >= 0 (it is -1); "
+                                       "give an integer >= 0 and <= 10000 (see 'ringtrack simulate --help')\n")

@@ -14,10 +14,11 @@ from ringtrack.tools.cli.options import (
     CSV_FILE,
     FIGURE_SUFFIXES,
     JSON_FILE,
+    add_strategy_parameter_arguments,
     at_least,
     output_path,
-    plan_horizon,
     strategy_argument,
+    strategy_parameters,
 )
 from ringtrack.tools.output.console import err, progress_bar, show
 from ringtrack.tools.output.files import write_csv, write_json
@@ -56,8 +57,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
                             help="strategies to compare, registered names or .py files, the first the ratios' "
                             "baseline (default constant,self; e.g. self,plan)")
-    stationary.add_argument("--plan-horizon", type=at_least(0), metavar="H",
-                            help="plan strategy: the most steps ahead a reply's plan describes")
+    add_strategy_parameter_arguments(stationary)
     stationary.add_argument("--trials", type=at_least(1), default=30, help="random starts per team size (default 30)")
     stationary.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
@@ -125,7 +125,7 @@ def robot_list(text: str) -> list[int]:
 
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
-                 "strategy_parameters": plan_horizon(args)}
+                 "strategy_parameters": strategy_parameters(args)}
     # Validate the scenario and flags before showing any progress.
     probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
     names, limit = list(probe), next(iter(probe.values())).max_steps

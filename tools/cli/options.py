@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from ringtrack.agents.strategy import REGISTRY, StrategyError, check_strategy
+from ringtrack.agents.strategy import REGISTRY, StrategyError, StrategyParameter, check_strategy, strategy_class
 from ringtrack.tools.output.files import unwritable
 from ringtrack.world.params import StrategyValue
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
@@ -29,8 +29,7 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
                         help=f"communication strategy: {', '.join(sorted(REGISTRY))}, or a Python file defining one "
                         "(docs/strategies.md)")
     parser.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
-    parser.add_argument("--plan-horizon", type=at_least(0), metavar="H",
-                        help="plan strategy: the most steps ahead a reply's plan describes")
+    add_strategy_parameter_arguments(parser)
     parser.add_argument(
         "--robots",
         type=int,
@@ -61,7 +60,7 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
             args.scenario,
             strategy=strategy_argument(args.strategy),
             law=args.law,
-            strategy_parameters=plan_horizon(args),
+            strategy_parameters=strategy_parameters(args),
             robots=args.robots,
             seed=args.seed,
             max_steps=args.steps,
@@ -76,10 +75,62 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
     return checked_strategy(scenario, args.strategy, args.scenario)
 
 
-def plan_horizon(args: argparse.Namespace) -> dict[str, dict[str, StrategyValue]] | None:
-    """``--plan-horizon H`` as what it sets: ``[strategy.plan] plan_horizon``, the plan strategy's
-    parameter wherever that strategy runs (and nothing where another does)."""
-    return None if args.plan_horizon is None else {"plan": {"plan_horizon": args.plan_horizon}}
+def declared_parameters() -> dict[str, list[tuple[str, StrategyParameter]]]:
+    """Every parameter the registered strategies declare, by name: the strategies that declare it
+    (in :data:`REGISTRY` order) and their declarations."""
+    declared: dict[str, list[tuple[str, StrategyParameter]]] = {}
+    for name in REGISTRY:
+        for parameter in strategy_class(name).parameters:
+            declared.setdefault(parameter.name, []).append((name, parameter))
+    return declared
+
+
+def add_strategy_parameter_arguments(parser: argparse.ArgumentParser) -> None:
+    """One flag per parameter a registered strategy declares (``plan_horizon``: ``--plan-horizon``),
+    parsed and checked by its declaration; it sets the parameter of every strategy declaring it, in
+    that strategy's ``[strategy.NAME]`` table, so it counts wherever that strategy runs."""
+    for key, declared in declared_parameters().items():
+        names = " and ".join(name for name, _ in declared)
+        parameter = declared[0][1]
+        units = f" ({parameter.units})" if parameter.units else ""
+        parser.add_argument(f"--{key.replace('_', '-')}", dest=f"{PARAMETER_DEST}{key}",
+                            type=parameter_value(f"--{key.replace('_', '-')}", parameter), metavar=key.upper(),
+                            help=f"{names} strategy: {parameter.help}{units}; {parameter.expects}, default "
+                            f"{parameter.default}")
+
+
+PARAMETER_DEST = "strategy_parameter_"  # argparse destination prefix of the strategies' parameter flags
+PARSERS: dict[type, Callable[[str], StrategyValue]] = {  # a flag's text as a declared parameter type
+    bool: lambda text: {"true": True, "false": False}[text.lower()], int: int, float: float, str: str}
+
+
+def parameter_value(flag: str, parameter: StrategyParameter) -> Callable[[str], StrategyValue]:
+    """An argparse type for a strategy parameter's flag: the text as the declared type, within its
+    bounds and choices, else one line naming the flag, the problem and what to give."""
+    def parse(text: str) -> StrategyValue:
+        try:
+            value = PARSERS[parameter.type](text)
+        except (KeyError, ValueError):
+            raise argparse.ArgumentTypeError(f"{text!r} is not {parameter.expects}") from None
+        problem = parameter.problem(value)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(f"{text!r}: {problem}; give {parameter.expects}")
+        return value
+
+    parse.__name__ = flag
+    return parse
+
+
+def strategy_parameters(args: argparse.Namespace) -> dict[str, dict[str, StrategyValue]] | None:
+    """What the strategies' parameter flags given set: ``{strategy: {parameter: value}}`` for every
+    strategy declaring a parameter whose flag was given (None: no such flag)."""
+    given: dict[str, dict[str, StrategyValue]] = {}
+    for key, declared in declared_parameters().items():
+        value = getattr(args, f"{PARAMETER_DEST}{key}", None)
+        if value is not None:
+            for name, _ in declared:
+                given.setdefault(name, {})[key] = value
+    return given or None
 
 
 def strategy_argument(value: str | None) -> str | None:
