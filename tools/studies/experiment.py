@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import msgspec
 import numpy as np
@@ -97,13 +97,14 @@ class StationaryStudy(msgspec.Struct, frozen=True, kw_only=True):
 STATIONARY_COLUMNS = struct_columns(StationaryTrial, leave_out=("robot_bytes",))
 
 
-class MovingFigures(msgspec.Struct, frozen=True):
+class MovingFigures(msgspec.Struct, frozen=True, kw_only=True):
     """The figures of a moving-target run over some of its trials (:func:`moving_figures`): true
     Cerr (degrees) and Terr (metres) means once the first ``settle`` steps are left out (None: no
     step left); over the whole run the poll rate (polls per robot per step), the polls and the
     robot-to-robot messages (pushes included) and payload bytes (totals of a trial, averaged over the
     trials; and per step), the robot-to-robot messages per robot-step after ``settle``, and the
-    estimation messages per step (centralized: every robot's range and the centre's estimate)."""
+    estimation messages per step (centralized: every robot's range and the centre's estimate).
+    Keyword-only: a record that adds its own fields lists them first."""
 
     cerr_mean_deg: float | None
     terr_mean: float | None
@@ -117,11 +118,11 @@ class MovingFigures(msgspec.Struct, frozen=True):
     estimation_messages_per_step: int
 
 
-class MovingSetting(msgspec.Struct, frozen=True, kw_only=True):
-    """Where a moving-target run stands: its ``group`` ("comparison": the base scenario's circle,
-    "velocities": one of the paper's velocity settings), the target's ``speed`` (m/s),
-    ``angular_speed`` (rad/s) and circle ``radius`` (metres), the strategy, estimation mode and
-    (decentralized) fusion rule."""
+class MovingSetting(MovingFigures, frozen=True):
+    """A moving-target run where it stands, with its figures: its ``group`` ("comparison": the base
+    scenario's circle, "velocities": one of the paper's velocity settings), the target's ``speed``
+    (m/s), ``angular_speed`` (rad/s) and circle ``radius`` (metres), the strategy, estimation mode
+    and (decentralized) fusion rule."""
 
     group: str
     speed: float
@@ -132,38 +133,18 @@ class MovingSetting(msgspec.Struct, frozen=True, kw_only=True):
     fusion: str | None
 
 
-class MovingTrial(MovingSetting, frozen=True, kw_only=True):
-    """One trial of a distinct moving-target run (a row of ``experiment moving --csv``); the figures
-    as :class:`MovingFigures` over this trial alone."""
+class MovingTrial(MovingSetting, frozen=True):
+    """One trial of a distinct moving-target run (a row of ``experiment moving --csv``), its figures
+    over this trial alone."""
 
     trial: int
     seed: int
-    cerr_mean_deg: float | None
-    terr_mean: float | None
-    poll_rate: float
-    polls: float
-    robot_messages: float
-    robot_bytes: float
-    robot_messages_per_step: float
-    robot_messages_per_robot_step: float
-    robot_bytes_per_step: float
-    estimation_messages_per_step: int
 
 
 class MovingRun(MovingSetting, frozen=True, kw_only=True):
-    """One run of the moving-target study: the figures as :class:`MovingFigures` over every trial,
-    and the trial-mean true Cerr (degrees) and Terr (metres) every ``series_stride`` steps."""
+    """One run of the moving-target study, its figures over every trial, and the trial-mean true
+    Cerr (degrees) and Terr (metres) every ``series_stride`` steps."""
 
-    cerr_mean_deg: float | None
-    terr_mean: float | None
-    poll_rate: float
-    polls: float
-    robot_messages: float
-    robot_bytes: float
-    robot_messages_per_step: float
-    robot_messages_per_robot_step: float
-    robot_bytes_per_step: float
-    estimation_messages_per_step: int
     cerr_series_deg: list[float]
     terr_series: list[float]
 
@@ -369,10 +350,10 @@ def moving_experiment(
         scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
         if settle >= scenario.max_steps:
             raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
-        setting = msgspec.structs.asdict(MovingSetting(
-            group=group, speed=speed, angular_speed=angular_speed, radius=speed / angular_speed,
-            strategy=strategy_name(strategy), estimation=mode,
-            fusion=scenario.estimation.fusion if mode == "decentralized" else None))
+        setting: dict[str, Any] = {  # MovingSetting's own fields
+            "group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
+            "strategy": strategy_name(strategy), "estimation": mode,
+            "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
         if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
             label = f"v={speed} w={angular_speed} {strategy}+{mode}"
             report = None if on_step is None else (lambda k, text=label: on_step(text, k))
