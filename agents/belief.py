@@ -13,7 +13,7 @@ Each robot runs its own range-only EKF (decentralized estimation). On top of the
 A robot fuses what it was told in step ``k - 1`` (pushes and requests' beliefs, each predicted one
 step) at one defined point of step ``k``: between its own prediction and its own update, before it
 decides; so a lockstep team equals the engine whatever the order in which messages arrive
-(docs/algorithms.md section 16).
+(docs/algorithms.md section 18).
 """
 
 from __future__ import annotations
