@@ -19,15 +19,19 @@ from ringtrack.bus.reach import ReachTokens
 from ringtrack.tools.runlog.log import read_log
 from tests.helpers import RINGTRACK, assert_equals_engine, start_spawn, stop_all, wait_for_steps
 
+JOIN_STEPS = 2000  # steps of the run an impostor joins: lockstep at 30 steps/s on a loaded machine lasts a minute
+
 
 @pytest.mark.processes
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(360)
 def test_joining_as_a_live_robot_is_refused_in_one_line(tmp_path: Path) -> None:
     """The world holds a ``reach`` token for every robot it sees alive, and a joining process asks
     for its name's as soon as it sees the world: refused whatever the load (it need not have linked
     to r3 itself), and the run goes on as if nothing happened."""
     runs = tmp_path / "runs"
-    spawn = start_spawn(runs, "--steps", "400")
+    # Long enough that the run is still going when the impostor has come up on a loaded machine (a
+    # robot joining a run that already ended would wait for its world).
+    spawn = start_spawn(runs, "--steps", str(JOIN_STEPS))
     try:
         folder = wait_for_steps(runs, 20)
         run = json.loads((folder / "run.json").read_text())["run"]
@@ -35,7 +39,7 @@ def test_joining_as_a_live_robot_is_refused_in_one_line(tmp_path: Path) -> None:
         impostor = subprocess.run([*RINGTRACK, "robot", "--join", str(folder), "--id", "3"], capture_output=True,
                                   text=True, timeout=60)
         refused_after = time.monotonic() - started
-        spawn.communicate(timeout=150)
+        spawn.communicate(timeout=240)
     finally:
         stop_all(spawn)
     assert impostor.returncode == 2
@@ -47,7 +51,7 @@ def test_joining_as_a_live_robot_is_refused_in_one_line(tmp_path: Path) -> None:
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["id_collisions"] == 0 and summary["failures"] == {} and summary["monitor_equals_senders"] is True
     log = read_log(folder / "log.jsonl")
-    assert len(log.steps) == 400 and all(record["live"] == list(range(6)) for record in log.steps)
+    assert len(log.steps) == JOIN_STEPS and all(record["live"] == list(range(6)) for record in log.steps)
     assert_equals_engine(log)  # the run is unchanged
 
 
