@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.estimation import Estimators, Told
 from ringtrack.agents.strategy import SelfTriggered, StrategyParameter
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.params import EstimationParams
@@ -51,13 +51,11 @@ class SharedBelief(SelfTriggered):
     )
     push_gate: float
 
-    def hear(self, estimator: Estimator, positions: ArrayLike, ranges: ArrayLike,
-             beliefs: list[tuple[FloatArray, FloatArray]]) -> None:
+    def hear(self, estimators: Estimators, positions: ArrayLike, ranges: ArrayLike, told: Told) -> None:
         """Each told belief is a step old: predicted one step (``P + Q``, the filter's own process
         noise) so that it is as uncertain as a belief about this step, it is fused with the robot's
         own prediction by CI, and the robot's own range then updates the fused prior."""
-        noise = estimator.params.process_noise * np.eye(2)
-        estimator.measure(positions, ranges, [(mean, covariance + noise) for mean, covariance in beliefs])
+        estimators.measure(positions, ranges, told.predicted(estimators.params.process_noise))
 
     def wants_push(self, mean: FloatArray, last_mean: FloatArray, last_covariance: FloatArray,
                    params: EstimationParams) -> NDArray[np.bool_]:

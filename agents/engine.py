@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.estimation import Estimators, Told
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes
@@ -130,18 +130,16 @@ StepObserver = Callable[[int], None]
 class TeamEstimate:
     """The estimators of a batch of teams, exactly as the processes hold them: none ("known": the
     robots steer about the true stationary target), one per trial (the fusion centre), or one per
-    robot (decentralized)."""
+    robot (decentralized); all of them one batch of filters (:class:`agents.estimation.Estimators`)."""
 
     def __init__(self, scenario: Scenario, seeds: list[int], paths: FloatArray) -> None:
         self.mode = scenario.estimation.mode
         self.robots = scenario.robots
+        self.trials = len(seeds)
         sensing = scenario.spec.sensing
         self.sensors = [RangeSensor(sensing.range_sigma, sensing.range, seed) for seed in seeds]
         count = {"known": 0, "centralized": 1, "decentralized": scenario.robots}[self.mode]
-        self.estimators = [
-            [Estimator(scenario.estimation, scenario.region, paths[trial, 0]) for _ in range(count)]
-            for trial in range(len(seeds))
-        ]
+        self.estimators = Estimators(scenario.estimation, scenario.region, np.repeat(paths[:, 0], count, axis=0))
 
     def measure(self, positions: FloatArray, targets: FloatArray, strategy: Strategy | None = None,
                 told: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
@@ -152,30 +150,33 @@ class TeamEstimate:
         told them (``told``, per side) in the previous step, predecessor first."""
         if self.mode == "known":
             return np.repeat(targets[:, None, :], self.robots, axis=1)
-        centres = np.empty_like(positions)
-        for trial, (sensor, estimators) in enumerate(zip(self.sensors, self.estimators, strict=True)):
-            ranges = sensor.measure(positions[trial], targets[trial])
-            if self.mode == "centralized":
-                estimators[0].measure(positions[trial], ranges)
-                centres[trial] = estimators[0].centre
-            else:
-                for robot, estimator in enumerate(estimators):
-                    here = positions[trial, robot : robot + 1], ranges[robot : robot + 1]
-                    if strategy is not None and told is not None and told_beliefs is not None:
-                        means, covariances = told_beliefs
-                        neighbours = [(robot + offset) % self.robots for side, offset in ((0, -1), (1, 1))
-                                      if told[side][trial, robot]]
-                        strategy.hear(estimator, *here, [(means[trial, n], covariances[trial, n]) for n in neighbours])
-                    else:
-                        estimator.measure(*here)
-                    centres[trial, robot] = estimator.centre
-        return centres
+        ranges = np.stack([sensor.measure(positions[trial], targets[trial])
+                           for trial, sensor in enumerate(self.sensors)])  # (T, N)
+        if self.mode == "centralized":
+            self.estimators.measure(positions, ranges)
+            return np.repeat(self.estimators.centre[:, None, :], self.robots, axis=1)
+        robots = self.trials * self.robots
+        here = positions.reshape(robots, 1, 2), ranges.reshape(robots, 1)
+        if strategy is not None and told is not None and told_beliefs is not None:
+            strategy.hear(self.estimators, *here, self._told(told, told_beliefs))
+        else:
+            self.estimators.measure(*here)
+        return self.estimators.centre.reshape(positions.shape)
+
+    def _told(self, sides: tuple[NDArray[np.bool_], NDArray[np.bool_]],
+              beliefs: tuple[FloatArray, FloatArray]) -> Told:
+        """What every robot's (predecessor, successor) told it, as the filters' slots: ``sides`` say
+        who told (T, N) per side, ``beliefs`` every robot's told belief (T, N, 2), (T, N, 2, 2)."""
+        means, covariances = beliefs
+        robots = self.trials * self.robots
+        return Told(np.stack(_to_sides(means), axis=2).reshape(robots, 2, 2),
+                    np.stack(_to_sides(covariances), axis=2).reshape(robots, 2, 2, 2),
+                    np.stack(sides, axis=-1).reshape(robots, 2))
 
     def beliefs(self) -> tuple[FloatArray, FloatArray]:
         """Every decentralized robot's belief now: means (T, N, 2) metres, covariances (T, N, 2, 2) m^2."""
-        beliefs = [[estimator.belief for estimator in estimators] for estimators in self.estimators]
-        return (np.array([[mean for mean, _ in row] for row in beliefs]),
-                np.array([[covariance for _, covariance in row] for row in beliefs]))
+        mean, covariance = self.estimators.belief
+        return mean.reshape(self.trials, -1, 2), covariance.reshape(self.trials, -1, 2, 2)
 
     def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> None:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
@@ -183,13 +184,8 @@ class TeamEstimate:
         in place."""
         if self.mode != "decentralized":
             return
-        for trial, estimators in enumerate(self.estimators):
-            beliefs = [estimator.belief for estimator in estimators]
-            for robot in np.flatnonzero(fresh_minus[trial] | fresh_plus[trial]):
-                sides = ((fresh_minus, robot - 1), (fresh_plus, robot + 1))
-                received = [beliefs[neighbour % self.robots] for fresh, neighbour in sides if fresh[trial, robot]]
-                estimators[robot].fuse(received)
-                centres[trial, robot] = estimators[robot].centre
+        self.estimators.fuse(self._told((fresh_minus, fresh_plus), self.beliefs()))
+        centres[...] = self.estimators.centre.reshape(centres.shape)
 
 
 FAULT_COLUMNS = FAULT_COUNTERS  # sent, delivered, dropped, duplicated, delayed, published
@@ -433,7 +429,7 @@ def run(
     # A listening strategy: what each robot was told in the previous step (per side) and everyone's
     # belief as told; a pushing one: the belief each robot last told its neighbours.
     no_one = np.zeros((trials, robots), dtype=bool)
-    told, told_beliefs = (no_one, no_one), (np.empty(0), np.empty(0))
+    told, told_beliefs = (no_one, no_one), team.beliefs()
     last_told = team.beliefs() if strategy.pushes else None
     plan_seeds = fault_seeds(scenario, seeds)
     groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)

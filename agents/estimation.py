@@ -1,21 +1,30 @@
-"""Range-only estimation of the target position (docs/algorithms.md section 7).
+"""Range-only estimation of the target position (docs/algorithms.md section 7), for a batch of filters.
 
 State ``x = o`` (metres, 2-D), random-walk model ``x(k) = x(k-1) + w``, ``w ~ N(0, q I)`` per step,
 and ranges ``z_j = ||o - p_j|| + v_j``, ``v_j ~ N(0, sigma_z^2)`` from robots at ``p_j``. Naming
 follows filterpy (and not the paper, which swaps them): ``Q`` is the process noise, ``R`` the
-measurement noise. The filter is filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`, with
-the shape care filterpy needs: ``z`` as a column, ``h(x)`` as a column, an explicit ``(m, m)`` R for
-``m`` ranges, and ``predict()`` then ``update()``.
+measurement noise.
+
+The extended Kalman filter is written here in numpy for a batch of ``B`` filters at once (every robot
+of every trial of a study, or one robot process's own filter, a batch of one), every quantity a 2x2
+matrix or a 2-vector computed component by component, elementwise along the batch: a filter's result
+does not depend on the rest of its batch, so a robot process holds bit for bit the belief the engine
+computes for it. The update with the ``m`` usable ranges of a step is the stacked EKF update with the
+Joseph-form covariance, as filterpy's ``ExtendedKalmanFilter`` (the tests' independent oracle) does:
+
+    K = P H^T (H P H^T + R)^-1,   x+ = x + K (z - h(x)),   P+ = (I - K H) P (I - K H)^T + K R K^T,
+
+with ``H``'s rows ``(x - p_j)^T / ||x - p_j||`` at the predicted ``x`` and ``R = sigma_z^2 I``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.fusion import covariance_intersection, sequential_intersection
+from ringtrack.agents.fusion import intersect, intersect_in_order, sequential_sum
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import EstimationParams
 
@@ -29,68 +38,112 @@ class NoFix(ValueError):
     """The ranges do not fix the target: fewer than three, or from robots all on one line."""
 
 
+Belief = tuple[ArrayLike, ArrayLike]  # (mean (2,) metres, covariance (2, 2) m^2)
+
+
+class Told(NamedTuple):
+    """Beliefs other robots told each filter of a batch: ``means`` (B, k, 2) metres, ``covariances``
+    (B, k, 2, 2) m^2, and which of the ``k`` slots hold one (``present``, (B, k))."""
+
+    means: FloatArray
+    covariances: FloatArray
+    present: NDArray[np.bool_]
+
+    @classmethod
+    def by_sides(cls, predecessor: Belief | None, successor: Belief | None) -> Told:
+        """What one robot was told by its predecessor and successor (``(mean, covariance)`` each, or
+        None), as a batch of one with the engine's two slots, so that it fuses bit for bit as there."""
+        told = (predecessor, successor)
+        means = np.zeros((1, 2, 2))
+        covariances = np.broadcast_to(np.eye(2), (1, 2, 2, 2)).copy()
+        for side, belief in enumerate(told):
+            if belief is not None:
+                means[0, side], covariances[0, side] = belief
+        return cls(means, covariances, np.array([[belief is not None for belief in told]]))
+
+    def predicted(self, process_noise: float) -> Told:
+        """The same beliefs a step older in meaning: ``P + q I`` (m^2)."""
+        return self._replace(covariances=self.covariances + process_noise * np.eye(2))
+
+
+class RangeFilters:
+    """A batch of range-only EKFs: robots' own (one range per step each) or fusion centres' (all ranges).
+
+    ``mean`` (B, 2) metres and ``covariance`` (B, 2, 2) m^2 are the priors; ``process_noise`` is ``q``
+    in ``Q = q I`` (m^2 per step); ``range_sigma`` is ``sigma_z`` (metres).
+    """
+
+    def __init__(self, mean: ArrayLike, covariance: ArrayLike, process_noise: float, range_sigma: float) -> None:
+        self.process_noise = process_noise
+        self.range_sigma = range_sigma
+        self.mean = np.array(mean, dtype=float).reshape(-1, 2)
+        self.covariance = np.array(covariance, dtype=float).reshape(-1, 2, 2)
+
+    def adopt(self, mean: ArrayLike, covariance: ArrayLike, rows: NDArray[np.bool_] | None = None) -> None:
+        """Replace the estimates (of the ``rows`` given, default all) by ``mean``, ``covariance``
+        (a prior, or the result of fusing with neighbours' beliefs)."""
+        if rows is None:
+            self.mean = np.array(mean, dtype=float).reshape(self.mean.shape)
+            self.covariance = np.array(covariance, dtype=float).reshape(self.covariance.shape)
+        else:
+            self.mean = np.where(rows[:, None], mean, self.mean)
+            self.covariance = np.where(rows[:, None, None], covariance, self.covariance)
+
+    def predict(self) -> None:
+        """The random walk's prediction: ``x`` unchanged, ``P + q I``."""
+        self.covariance = self.covariance + self.process_noise * np.eye(2)
+
+    def step(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+        """Predict one step, then update with the ranges measured from ``positions`` (B, m, 2)."""
+        self.predict()
+        self.update(positions, ranges)
+
+    def update(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+        """Update with the ranges (B, m) measured from ``positions`` (B, m, 2), metres. Missing ranges
+        (NaN: beyond the sensing range) and robots within ``SINGULAR_DISTANCE`` of the predicted
+        estimate are skipped; a filter with none left only predicts this step."""
+        points = np.asarray(positions, dtype=float).reshape(len(self.mean), -1, 2)
+        measured = np.asarray(ranges, dtype=float).reshape(len(self.mean), -1)
+        dx, dy = self.mean[:, 0, None] - points[..., 0], self.mean[:, 1, None] - points[..., 1]
+        distances = np.hypot(dx, dy)
+        usable = np.isfinite(measured) & (distances > SINGULAR_DISTANCE)
+        if not usable.any():
+            return
+        safe = np.where(usable, distances, 1.0)
+        ux, uy = np.where(usable, dx / safe, 0.0), np.where(usable, dy / safe, 0.0)  # H's rows, 0 where unused
+        residual = np.where(usable, measured - distances, 0.0)
+        p00, p01, p11 = self.covariance[:, 0, 0, None], self.covariance[:, 0, 1, None], self.covariance[:, 1, 1, None]
+        ph0, ph1 = p00 * ux + p01 * uy, p01 * ux + p11 * uy  # P H^T, (B, m) per row of P
+        innovation = ux[:, :, None] * ph0[:, None, :] + uy[:, :, None] * ph1[:, None, :]  # H P H^T, (B, m, m)
+        innovation = innovation + self.range_sigma**2 * np.eye(measured.shape[1])
+        inverse = 1.0 / innovation if measured.shape[1] == 1 else np.linalg.inv(innovation)
+        k0 = sequential_sum(ph0[:, :, None] * inverse, axis=1)  # K = P H^T S^-1, (B, m) per row of K
+        k1 = sequential_sum(ph1[:, :, None] * inverse, axis=1)
+        sums = sequential_sum(np.stack([k0 * residual, k1 * residual, k0 * ux, k0 * uy, k1 * ux, k1 * uy,
+                                        k0 * k0, k0 * k1, k1 * k1]), axis=2)
+        mean = self.mean + np.stack([sums[0], sums[1]], axis=-1)
+        # Joseph form: (I - K H) P (I - K H)^T + K R K^T, component by component
+        a00, a01, a10, a11 = 1.0 - sums[2], -sums[3], -sums[4], 1.0 - sums[5]
+        p00, p01, p11 = p00[:, 0], p01[:, 0], p11[:, 0]
+        b00, b01 = a00 * p00 + a01 * p01, a00 * p01 + a01 * p11  # A P
+        b10, b11 = a10 * p00 + a11 * p01, a10 * p01 + a11 * p11
+        noise = self.range_sigma**2
+        c00 = b00 * a00 + b01 * a01 + noise * sums[6]
+        c01 = b00 * a10 + b01 * a11 + noise * sums[7]
+        c11 = b10 * a10 + b11 * a11 + noise * sums[8]
+        covariance = np.stack([np.stack([c00, c01], axis=-1), np.stack([c01, c11], axis=-1)], axis=-2)
+        self.adopt(mean, covariance, usable.any(axis=1))
+
+
 def _ranges(x: FloatArray, positions: FloatArray) -> FloatArray:
-    """``h(x)``: distances (column, m) from the robots at ``positions`` to the state ``x`` (2, 1)."""
-    return np.linalg.norm(x[:, 0] - positions, axis=1).reshape(-1, 1)
+    """Distances (m,) from the robots at ``positions`` (m, 2) to the point ``x`` (2,), metres."""
+    return np.linalg.norm(x - positions, axis=1)
 
 
 def _jacobian(x: FloatArray, positions: FloatArray) -> FloatArray:
     """``H``: rows ``(x - p_j)^T / ||x - p_j||`` (m, 2)."""
-    offsets = x[:, 0] - positions
+    offsets = x - positions
     return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
-
-
-class RangeFilter:
-    """One range-only EKF: a robot's own (one range per step) or a fusion centre's (all ranges).
-
-    ``mean`` (metres) and ``covariance`` (m^2) are the prior; ``process_noise`` is ``q`` in
-    ``Q = q I`` (m^2 per step); ``range_sigma`` is ``sigma_z`` (metres).
-    """
-
-    def __init__(self, mean: ArrayLike, covariance: ArrayLike, process_noise: float, range_sigma: float) -> None:
-        # filterpy imports scipy.stats and matplotlib (0.8 s, ~90 MiB): only processes that estimate pay.
-        from filterpy.kalman import ExtendedKalmanFilter
-
-        self.ekf = ExtendedKalmanFilter(dim_x=2, dim_z=1)
-        self.ekf.F = np.eye(2)
-        self.ekf.Q = process_noise * np.eye(2)
-        self.range_sigma = range_sigma
-        self.adopt(mean, covariance)
-
-    @property
-    def mean(self) -> FloatArray:
-        return self.ekf.x[:, 0].copy()
-
-    @property
-    def covariance(self) -> FloatArray:
-        """``P`` made exactly symmetric (the Joseph update leaves rounding asymmetry), so a belief
-        sent as ``(xx, xy, yy)`` is the very matrix the sender holds."""
-        return 0.5 * (self.ekf.P + self.ekf.P.T)
-
-    def adopt(self, mean: ArrayLike, covariance: ArrayLike) -> None:
-        """Replace the estimate (a prior, or the result of fusing with the neighbours' beliefs)."""
-        self.ekf.x = np.array(mean, dtype=float).reshape(2, 1)
-        self.ekf.P = np.array(covariance, dtype=float).reshape(2, 2)
-
-    def step(self, positions: ArrayLike, ranges: ArrayLike) -> None:
-        """Predict one step, then update with the ranges measured from ``positions`` (m, 2)."""
-        self.ekf.predict()
-        self.update(positions, ranges)
-
-    def update(self, positions: ArrayLike, ranges: ArrayLike) -> None:
-        """Update with the ranges measured from ``positions`` (m, 2). Missing ranges (NaN: beyond
-        the sensing range) and robots within ``SINGULAR_DISTANCE`` of the predicted estimate are
-        skipped; with none left the step is prediction only.
-        """
-        points = np.asarray(positions, dtype=float).reshape(-1, 2)
-        measured = np.asarray(ranges, dtype=float).reshape(-1)
-        distances = np.linalg.norm(self.ekf.x[:, 0] - points, axis=1)
-        usable = np.isfinite(measured) & (distances > SINGULAR_DISTANCE)
-        if not usable.any():
-            return
-        points, measured = points[usable], measured[usable]
-        noise = self.range_sigma**2 * np.eye(len(measured))
-        self.ekf.update(measured.reshape(-1, 1), _jacobian, _ranges, R=noise, args=(points,), hx_args=(points,))
 
 
 def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, refinements: int = 5,
@@ -114,11 +167,10 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
     rhs = measured[0] ** 2 - measured[1:] ** 2 + np.sum(rest**2, axis=1) - np.sum(first**2)
     estimate, *_ = np.linalg.lstsq(system, rhs, rcond=None)
     for _ in range(refinements):
-        x = estimate.reshape(2, 1)
-        jacobian = _jacobian(x, points)
-        residual = measured - _ranges(x, points)[:, 0]
+        jacobian = _jacobian(estimate, points)
+        residual = measured - _ranges(estimate, points)
         estimate = estimate + np.linalg.lstsq(jacobian, residual, rcond=None)[0]
-    jacobian = _jacobian(estimate.reshape(2, 1), points)
+    jacobian = _jacobian(estimate, points)
     covariance = inflation * range_sigma**2 * np.linalg.inv(jacobian.T @ jacobian)
     return np.asarray(estimate, dtype=float), np.asarray(covariance, dtype=float)
 
@@ -130,18 +182,18 @@ def prior_belief(
     params: EstimationParams, region: ConvexRegion, truth_at_start: ArrayLike
 ) -> tuple[FloatArray, FloatArray]:
     """The belief ``(mean, covariance)`` (metres, m^2) an estimator starts from: the configured
-    prior, or for "trilateration" the uninformative one (see :class:`Estimator`)."""
+    prior, or for "trilateration" the uninformative one (see :class:`Estimators`)."""
     if params.prior == "trilateration":
         return region.chebyshev_centre[0].copy(), region.outer_diameter**2 * np.eye(2)
     mean = truth_at_start if params.prior == "truth" else params.prior
     return np.array(mean, dtype=float), params.prior_variance * np.eye(2)
 
 
-class Estimator:
-    """The belief about the target of one decentralized robot or of the fusion centre.
+class Estimators:
+    """The beliefs about the target of a batch of decentralized robots or fusion centres.
 
-    Every step: :meth:`measure` (predict, then update with the ranges it has); a decentralized robot
-    that polled then :meth:`fuse` its neighbours' beliefs. After each of these the filter's own mean
+    Every step: :meth:`measure` (predict, then update with the ranges each has); a decentralized robot
+    that polled then :meth:`fuse` its neighbours' beliefs. After each of these every filter's own mean
     is kept inside the region shrunk by ``params.margin`` metres (:meth:`keep_inside`), so what it
     predicts from, replies with and fuses is a centre the boundary map works about: seen from a
     centre on (or microns from) an edge, boundary speeds ``r^2 / h`` explode, ring order breaks and
@@ -153,64 +205,112 @@ class Estimator:
     (a limited sensing range leaves fewer, or the robots in range share an edge), the prior is
     uninformative instead, the region's Chebyshev centre with variance ``D_out^2`` (m^2) in every
     direction, which covers the whole region, and the first step updates it with the ranges there
-    are like any other step.
+    are like any other step. ``truths_at_start`` (B, 2), metres, is the true target of each filter's
+    run at the start (the "truth" prior).
     """
 
-    def __init__(self, params: EstimationParams, region: ConvexRegion, truth_at_start: ArrayLike) -> None:
+    def __init__(self, params: EstimationParams, region: ConvexRegion, truths_at_start: ArrayLike) -> None:
         self.params = params
         self.region = region
-        self.filter = RangeFilter(*prior_belief(params, region, truth_at_start), params.process_noise,
-                                  params.range_sigma)
+        truths = np.asarray(truths_at_start, dtype=float).reshape(-1, 2)
+        priors = [prior_belief(params, region, truth) for truth in truths]
+        self.filters = RangeFilters([mean for mean, _ in priors], [covariance for _, covariance in priors],
+                                    params.process_noise, params.range_sigma)
         self.keep_inside()
         self.started = False
 
     @property
     def belief(self) -> tuple[FloatArray, FloatArray]:
-        """``(mean, covariance)`` of the filter (metres, m^2)."""
-        return self.filter.mean, self.filter.covariance
+        """``(mean (B, 2), covariance (B, 2, 2))`` of the filters (metres, m^2), copies."""
+        return self.filters.mean.copy(), self.filters.covariance.copy()
 
     @property
     def centre(self) -> FloatArray:
-        """The estimate (metres) a robot steers about: the filter's mean, inside by ``params.margin``."""
-        return self.filter.mean
+        """The estimates (B, 2), metres, robots steer about: the filters' means, inside by ``params.margin``."""
+        return self.filters.mean.copy()
 
-    def keep_inside(self) -> None:
-        """Pull the filter's mean ``params.margin`` metres inside the region if it is not that deep
-        (covariance unchanged); a mean already inside is left exactly as it is."""
-        mean = self.filter.mean
-        if not bool(self.region.is_interior(mean, self.params.margin)):
-            self.filter.ekf.x = self.region.clamp_interior(mean, self.params.margin).reshape(2, 1)
+    def keep_inside(self, rows: NDArray[np.bool_] | None = None) -> None:
+        """Pull each filter's mean (of the ``rows`` given, default all) ``params.margin`` metres inside
+        the region if it is not that deep (covariance unchanged); a mean already inside is left
+        exactly as it is."""
+        mean = self.filters.mean
+        outside = ~self.region.is_interior(mean, self.params.margin)
+        if rows is not None:
+            outside &= rows
+        if outside.any():
+            self.filters.mean = np.where(outside[:, None], self.region.clamp_interior(mean, self.params.margin), mean)
 
-    def measure(self, positions: ArrayLike, ranges: ArrayLike,
-                told: Sequence[tuple[ArrayLike, ArrayLike]] = ()) -> None:
-        """Fold in one step's ranges from robots at ``positions`` (NaN: no range). With the
-        "trilateration" prior, the first step's ranges become the prior instead when they fix the
-        target (see the class). Beliefs ``told`` by neighbours (``(mean, covariance)``) are fused
-        by :meth:`fuse` between the prediction and the update, so the step's own ranges update
-        the fused prior with their full Kalman weight."""
+    def measure(self, positions: ArrayLike, ranges: ArrayLike, told: Told | None = None) -> None:
+        """Fold in one step's ranges (B, m) from robots at ``positions`` (B, m, 2) (NaN: no range).
+        With the "trilateration" prior, the first step's ranges become the prior instead where they
+        fix the target (see the class). Beliefs ``told`` by neighbours are fused by :meth:`fuse`
+        between the prediction and the update, so the step's own ranges update the fused prior with
+        their full Kalman weight."""
+        points = np.asarray(positions, dtype=float).reshape(len(self.filters.mean), -1, 2)
+        measured = np.asarray(ranges, dtype=float).reshape(len(self.filters.mean), -1)
         first, self.started = not self.started, True
-        if first and self.params.prior == "trilateration":
-            try:
-                self.filter.adopt(*trilaterate(positions, ranges, self.params.range_sigma))
-            except NoFix:
-                pass  # the uninformative prior stands, updated below with the ranges there are
-            else:
-                self.keep_inside()
-                return
-        if told:
-            self.filter.ekf.predict()
+        fixes = self._trilaterate(points, measured) if first and self.params.prior == "trilateration" else None
+        self.filters.predict()
+        if told is not None:
             self.fuse(told)
-            self.filter.update(positions, ranges)
-        else:
-            self.filter.step(positions, ranges)
+        self.filters.update(points, measured)
+        if fixes is not None:
+            self.filters.adopt(*fixes)  # a fix is the first step's estimate
         self.keep_inside()
 
-    def fuse(self, beliefs: Sequence[tuple[ArrayLike, ArrayLike]]) -> None:
-        """Covariance-intersect the own belief with neighbours' ``(mean, covariance)`` and adopt it."""
-        means = np.array([self.filter.mean, *(np.asarray(mean, dtype=float) for mean, _ in beliefs)])
-        covariances = np.array([self.filter.covariance,
-                                *(np.asarray(covariance, dtype=float) for _, covariance in beliefs)])
-        combine = covariance_intersection if self.params.fusion == "ci" else sequential_intersection
-        fused = combine(means, covariances, self.params.criterion)
-        self.filter.adopt(fused.mean, fused.covariance)
-        self.keep_inside()
+    def _trilaterate(self, points: FloatArray, measured: FloatArray) -> tuple[FloatArray, FloatArray,
+                                                                             NDArray[np.bool_]]:
+        """The trilaterated beliefs ``(means, covariances)`` of the filters whose first ranges fix the
+        target, and which those are (:func:`trilaterate`)."""
+        fixed = np.zeros(len(measured), dtype=bool)
+        means, covariances = self.belief
+        for row in range(len(measured)):
+            try:
+                means[row], covariances[row] = trilaterate(points[row], measured[row], self.params.range_sigma)
+            except NoFix:
+                continue  # the uninformative prior stands, updated with the ranges there are
+            fixed[row] = True
+        return means, covariances, fixed
+
+    def fuse(self, told: Told) -> None:
+        """Covariance-intersect each filter's belief with the neighbours' ``told`` it and adopt the
+        result; a filter told nothing is left as it is."""
+        fusing: NDArray[np.bool_] = np.asarray(told.present.any(axis=1))
+        if not fusing.any():
+            return
+        means = np.concatenate([self.filters.mean[:, None], told.means], axis=1)
+        covariances = np.concatenate([self.filters.covariance[:, None], told.covariances], axis=1)
+        present = np.concatenate([np.ones((len(means), 1), dtype=bool), told.present], axis=1)
+        combine = intersect if self.params.fusion == "ci" else intersect_in_order
+        fused = combine(means[fusing], covariances[fusing], present[fusing], self.params.criterion)
+        mean, covariance = self.belief
+        mean[fusing], covariance[fusing] = fused.mean, fused.covariance
+        self.filters.adopt(mean, covariance)
+        self.keep_inside(fusing)
+
+
+class Estimator:
+    """One robot's or one fusion centre's belief: :class:`Estimators` as a batch of one, taking and
+    giving single beliefs (mean (2,) metres, covariance (2, 2) m^2), as a process holds it."""
+
+    def __init__(self, params: EstimationParams, region: ConvexRegion, truth_at_start: ArrayLike) -> None:
+        self.batch = Estimators(params, region, np.asarray(truth_at_start, dtype=float)[None])
+
+    @property
+    def belief(self) -> tuple[FloatArray, FloatArray]:
+        """``(mean, covariance)`` of the filter (metres, m^2)."""
+        mean, covariance = self.batch.belief
+        return mean[0], covariance[0]
+
+    @property
+    def centre(self) -> FloatArray:
+        """The estimate (metres) the robot steers about (:attr:`Estimators.centre`)."""
+        return self.batch.centre[0]
+
+    def measure(self, positions: ArrayLike, ranges: ArrayLike) -> None:
+        """One step's ranges (m,) from robots at ``positions`` (m, 2) (:meth:`Estimators.measure`)."""
+        self.batch.measure(np.asarray(positions, dtype=float)[None], np.asarray(ranges, dtype=float)[None])
+
+    def fuse(self, predecessor: Belief | None, successor: Belief | None) -> None:
+        """Covariance-intersect the own belief with the ring neighbours' (either may be None) and adopt it."""
+        self.batch.fuse(Told.by_sides(predecessor, successor))

@@ -25,12 +25,17 @@ Every face of the simplex (each non-empty subset of the estimates) is solved thi
 candidates (a negative weight) are dropped, and the best remaining candidate wins (the mean of the
 best ones when several tie, which keeps CI symmetric in its inputs); the vertices are the single
 estimates. With two estimates this is the two-estimate closed form of that paper.
+
+Everything here works on a batch of fusions at once (:func:`intersect`: ``B`` rows of up to ``k``
+estimates, a mask saying which are present), elementwise along the batch, so a row's result does
+not depend on the other rows: a robot process fusing alone (a batch of one) gets bit for bit what
+the engine gets for that robot in a batch of every robot of every trial.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
@@ -40,59 +45,90 @@ from ringtrack.world.geometry import FloatArray
 from ringtrack.world.params import Criterion
 
 TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
+FEASIBLE = -1e-12  # a face's stationary weights at least this are on the simplex (clipped to 0)
+DEGENERATE = 1e-12  # relative determinant below which a face's system is singular
 
 
 @dataclass(frozen=True)
 class Fused:
-    """A fused estimate: ``mean`` (2,), ``covariance`` (2, 2) and the CI ``weights`` (one per input)."""
+    """Fused estimates: ``mean`` (..., 2) metres, ``covariance`` (..., 2, 2) m^2 and the CI
+    ``weights`` (..., k), one per input (0 for an absent one)."""
 
     mean: FloatArray
     covariance: FloatArray
     weights: FloatArray
 
 
-def covariance_intersection(
-    means: ArrayLike, covariances: ArrayLike, criterion: Criterion = "trace"
-) -> Fused:
-    """Fuse ``k >= 1`` estimates: ``means`` of shape (k, 2), ``covariances`` (k, 2, 2), symmetric
-    positive definite. The weights minimise ``tr P_c`` ("trace") or ``det P_c`` ("det") exactly."""
+def inverse_2x2(matrices: FloatArray) -> FloatArray:
+    """The inverses of symmetric 2x2 ``matrices`` (..., 2, 2), by the adjugate, exactly symmetric."""
+    a, b, d = matrices[..., 0, 0], 0.5 * (matrices[..., 0, 1] + matrices[..., 1, 0]), matrices[..., 1, 1]
+    determinant = a * d - b * b
+    inverse = np.empty(np.shape(matrices))
+    inverse[..., 0, 0], inverse[..., 1, 1] = d / determinant, a / determinant
+    inverse[..., 0, 1] = inverse[..., 1, 0] = -b / determinant
+    return inverse
+
+
+def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | None = None,
+              criterion: Criterion = "trace") -> Fused:
+    """Fuse each row of a batch by optimal CI: ``means`` (B, k, 2), ``covariances`` (B, k, 2, 2),
+    symmetric positive definite where ``present`` (B, k; default all) says an estimate is there.
+    The weights minimise ``tr P_c`` ("trace") or ``det P_c`` ("det") exactly over the present
+    estimates; every row needs at least one."""
     means = np.asarray(means, dtype=float)
-    covariances = np.asarray(covariances, dtype=float)
-    information = np.linalg.inv(covariances)
-    traces = np.trace(information, axis1=1, axis2=2)
-    products = np.einsum("jab,kba->jk", information, information)
-    determinants = 0.5 * (np.outer(traces, traces) - products)
-    np.fill_diagonal(determinants, np.linalg.det(information))
-    count = len(means)
-    candidates = [
-        weights
-        for size in range(1, count + 1)
-        for face in combinations(range(count), size)
-        for weights in _face_candidates(np.array(face), traces, determinants, criterion, count)
-    ]
-    values = np.array([_objective(weights, traces, determinants, criterion) for weights in candidates])
-    best_value = values.min()
+    rows, count = means.shape[:2]
+    present = np.ones((rows, count), dtype=bool) if present is None else np.asarray(present, dtype=bool)
+    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), np.eye(2))
+    information = inverse_2x2(covariances)
+    traces = information[..., 0, 0] + information[..., 1, 1]
+    determinants = _determinant_form(information, traces)
+    vertices = np.broadcast_to(np.eye(count), (rows, count, count))
+    if count == 1:
+        return _intersect(means, information, np.ones((rows, 1)))
+    face_weights, face_feasible = _face_candidates(traces, determinants, criterion, present)
+    candidates = np.concatenate([vertices, face_weights], axis=1)  # (B, C, k)
+    feasible = np.concatenate([present, face_feasible], axis=1)
+    values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
     # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
     # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
-    tied = [weights for weights, value in zip(candidates, values, strict=True)
-            if value <= best_value * (1.0 + TIE_TOLERANCE)]
-    return _intersect(means, information, np.mean(tied, axis=0))
+    chosen = values <= values.min(axis=1, keepdims=True) * (1.0 + TIE_TOLERANCE)
+    total = sequential_sum(np.where(chosen[..., None], candidates, 0.0), axis=1)
+    return _intersect(means, information, total / chosen.sum(axis=1)[:, None])
+
+
+def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
+    """The sum along ``axis`` added strictly in order (a cumulative sum's last entry), so that a row's
+    sum never depends on the shape of its batch (numpy's ``sum`` may pair terms differently)."""
+    return np.take(np.cumsum(values, axis=axis), -1, axis=axis)
+
+
+@lru_cache(maxsize=16)
+def _faces(count: int) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """The faces of the simplex of ``count`` weights with two or more vertices: which weights each
+    holds, (F, k), and their sizes (F,)."""
+    faces = [face for size in range(2, count + 1) for face in combinations(range(count), size)]
+    members = np.zeros((len(faces), count), dtype=bool)
+    for index, face in enumerate(faces):
+        members[index, list(face)] = True
+    return members, members.sum(axis=1)
+
+
+def covariance_intersection(means: ArrayLike, covariances: ArrayLike, criterion: Criterion = "trace") -> Fused:
+    """Fuse ``k >= 1`` estimates: ``means`` of shape (k, 2), ``covariances`` (k, 2, 2), symmetric
+    positive definite, by optimal CI (:func:`intersect` with a batch of one)."""
+    fused = intersect(np.asarray(means, dtype=float)[None], np.asarray(covariances, dtype=float)[None],
+                      criterion=criterion)
+    return Fused(fused.mean[0], fused.covariance[0], fused.weights[0])
 
 
 def intersect_at(means: ArrayLike, covariances: ArrayLike, weights: ArrayLike) -> Fused:
     """The CI of ``k`` estimates at given ``weights`` (k,) on the simplex, optimal or not:
-    ``P_c = (sum_k w_k P_k^{-1})^{-1}``, ``x_c = P_c sum_k w_k P_k^{-1} x_k`` (P_c symmetrised).
+    ``P_c = (sum_k w_k P_k^{-1})^{-1}``, ``x_c = P_c sum_k w_k P_k^{-1} x_k`` (P_c symmetric).
     :func:`covariance_intersection` is this at its optimal weights."""
-    information = np.linalg.inv(np.asarray(covariances, dtype=float))
-    return _intersect(np.asarray(means, dtype=float), information, np.asarray(weights, dtype=float))
-
-
-def _intersect(means: FloatArray, information: FloatArray, weights: FloatArray) -> Fused:
-    """:func:`intersect_at` from the information matrices ``P_k^{-1}`` (k, 2, 2)."""
-    covariance = np.linalg.inv(np.einsum("k,kab->ab", weights, information))
-    covariance = 0.5 * (covariance + covariance.T)
-    mean = covariance @ np.einsum("k,kab,kb->a", weights, information, means)
-    return Fused(mean=mean, covariance=covariance, weights=weights)
+    information = inverse_2x2(np.asarray(covariances, dtype=float))
+    fused = _intersect(np.asarray(means, dtype=float)[None], information[None],
+                       np.asarray(weights, dtype=float)[None])
+    return Fused(fused.mean[0], fused.covariance[0], fused.weights[0])
 
 
 def sequential_intersection(means: ArrayLike, covariances: ArrayLike, criterion: Criterion = "trace") -> Fused:
@@ -100,61 +136,126 @@ def sequential_intersection(means: ArrayLike, covariances: ArrayLike, criterion:
     so never better than :func:`covariance_intersection`)."""
     means = np.asarray(means, dtype=float)
     covariances = np.asarray(covariances, dtype=float)
-    fused = Fused(means[0], covariances[0], np.ones(1))
-    for mean, covariance in zip(means[1:], covariances[1:], strict=True):
-        fused = covariance_intersection([fused.mean, mean], [fused.covariance, covariance], criterion)
-    return fused
+    fused = intersect_in_order(means[None], covariances[None], np.ones((1, len(means)), dtype=bool), criterion)
+    return Fused(fused.mean[0], fused.covariance[0], fused.weights[0] if len(means) > 1 else np.ones(1))
 
 
-def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray, criterion: Criterion) -> float:
-    """``tr P_c`` or ``det P_c`` for ``weights`` (inf where the fused information is singular)."""
-    determinant = float(weights @ determinants @ weights)
-    if determinant <= 0.0:
-        return np.inf
-    return float(traces @ weights) / determinant if criterion == "trace" else 1.0 / determinant
+def intersect_in_order(means: FloatArray, covariances: FloatArray, present: NDArray[np.bool_],
+                       criterion: Criterion = "trace") -> Fused:
+    """:func:`sequential_intersection` of each row of a batch (shapes as :func:`intersect`; the first
+    estimate of every row present): the present estimates fused pairwise in order. ``weights`` are
+    those of the last pairwise fusion of each row."""
+    mean, covariance = means[:, 0], covariances[:, 0]
+    weights = np.zeros((len(means), 2))
+    weights[:, 0] = 1.0
+    for index in range(1, means.shape[1]):
+        here = present[:, index]
+        if here.any():
+            pair = intersect(np.stack([mean, means[:, index]], axis=1),
+                             np.stack([covariance, covariances[:, index]], axis=1),
+                             np.stack([np.ones(len(means), dtype=bool), here], axis=1), criterion)
+            mean = np.where(here[:, None], pair.mean, mean)
+            covariance = np.where(here[:, None, None], pair.covariance, covariance)
+            weights = np.where(here[:, None], pair.weights, weights)
+    return Fused(mean, covariance, weights)
 
 
-def _face_candidates(
-    face: NDArray[np.int64], traces: FloatArray, determinants: FloatArray, criterion: Criterion, count: int
-) -> list[FloatArray]:
-    """Stationary points of the objective restricted to the weights in ``face`` (others 0)."""
-    if len(face) == 1:
-        weights = np.zeros(count)
-        weights[face[0]] = 1.0
-        return [weights]
-    sub = determinants[face[:, None], face]
-    if abs(np.linalg.det(sub)) < 1e-12 * max(np.abs(sub).max(), 1e-300) ** len(face):
-        return []  # degenerate face: its optimum lies on a smaller face
-    face_traces = traces[face]
-    a, b = np.linalg.solve(sub, np.stack([face_traces, np.ones(len(face))], axis=1)).T
-    if criterion == "det":
-        solutions = [b / b.sum()] if b.sum() != 0 else []
-    else:
-        solutions = []
-        for root in _positive_roots(b.sum(), a.sum() - face_traces @ b, -(face_traces @ a)):
-            scale = a.sum() + root * b.sum()
-            if scale != 0:
-                solutions.append((a + root * b) / scale)
-    candidates = []
-    for local in solutions:
-        if np.all(local >= -1e-12):
-            weights = np.zeros(count)
-            weights[face] = np.clip(local, 0.0, None)
-            weights /= weights.sum()
-            candidates.append(weights)
-    return candidates
+def _intersect(means: FloatArray, information: FloatArray, weights: FloatArray) -> Fused:
+    """The CI of every row at its ``weights`` (B, k), from the information matrices ``P_k^{-1}``
+    (B, k, 2, 2); absent estimates have weight 0."""
+    fused_information = np.zeros((len(means), 2, 2))
+    weighted_mean = np.zeros((len(means), 2))
+    for index in range(means.shape[1]):
+        weighted = weights[:, index, None, None] * information[:, index]
+        fused_information = fused_information + weighted
+        weighted_mean = weighted_mean + _times(weighted, means[:, index])
+    covariance = inverse_2x2(fused_information)
+    return Fused(mean=_times(covariance, weighted_mean), covariance=covariance, weights=weights)
 
 
-def _positive_roots(quadratic: float, linear: float, constant: float) -> list[float]:
-    """The distinct positive real roots ``L`` of ``quadratic L^2 + linear L + constant = 0`` (a
-    vanishing leading coefficient leaves the linear equation), in the cancellation-free form
-    ``q = -(linear + sign(linear) sqrt(disc)) / 2``, roots ``q / quadratic`` and ``constant / q``."""
-    if quadratic == 0.0:
-        roots = [-constant / linear] if linear != 0.0 else []
-    else:
+def _times(matrices: FloatArray, vectors: FloatArray) -> FloatArray:
+    """``M v`` of 2x2 matrices (..., 2, 2) and vectors (..., 2), elementwise (no BLAS: the same bits
+    whatever the batch)."""
+    return np.stack([matrices[..., 0, 0] * vectors[..., 0] + matrices[..., 0, 1] * vectors[..., 1],
+                     matrices[..., 1, 0] * vectors[..., 0] + matrices[..., 1, 1] * vectors[..., 1]], axis=-1)
+
+
+def _determinant_form(information: FloatArray, traces: FloatArray) -> FloatArray:
+    """``D`` (B, k, k): ``det(sum_k w_k I_k) = w^T D w`` (the module docstring)."""
+    a, b, d = information[..., 0, 0], information[..., 0, 1], information[..., 1, 1]
+    products = a[:, :, None] * a[:, None, :] + 2.0 * b[:, :, None] * b[:, None, :] + d[:, :, None] * d[:, None, :]
+    form = 0.5 * (traces[:, :, None] * traces[:, None, :] - products)
+    diagonal = np.arange(information.shape[1])
+    form[:, diagonal, diagonal] = a * d - b * b
+    return form
+
+
+def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray, criterion: Criterion) -> FloatArray:
+    """``tr P_c`` or ``det P_c`` at each candidate's ``weights`` (B, C, k) (inf where the fused
+    information is singular)."""
+    form = sequential_sum(determinants[:, None] * weights[:, :, None, :], axis=3)  # D w, (B, C, k)
+    determinant = sequential_sum(weights * form, axis=2)
+    trace = sequential_sum(traces[:, None] * weights, axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        value = trace / determinant if criterion == "trace" else 1.0 / determinant
+    return np.where(determinant > 0.0, value, np.inf)
+
+
+def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Criterion,
+                     present: NDArray[np.bool_]) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Stationary points of the objective restricted to each face of two or more present estimates
+    (other weights 0): the candidates' ``weights`` (B, C, k) and whether each is ``feasible`` (B, C);
+    one candidate per face for "det", one per root (two) for "trace". Each face's system is solved
+    as a k x k system with the identity outside the face, so all faces are one batched solve."""
+    rows, count = traces.shape
+    members, sizes = _faces(count)
+    on_face = np.all(present[:, None, :] | ~members, axis=2)  # (B, F)
+    inside = members[:, :, None] & members[:, None, :]  # (F, k, k)
+    sub = np.where(inside, determinants[:, None], np.eye(count))  # (B, F, k, k)
+    scale = np.where(inside, np.abs(sub), 0.0).max(axis=(2, 3))
+    usable = on_face & (np.abs(np.linalg.det(sub)) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
+    # a degenerate face's optimum lies on a smaller face; solve a harmless system in its place
+    sub = np.where(usable[..., None, None], sub, np.eye(count))
+    face_traces = np.where(members, traces[:, None], 0.0)  # (B, F, k)
+    solved = np.linalg.solve(sub, np.stack([face_traces, np.broadcast_to(members, face_traces.shape)], axis=3))
+    a, b = solved[..., 0], solved[..., 1]
+    a_sum, b_sum = sequential_sum(a, axis=2), sequential_sum(b, axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if criterion == "det":
+            local, solvable = (b / b_sum[..., None])[:, :, None], (usable & (b_sum != 0))[:, :, None]
+        else:
+            roots, found = _positive_roots(b_sum, a_sum - sequential_sum(face_traces * b, axis=2),
+                                           -sequential_sum(face_traces * a, axis=2))  # (B, F, 2)
+            total = a_sum[..., None] + roots * b_sum[..., None]
+            local = (a[:, :, None, :] + roots[..., None] * b[:, :, None, :]) / total[..., None]
+            solvable = usable[..., None] & found & (total != 0)
+    # local (B, F, R, k): R candidates per face, 0 off the face
+    feasible = solvable & np.all(local >= FEASIBLE, axis=3)
+    clipped = np.clip(np.where(feasible[..., None], local, members[:, None, :]), 0.0, None)
+    weights = clipped / sequential_sum(clipped, axis=3)[..., None]
+    return weights.reshape(rows, -1, count), feasible.reshape(rows, -1)
+
+
+def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatArray) -> tuple[FloatArray,
+                                                                                           NDArray[np.bool_]]:
+    """The distinct positive real roots ``L`` of ``quadratic L^2 + linear L + constant = 0``
+    elementwise (a vanishing leading coefficient leaves the linear equation), in the
+    cancellation-free form ``q = -(linear + sign(linear) sqrt(disc)) / 2``, roots ``q / quadratic``
+    and ``constant / q``: ``(roots, found)`` with a last axis of two slots, the smaller root first."""
+    with np.errstate(divide="ignore", invalid="ignore"):
         discriminant = linear * linear - 4.0 * quadratic * constant
-        if discriminant < 0.0:
-            return []
-        q = -0.5 * (linear + math.copysign(math.sqrt(discriminant), linear))
-        roots = [q / quadratic] + ([constant / q] if q != 0.0 else [])
-    return sorted({float(root) for root in roots if root > 0.0})
+        q = -0.5 * (linear + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), linear))
+        linear_only = quadratic == 0.0
+        first = np.where(linear_only, -constant / linear, q / quadratic)
+        first_found = np.where(linear_only, linear != 0.0, discriminant >= 0.0)
+        second = constant / q
+        second_found = ~linear_only & (discriminant >= 0.0) & (q != 0.0)
+    first_found &= first > 0.0
+    second_found &= (second > 0.0) & ~(first_found & (second == first))
+    swap = first_found & second_found & (second < first)
+    low, high = np.where(swap, second, first), np.where(swap, first, second)
+    low_found = np.where(swap, second_found, first_found)
+    high_found = np.where(swap, first_found, second_found)
+    lone = ~low_found & high_found  # a lone second root takes the first slot
+    return (np.stack([np.where(lone, high, low), high], axis=-1),
+            np.stack([low_found | high_found, high_found & ~lone], axis=-1))

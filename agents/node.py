@@ -28,7 +28,7 @@ from collections.abc import Set as AbstractSet
 
 import numpy as np
 
-from ringtrack.agents.estimation import Estimator, prior_belief
+from ringtrack.agents.estimation import Estimator, Told, prior_belief
 from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
@@ -244,10 +244,15 @@ class RobotNode:
         previous step (predecessor first), then its answers and its decision."""
         assert self.estimator is not None and self.measured is not None
         self.expected = set()
-        sides = dict.fromkeys(n for n in (self.predecessor, self.successor) if n != self.robot)
-        told = [self.heard[n, self.step - 1] for n in sides if (n, self.step - 1) in self.heard]
-        beliefs = [(np.asarray(mean, dtype=float), unpack_covariance(covariance)) for mean, covariance in told]
-        self.strategy.hear(self.estimator, *self.measured, beliefs)
+        told = [self.heard.get((neighbour, self.step - 1)) if neighbour != self.robot else None
+                 for neighbour in (self.predecessor, self.successor)]
+        if self.successor == self.predecessor:
+            told[1] = None  # one neighbour on both sides tells once
+        beliefs = [None if belief is None else (np.asarray(belief[0], dtype=float), unpack_covariance(belief[1]))
+                   for belief in told]
+        positions, ranges = self.measured
+        self.strategy.hear(self.estimator.batch, np.asarray(positions, dtype=float)[None],
+                           np.asarray(ranges, dtype=float)[None], Told.by_sides(*beliefs))
         self._keep_belief()
         if not self.strategy.reply_fields:
             self.answerable = self.step
@@ -355,10 +360,10 @@ class RobotNode:
         before, after = self.replies.get(self.predecessor), self.replies.get(self.successor)
         self.strategy.receive(self.controller, self._received(before, self.controller.predecessor_position),
                               self._received(after, self.controller.successor_position))
-        beliefs = [(reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)
-                   if reply is not None and reply.mean is not None and reply.covariance is not None]
-        if self.estimator is not None and beliefs:
-            self.estimator.fuse(beliefs)
+        beliefs = [None if reply is None or reply.mean is None or reply.covariance is None
+                   else (reply.mean, unpack_covariance(reply.covariance)) for reply in (before, after)]
+        if self.estimator is not None and any(belief is not None for belief in beliefs):
+            self.estimator.fuse(*beliefs)
             self.centre = self.estimator.centre
             self.covariance = pack_covariance(self.estimator.belief[1])
             self.controller.recentre(self.centre)

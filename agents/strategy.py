@@ -61,7 +61,7 @@ from ringtrack.world.metrics import CerrSource
 from ringtrack.world.params import ControlParams, EstimationParams, Mode, StrategyChoice, StrategyValue
 
 if TYPE_CHECKING:
-    from ringtrack.agents.estimation import Estimator
+    from ringtrack.agents.estimation import Estimators, Told
     from ringtrack.world.scenario import Scenario
 
 Reasons = Mask  # a Trigger mask per robot (0: does not poll)
@@ -306,13 +306,13 @@ class Strategy:
         :attr:`pushes`."""
         return np.zeros(np.shape(mean)[:-1], dtype=bool)
 
-    def hear(self, estimator: Estimator, positions: ArrayLike, ranges: ArrayLike,
-             beliefs: list[tuple[FloatArray, FloatArray]]) -> None:
-        """One robot's estimation step (its ``ranges`` measured from ``positions``) given the beliefs
-        ``(mean, covariance)`` its neighbours told it in the previous step (predecessor first; maybe
-        none): by default they are fused by covariance intersection after the prediction, before
-        the update (:meth:`agents.estimation.Estimator.measure`). Only for :attr:`listens`."""
-        estimator.measure(positions, ranges, beliefs)
+    def hear(self, estimators: Estimators, positions: ArrayLike, ranges: ArrayLike, told: Told) -> None:
+        """The estimation step of a batch of robots (their ``ranges`` (B, m) measured from
+        ``positions`` (B, m, 2), metres) given the beliefs their neighbours ``told`` them in the
+        previous step: by default they are fused by covariance intersection after the prediction,
+        before the update (:meth:`agents.estimation.Estimators.measure`). A robot process is a batch
+        of one. Only for :attr:`listens`."""
+        estimators.measure(positions, ranges, told)
 
 
 class StrategyError(ValueError):

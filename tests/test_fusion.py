@@ -15,7 +15,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 from scipy.optimize import minimize, minimize_scalar
 
-from ringtrack.agents.fusion import covariance_intersection, intersect_at, sequential_intersection
+from ringtrack.agents.fusion import covariance_intersection, intersect, intersect_at, sequential_intersection
 
 CRITERIA = ["trace", "det"]
 
@@ -422,3 +422,30 @@ def test_axis_aligned_optimum_is_strictly_inside_the_box():
     fused = covariance_intersection([xa, xb], [np.diag([1.0, 10.0]), np.diag([10.0, 1.0])])
     np.testing.assert_allclose(fused.weights, [0.5, 0.5], rtol=0, atol=1e-12)
     np.testing.assert_allclose(fused.mean, [1.0, 20.0], rtol=0, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------- batches
+@pytest.mark.parametrize("criterion", CRITERIA)
+@given(rows=st.lists(st.tuples(st.lists(means(), min_size=3, max_size=3), st.lists(spd(), min_size=3, max_size=3),
+                               st.lists(st.booleans(), min_size=2, max_size=2)), min_size=1, max_size=6))
+def test_a_row_of_a_batch_fuses_as_it_would_alone(rows, criterion):
+    """:func:`intersect` over a batch with absent slots: each row bit for bit what the same row gives
+    in a batch of one (the robot process fuses a batch of one; the engine every robot of every trial
+    at once), and to rounding what :func:`covariance_intersection` gives for its present estimates."""
+    batch_means = np.array([row_means for row_means, _, _ in rows])
+    batch_covariances = np.array([covariances for _, covariances, _ in rows])
+    present = np.array([[True, *told] for _, _, told in rows])
+    fused = intersect(batch_means, batch_covariances, present, criterion)
+    for index in range(len(rows)):
+        alone = intersect(batch_means[index : index + 1], batch_covariances[index : index + 1],
+                          present[index : index + 1], criterion)
+        np.testing.assert_array_equal(fused.mean[index], alone.mean[0])
+        np.testing.assert_array_equal(fused.covariance[index], alone.covariance[0])
+        there = present[index]
+        only = covariance_intersection(batch_means[index, there], batch_covariances[index, there], criterion)
+        scale = np.abs(batch_means[index, there]).max() + np.sqrt(np.trace(only.covariance))
+        np.testing.assert_allclose(fused.mean[index], only.mean, rtol=1e-9, atol=1e-9 * scale)
+        np.testing.assert_allclose(fused.covariance[index], only.covariance, rtol=1e-9,
+                                   atol=1e-12 * np.trace(only.covariance))
+        np.testing.assert_allclose(fused.weights[index, there], only.weights, atol=1e-9)
+        assert np.all(fused.weights[index, ~there] == 0.0)

@@ -10,7 +10,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.agents.centre import FusionCentre
-from ringtrack.agents.estimation import Estimator
+from ringtrack.agents.estimation import Estimators
 from ringtrack.bus.messages import SCHEMA, RangeReport
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.sensing import RangeSensor
@@ -101,8 +101,8 @@ def test_centralized_estimate_tracks_the_moving_target(centralized_self):
 # ---------------------------------------------------------------------------- (b) fusion makes neighbours agree
 def test_fusion_makes_neighbouring_estimates_agree(decentralized_self, monkeypatch):
     """The decentralized estimates of neighbouring robots agree more with CI fusion than without
-    (the same run with Estimator.fuse a no-op): one range each is rank-1 (section 7)."""
-    monkeypatch.setattr(Estimator, "fuse", lambda self, beliefs: None)
+    (the same run with Estimators.fuse a no-op): one range each is rank-1 (section 7)."""
+    monkeypatch.setattr(Estimators, "fuse", lambda self, told: None)
     unfused = run("decentralized", "self")
     fused_gap, unfused_gap = neighbour_disagreement(decentralized_self), neighbour_disagreement(unfused)
     assert np.all(fused_gap < unfused_gap)
@@ -114,20 +114,20 @@ def test_fusion_makes_neighbouring_estimates_agree(decentralized_self, monkeypat
 
 def test_decentralized_fusion_happens_only_at_polls(decentralized_self, monkeypatch):
     """Section 7: CI fusion is done by the triggering robot only, with its own belief and both ring
-    neighbours': one Estimator.fuse call per poll, each with two neighbour beliefs (step 1: every
-    robot polls). Counting the calls does not change the run."""
+    neighbours': one robot fusing per poll, each with two neighbour beliefs (step 1: every robot
+    polls). Counting the robots fusing does not change the run."""
     assert np.all(decentralized_self.triggers[0] != 0)  # round 1 counts as a poll for everyone
-    calls = []
-    original = Estimator.fuse
+    told_per_robot = []
+    original = Estimators.fuse
 
-    def counting(self, beliefs):
-        calls.append(len(beliefs))
-        original(self, beliefs)
+    def counting(self, told):
+        told_per_robot.extend(told.present.sum(axis=1)[told.present.any(axis=1)].tolist())
+        original(self, told)
 
-    monkeypatch.setattr(Estimator, "fuse", counting)
+    monkeypatch.setattr(Estimators, "fuse", counting)
     history = run("decentralized", "self", steps=50)
-    assert len(calls) == int((history.triggers != 0).sum())
-    assert set(calls) == {2}  # own belief plus both ring neighbours
+    assert len(told_per_robot) == int((history.triggers != 0).sum())
+    assert set(told_per_robot) == {2}  # own belief plus both ring neighbours
     np.testing.assert_array_equal(history.estimates, decentralized_self.estimates[:50])
 
 
