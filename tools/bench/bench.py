@@ -52,8 +52,7 @@ SUITE_TEAMS = ((6, 1, 1000, 3), (24, 1, 500, 1), (64, 1, 300, 3), (64, 16, 300, 
 
 def machine() -> dict[str, Any]:
     """Core count, Python and library versions that a benchmark result depends on."""
-    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "filterpy",
-                                                            "cryptography")}
+    versions = {name: metadata.version(name) for name in ("numpy", "eclipse-zenoh", "msgspec", "cryptography")}
     return {
         "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "python": platform.python_version(),

@@ -50,7 +50,7 @@ _encoder = msgspec.json.Encoder()
 def versions() -> dict[str, str]:
     """Versions of Python and of the libraries a result depends on."""
     found = {"python": platform.python_version()}
-    for name in ("ringtrack", "numpy", "eclipse-zenoh", "msgspec", "filterpy"):
+    for name in ("ringtrack", "numpy", "eclipse-zenoh", "msgspec"):
         try:
             found[name] = metadata.version(name)
         except metadata.PackageNotFoundError:  # pragma: no cover
