@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from ringtrack.tools.cli.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.cli.options import (
+    FIGURE_SUFFIXES,
+    JSON_FILE,
+    add_study_arguments,
+    at_least,
+    execution_of,
+    output_path,
+)
 from ringtrack.tools.output.console import out
 from ringtrack.tools.output.files import write_json
 from ringtrack.tools.studies.gates import GATED, REFERENCE, gates_experiment, plot_gates
@@ -24,6 +31,7 @@ def register(kinds: argparse._SubParsersAction) -> None:
     parser.add_argument("--settle", type=at_least(0), default=300, help="means leave out the first steps (300)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the points")
     parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the trade-off")
+    add_study_arguments(parser)
     parser.set_defaults(handler=run_gates)
 
 
@@ -38,7 +46,7 @@ def gate_list(text: str) -> list[float]:
 
 
 def run_gates(args: argparse.Namespace) -> int:
-    result = gates_experiment(args.scenario, args.gates, args.trials, args.settle)
+    result = gates_experiment(args.scenario, args.gates, args.trials, args.settle, execution_of(args, args.json))
     central = result.centralized
     reference, mode = REFERENCE
     out.print(f"{reference} + {mode}: Terr {central.terr_mean:.3f} m, Cerr {central.cerr_mean_deg:.1f} deg, "
