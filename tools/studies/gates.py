@@ -82,19 +82,20 @@ def point(totals: StepTotals, robots: int, settle: int) -> GateFigures:
                        robot_messages_per_robot_step=None if messages is None else messages / robots)
 
 
-def gates_experiment(base: str, gates: list[float], trials: int, settle: int,
+def gates_experiment(base: str, gates: list[float], trials: int, settle: int, steps: int | None = None,
                      execution: Execution = IN_PROCESS) -> GatesStudy:
-    """The reference run and the gated strategy at every gate on seeds ``0 .. trials - 1``, in tasks
-    of ``execution.batch`` trials (:mod:`tools.studies.runner`), means from step ``settle`` on."""
+    """The reference run and the gated strategy at every gate on seeds ``0 .. trials - 1`` for
+    ``steps`` steps (default the scenario's), in tasks of ``execution.batch`` trials
+    (:mod:`tools.studies.runner`), means from step ``settle`` on."""
     started = time.perf_counter()
     reference, mode = REFERENCE
-    gated = load_scenario(base, strategy=GATED, estimation="decentralized")
-    runs = [(reference, load_scenario(base, strategy=reference, estimation=mode))]
+    gated = load_scenario(base, strategy=GATED, estimation="decentralized", max_steps=steps)
+    runs = [(reference, load_scenario(base, strategy=reference, estimation=mode, max_steps=steps))]
     runs += [(f"{GATED} g={gate:g} (gate {number})", with_gate(gated, gate)) for number, gate in enumerate(gates)]
     parts = chunks(list(range(trials)), execution.batch)
     tasks = [GatesTask(f"{name} {seed_range(seeds)}", first, seeds, scenario)
              for name, scenario in runs for first, seeds in parts]
-    parameters = {"scenario": base, "gates": gates, "trials": trials, "settle": settle}
+    parameters = {"scenario": base, "gates": gates, "trials": trials, "steps": steps, "settle": settle}
     totals = run_study(Study("gates", parameters, tasks, gates_task, StepTotals), execution)
     robots = runs[0][1].robots
     central, *points = [point(combined(totals[index:index + len(parts)]), robots, settle)
