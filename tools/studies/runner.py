@@ -258,6 +258,9 @@ def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[i
     may run a progress thread, which a fork would copy mid-flight); the pool is shut down, its queued
     tasks cancelled, however the loop ends (an error, Ctrl-C)."""
     context = multiprocessing.get_context("forkserver")
+    # The fork server imports the work's module (numpy, the engine) once; each pool's workers fork
+    # from it ready (a preload counts when this process starts its fork server, at its first pool).
+    context.set_forkserver_preload([study.work.__module__])
     pool = ProcessPoolExecutor(max_workers=min(workers, len(pending)), mp_context=context)
     try:
         futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
