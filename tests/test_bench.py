@@ -98,3 +98,21 @@ def test_suite_ratios_are_steps_in_the_runs_own_round_trips() -> None:
     assert ratios["startup_64_s"] == 2.5
     assert ratios["robot_process_rss_mib_1_per_process"] == 46.0
     assert ratios["robot_process_rss_mib_16_per_process"] == 52.0
+
+
+@pytest.mark.processes
+def test_studies_bench_quick_reports_every_measurement(tmp_path: Path) -> None:
+    """``bench studies --quick`` measures everything it reports (positive numbers); its targets are
+    shown beside the values, never asserted."""
+    path = tmp_path / "studies.json"
+    assert main(["bench", "studies", "--quick", "--json", str(path)]) == 0
+    result = json.loads(path.read_text())
+    assert set(result["throughput_trials_per_s"]) == {"stationary_n6_self", "moving_decentralized_self",
+                                                      "moving_decentralized_belief", "moving_centralized_self"}
+    cores = result["machine"]["cores"]
+    for rates in result["throughput_trials_per_s"].values():
+        assert set(rates) == {"workers_1", f"workers_{cores}"}
+        assert all(isinstance(rate, float) and rate > 0 for rate in rates.values())
+    measured = ["alone_s_per_trial", "batch_10_s_per_trial", "batch_100_s_per_trial", "decentralized_over_centralized",
+                "faults_study_s", "stationary_sweep_s", "workers_2_speedup"]
+    assert all(isinstance(result[name], float) and result[name] > 0 for name in measured)

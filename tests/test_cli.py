@@ -53,7 +53,7 @@ def test_simulate_log_reads_back_as_the_engine_run(tmp_path: Path) -> None:
 
 def test_stationary_experiment_json_and_figure(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     data, figure = tmp_path / "e.json", tmp_path / "e.png"
-    assert main(["experiment", "stationary", "--robots", "4,6", "--trials", "5", "--seed", "2",
+    assert main(["experiment", "stationary", "--workers", "1", "--robots", "4,6", "--trials", "5", "--seed", "2",
                  "--json", str(data), "--plot", str(figure)]) == 0
     table = capsys.readouterr().out
     assert "Com ÷" in table and "…" not in table  # the table fits 80 columns: nothing cut
@@ -106,7 +106,7 @@ def test_bad_input_is_one_line_and_exit_code_2(arguments: list[str], message: st
 
 def test_moving_experiment_json_and_figures(tmp_path: Path) -> None:
     data, figure = tmp_path / "m.json", tmp_path / "m.png"
-    assert main(["experiment", "moving", "--trials", "2", "--steps", "120", "--settle", "20",
+    assert main(["experiment", "moving", "--workers", "1", "--trials", "2", "--steps", "120", "--settle", "20",
                  "--json", str(data), "--plot", str(figure)]) == 0
     result = json.loads(data.read_text())
     comparison = [run for run in result["runs"] if run["group"] == "comparison"]

@@ -60,7 +60,7 @@ def test_export_refuses_a_file_for_a_folder(tmp_path: Path, capsys: pytest.Captu
 
 def test_experiment_tables(tmp_path: Path) -> None:
     stationary, results = tmp_path / "stationary.csv", tmp_path / "stationary.json"
-    assert main(["experiment", "stationary", "--robots", "3,4", "--trials", "2", "--csv", str(stationary),
+    assert main(["experiment", "stationary", "--workers", "1", "--robots", "3,4", "--trials", "2", "--csv", str(stationary),
                  "--json", str(results)]) == 0
     import json
 
@@ -74,7 +74,7 @@ def test_experiment_tables(tmp_path: Path) -> None:
 
 def test_moving_experiment_table_has_a_row_per_trial(tmp_path: Path) -> None:
     moving, results = tmp_path / "moving.csv", tmp_path / "moving.json"
-    assert main(["experiment", "moving", "--trials", "2", "--seed", "4", "--steps", "40", "--settle", "10",
+    assert main(["experiment", "moving", "--workers", "1", "--trials", "2", "--seed", "4", "--steps", "40", "--settle", "10",
                  "--csv", str(moving), "--json", str(results)]) == 0
     import json
 

@@ -24,7 +24,7 @@ pytestmark = pytest.mark.timeout(600)
 @pytest.mark.slow
 def test_drop_sweep_slows_convergence_and_raises_com_bar_of_the_self_triggered_strategy() -> None:
     drops = [0.0, 0.2, 0.5]
-    result, _ = faults_experiment("paper-stationary", [Cell(drop, 0, None) for drop in drops], trials=30, seed=0)
+    result = faults_experiment("paper-stationary", [Cell(drop, 0, None) for drop in drops], trials=30, seed=0)
     triggered = [entry for entry in result.summary if entry.strategy == "self"]
     assert [entry.drop for entry in triggered] == drops
     assert all(entry.converged_mean == 1.0 for entry in triggered)

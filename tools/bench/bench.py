@@ -115,9 +115,9 @@ def engine_results(trials: int, sizes: list[int], console: Console = err) -> dic
         team = run_team(scenario, PROTOCOL_STEPS, new_run_id())
         team_elapsed = time.perf_counter() - team_started
         progress.part(f"experiment N = 6, {trials} trials x 2", len(STRATEGIES))
-        experiment = stationary_experiment("paper-stationary", [6], trials, 0, progress.on_step)
+        experiment = stationary_experiment("paper-stationary", [6], trials, 0)
         progress.part(f"sweep N = {sizes[0]}..{sizes[-1]}, {trials} trials x 2", len(STRATEGIES) * len(sizes))
-        sweep = stationary_experiment("paper-stationary", sizes, trials, 0, progress.on_step)
+        sweep = stationary_experiment("paper-stationary", sizes, trials, 0)
         progress.close()
 
     def converged(result: StationaryStudy) -> int:

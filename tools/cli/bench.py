@@ -1,4 +1,5 @@
-"""``ringtrack bench engine|emulator|latency|suite``: how fast the engine, a team and a round trip run."""
+"""``ringtrack bench engine|emulator|latency|studies|suite``: how fast the engine, a team, a round trip and the
+studies run."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from ringtrack.tools.bench.bench import (
     neighbour_round_trip,
     suite_ratios,
 )
+from ringtrack.tools.bench.studies import FULL, QUICK, TARGETS, THROUGHPUT, studies_results, targets_met
 from ringtrack.tools.cli.experiment import robot_list
 from ringtrack.tools.cli.options import JSON_FILE, at_least
 from ringtrack.tools.output.console import UsageError, err, show
@@ -26,7 +28,7 @@ from ringtrack.tools.output.files import write_json
 
 
 def register(commands: argparse._SubParsersAction) -> None:
-    parser = commands.add_parser("bench", help="measure speed (engine, emulator, latency, suite)")
+    parser = commands.add_parser("bench", help="measure speed (engine, emulator, latency, studies, suite)")
     kinds = parser.add_subparsers(dest="bench", required=True, metavar="BENCHMARK")
     engine_parser = kinds.add_parser(
         "engine",
@@ -73,6 +75,19 @@ def register(commands: argparse._SubParsersAction) -> None:
                                 help="untimed round trips first (default 500)")
     latency_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
     latency_parser.set_defaults(handler=run_latency_bench)
+
+    studies_parser = kinds.add_parser(
+        "studies",
+        help="studies: trials per second on 1 and every core, seconds per trial alone and batched, whole studies",
+        description="Trials per second of stationary (N = 6) and moving (authors-moving, 1300 steps) studies on "
+        "one worker and on every core; seconds per trial of a decentralized run alone and in batches of 10 and "
+        "100; the decentralized/centralized cost; the wall time of the faults study (--drop 0,0.1,0.2,0.3,0.5, "
+        "10 trials) and of the stationary sweep (N = 3..30, 30 trials, 2 strategies); the speed-up of 2 workers "
+        "on a 100-trial study. Each beside its target.",
+    )
+    studies_parser.add_argument("--quick", action="store_true", help="small counts and few steps (a smoke test)")
+    studies_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
+    studies_parser.set_defaults(handler=run_studies_bench)
 
     suite_parser = kinds.add_parser(
         "suite",
@@ -227,6 +242,36 @@ def run_suite(args: argparse.Namespace) -> int:
     show(emulator_table(results["emulator"], f"lockstep emulator ({cores} cores, self strategy)"))
     results["ratios"] = suite_ratios(results)
     show(ratios_table(results["ratios"]))
+    if args.json:
+        write_json(args.json, results)
+    return 0
+
+
+def studies_table(results: dict[str, Any]) -> Table:
+    """Every measured value of ``bench studies`` beside its target (when it has one)."""
+    cores = results["machine"]["cores"]
+    table = Table(title=f"studies ({cores} cores, moving runs of {results['moving_steps']} steps)")
+    for column, justify in (("measurement", "left"), ("value", "right"), ("target", "right"), ("met", "left")):
+        table.add_column(column, justify=justify)  # type: ignore[arg-type]
+    for name in THROUGHPUT:
+        for workers, value in results["throughput_trials_per_s"][name].items():
+            table.add_row(f"{name}, {workers.replace('_', ' ')}", f"{value:.2f} trials/s", "", "")
+    met = targets_met(results)
+    labels = {"alone_s_per_trial": "decentralized trial alone", "batch_10_s_per_trial": "... in a batch of 10",
+              "batch_100_s_per_trial": "... in a batch of 100",
+              "decentralized_over_centralized": "decentralized / centralized per trial (batch 10)",
+              "faults_study_s": "faults study (5 drops, moving)", "stationary_sweep_s": "stationary sweep",
+              "workers_2_speedup": f"2 workers vs 1, {results['speedup_trials']} trials"}
+    for name, (way, target) in TARGETS.items():
+        unit = " s" if name.endswith("_s") or name.endswith("per_trial") else " x"
+        table.add_row(labels[name], f"{results[name]:.3f}{unit}", f"{way} {target:g}{unit}",
+                      "yes" if met[name] else "no")
+    return table
+
+
+def run_studies_bench(args: argparse.Namespace) -> int:
+    results = studies_results(QUICK if args.quick else FULL)
+    show(studies_table(results))
     if args.json:
         write_json(args.json, results)
     return 0

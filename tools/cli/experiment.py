@@ -15,27 +15,22 @@ from ringtrack.tools.cli.options import (
     FIGURE_SUFFIXES,
     JSON_FILE,
     add_strategy_parameter_arguments,
+    add_study_arguments,
     at_least,
+    execution_of,
     output_path,
     strategy_argument,
     strategy_parameters,
 )
-from ringtrack.tools.output.console import err, progress_bar, show
+from ringtrack.tools.output.console import err, show
 from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.experiment import (
-    MAIN_STRATEGIES,
     MOVING_COLUMNS,
     STATIONARY_COLUMNS,
     STRATEGIES,
-    VELOCITY_SETTINGS,
-    VELOCITY_STRATEGIES,
     MovingStudy,
     StationaryStudy,
-    circle_of,
     moving_experiment,
-    moving_scenario,
-    moving_variants,
-    random_start_scenarios,
     run_label,
     stationary_experiment,
 )
@@ -68,6 +63,7 @@ def register(commands: argparse._SubParsersAction) -> None:
                             help="draw the comparison figure")
     stationary.add_argument("--csv", type=CSV_FILE, metavar="PATH",
                             help="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
+    add_study_arguments(stationary)
     stationary.set_defaults(handler=run_stationary)
 
     moving = kinds.add_parser(
@@ -94,6 +90,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
                         help="write the per-trial rows as CSV (setting, strategy, estimation, trial, seed, Cerr and "
                         "Terr means, polls, messages, ...)")
+    add_study_arguments(moving)
     moving.set_defaults(handler=run_moving)
     experiment_faults.register(kinds)
     experiment_gates.register(kinds)
@@ -126,24 +123,8 @@ def robot_list(text: str) -> list[int]:
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
                  "strategy_parameters": strategy_parameters(args)}
-    # Validate the scenario and flags before showing any progress.
-    probe = random_start_scenarios(args.scenario, args.robots[0], args.strategies, **overrides)
-    names, limit = list(probe), next(iter(probe.values())).max_steps
-    with progress_bar() as progress:
-        tasks = {
-            (size, strategy): progress.add_task(f"N={size:<3} {strategy:<8}", total=limit)
-            for size in args.robots
-            for strategy in names
-        }
-
-        def on_step(size: int, strategy: str, step: int) -> None:
-            if step % 50 == 0:
-                progress.update(tasks[size, strategy], completed=step)
-
-        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, on_step, args.strategies,
-                                       **overrides)
-        for task in tasks.values():
-            progress.update(task, completed=limit)
+    result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, args.strategies,
+                                   execution_of(args, args.json, args.csv), **overrides)
     show(results_table(result))
     if args.json:
         write_json(args.json, result)
@@ -189,23 +170,9 @@ def _mean_std(mean: float | None, std: float | None, spec: str) -> str:
 
 
 def run_moving(args: argparse.Namespace) -> int:
-    main = circle_of(args.scenario)
-    variants = moving_variants(args.strategies) if args.strategies else None
-    steps = moving_scenario(args.scenario, *(variants or MAIN_STRATEGIES)[0], *main, args.steps).max_steps
-    settings = [] if args.no_velocities else [setting for setting in VELOCITY_SETTINGS if setting != main]
-    distinct = (len(MAIN_STRATEGIES) + len(settings) * len(VELOCITY_STRATEGIES) if variants is None
-                else len(variants) * (1 + len(settings)))
-    with progress_bar() as progress:
-        task = progress.add_task("moving-target runs", total=distinct * steps)
-        done: dict[str, int] = {}
-
-        def on_step(label: str, step: int) -> None:
-            done[label] = step
-            if step % 50 == 0 or step == steps:
-                progress.update(task, completed=sum(done.values()), description=label)
-
-        result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle, on_step,
-                                   velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies)
+    result = moving_experiment(args.scenario, args.trials, args.seed, args.steps, args.settle,
+                               velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies,
+                               execution=execution_of(args, args.json, args.csv))
     show(moving_table(result))
     if args.json:
         write_json(args.json, result)

@@ -12,10 +12,17 @@ from pathlib import Path
 import msgspec
 import numpy as np
 from rich import box
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from ringtrack.tools.cli.options import CSV_FILE, FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.cli.options import (
+    CSV_FILE,
+    FIGURE_SUFFIXES,
+    JSON_FILE,
+    add_study_arguments,
+    at_least,
+    execution_of,
+    output_path,
+)
 from ringtrack.tools.output.console import UsageError, err, show
 from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.figures import robustness_curves
@@ -31,7 +38,6 @@ from ringtrack.tools.studies.robustness import (
     cell_scenario,
     faults_experiment,
     summary_columns,
-    variants,
     verify,
 )
 
@@ -64,6 +70,7 @@ def register(kinds: argparse._SubParsersAction) -> None:
     parser.add_argument("--csv", type=CSV_FILE, metavar="PATH", help="write the summary rows as CSV")
     parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
                         help="draw every quantity against the swept one (error bars: +-1 sd)")
+    add_study_arguments(parser)
     parser.set_defaults(handler=run_faults)
 
 
@@ -118,28 +125,15 @@ def run_faults(args: argparse.Namespace) -> int:
     probe = cell_scenario(spec, label, cells[0], STRATEGIES[0], None, args.steps)  # flags checked before any work
     if max(args.outage_steps) and probe.robots < 4:
         raise UsageError("--outage-steps: a partition needs at least 4 robots")
-    runs = len(cells) * len(variants(probe))
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TimeRemainingColumn())
-    with Progress(*columns, console=err, transient=False) as progress:
-        task = progress.add_task(f"{runs} runs x {args.trials} trials", total=runs * probe.max_steps)
-        done: dict[str, int] = {}
-
-        def on_step(name: str, step: int) -> None:
-            done[name] = step
-            if step % 50 == 0:
-                progress.update(task, completed=sum(done.values()), description=name)
-
-        result, histories = faults_experiment(args.scenario, cells, args.trials, args.seed, args.steps, args.settle,
-                                              on_step)
-        progress.update(task, completed=runs * probe.max_steps, description=f"{runs} runs x {args.trials} trials")
+    result = faults_experiment(args.scenario, cells, args.trials, args.seed, args.steps, args.settle,
+                               execution=execution_of(args, args.json, args.csv))
     show(faults_table(result))
     code = 0
     if args.verify:
         with tempfile.TemporaryDirectory(prefix="ringtrack-verify-") as folder:
             err.print(f"verifying {args.verify} runs as lockstep teams over Zenoh ...", highlight=False)
             started = time.perf_counter()
-            checks = verify(args.scenario, cells, histories, args.verify, args.seed, Path(folder))
+            checks = verify(args.scenario, cells, args.trials, args.verify, args.seed, args.steps, Path(folder))
         verified = Verification(requested=args.verify, wall_s=time.perf_counter() - started,
                                 all_equal=all(check.equal for check in checks), runs=checks)
         result = msgspec.structs.replace(result, verify=verified)

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from ringtrack.tools.cli.options import FIGURE_SUFFIXES, JSON_FILE, at_least, output_path
+from ringtrack.tools.cli.options import (
+    FIGURE_SUFFIXES,
+    JSON_FILE,
+    add_study_arguments,
+    at_least,
+    execution_of,
+    output_path,
+)
 from ringtrack.tools.output.console import out
 from ringtrack.tools.output.files import write_json
 from ringtrack.tools.studies.gates import GATED, REFERENCE, gates_experiment, plot_gates
@@ -21,9 +28,11 @@ def register(kinds: argparse._SubParsersAction) -> None:
     parser.add_argument("scenario", nargs="?", default="authors-moving", help="base scenario (a moving target)")
     parser.add_argument("--gates", type=gate_list, default=[1.0, 1.5, 2.0, 3.0, 4.0], help="gates g, e.g. 1,2,4")
     parser.add_argument("--trials", type=at_least(1), default=5, help="random starts (default 5)")
+    parser.add_argument("--steps", type=at_least(1), help="steps per run (default: control.max_steps)")
     parser.add_argument("--settle", type=at_least(0), default=300, help="means leave out the first steps (300)")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the points")
     parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the trade-off")
+    add_study_arguments(parser)
     parser.set_defaults(handler=run_gates)
 
 
@@ -38,7 +47,8 @@ def gate_list(text: str) -> list[float]:
 
 
 def run_gates(args: argparse.Namespace) -> int:
-    result = gates_experiment(args.scenario, args.gates, args.trials, args.settle)
+    result = gates_experiment(args.scenario, args.gates, args.trials, args.settle, args.steps,
+                              execution_of(args, args.json))
     central = result.centralized
     reference, mode = REFERENCE
     out.print(f"{reference} + {mode}: Terr {central.terr_mean:.3f} m, Cerr {central.cerr_mean_deg:.1f} deg, "

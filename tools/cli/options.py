@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ringtrack.agents.strategy import REGISTRY, StrategyError, StrategyParameter, check_strategy, strategy_class
 from ringtrack.tools.output.files import unwritable
+from ringtrack.tools.studies.runner import BATCH, CLUSTER_EXTRA, Execution, available_cores, journal_path
 from ringtrack.world.params import StrategyValue
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
 
@@ -210,3 +211,24 @@ def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
 JSON_FILE = output_path((".json",))  # summaries and results
 LOG_FILE = output_path((".jsonl",))  # run logs (JSON lines)
 CSV_FILE = output_path((".csv",))  # tables of trials and summaries
+
+
+def add_study_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--workers --cluster --batch --resume --quiet``: how a study's tasks run (tools/studies/runner.py)."""
+    parser.add_argument("--workers", type=at_least(1), metavar="N",
+                        help="run the tasks in N processes (default: every core this process may use)")
+    parser.add_argument("--cluster", metavar="ADDRESS",
+                        help=f"run the tasks on the Dask scheduler at ADDRESS, e.g. tcp://host:8786 ({CLUSTER_EXTRA})")
+    parser.add_argument("--batch", type=at_least(1), default=BATCH, metavar="TRIALS",
+                        help=f"trials per task, run as one engine batch (default {BATCH}); a stationary batch stops "
+                        "once all its trials converged, so Ctime on the true Cerr depends on it")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue an interrupted study from its journal (PATH.journal.jsonl beside --json or "
+                        "--csv), running only the tasks it lacks")
+    parser.add_argument("--quiet", action="store_true", help="show no progress")
+
+
+def execution_of(args: argparse.Namespace, *outputs: Path | None) -> Execution:
+    """How the study the flags ask for runs; its journal lies beside the first of ``outputs`` given."""
+    return Execution(workers=args.workers or available_cores(), cluster=args.cluster, batch=args.batch,
+                     journal=journal_path(*outputs), resume=args.resume, quiet=args.quiet)

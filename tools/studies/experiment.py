@@ -4,8 +4,10 @@ one or several team sizes."""
 
 from __future__ import annotations
 
+import functools
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import msgspec
@@ -15,6 +17,8 @@ from ringtrack.agents import engine
 from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
+from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
+from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
@@ -191,80 +195,97 @@ def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = S
     return scenarios
 
 
+@dataclass(frozen=True)
+class StationaryTask(Task):
+    """A chunk of the trials of one strategy at one team size (its reported name)."""
+
+    robots: int
+    strategy: str
+    scenario: Scenario
+
+
+class StationaryPart(msgspec.Struct, frozen=True):
+    """What a :class:`StationaryTask` came to: a row per trial."""
+
+    rows: list[StationaryTrial]
+
+
+def stationary_task(task: StationaryTask) -> StationaryPart:
+    """Run a chunk of trials as one batch until all converged: a :class:`StationaryTrial` each."""
+    history = engine.run(task.scenario, task.seeds, until_converged=True, record_positions=False)
+    ctime, com_bar, ctime_true = history.ctime, history.com_bar, history.ctime_true
+    assert history.sent_bytes is not None  # engine runs count bytes
+    sent_bytes = history.sent_bytes
+    return StationaryPart([
+        StationaryTrial(
+            robots=task.robots,
+            strategy=task.strategy,
+            trial=task.first + index,
+            seed=trial_seed,
+            converged=bool(ctime[index] > 0),
+            ctime=int(ctime[index]) or None,
+            ctime_true=int(ctime_true[index]) or None,
+            com_bar=None if ctime[index] == 0 else float(com_bar[index]),
+            triggers=int((history.triggers[: ctime[index] or None, index] != 0).sum()),
+            robot_bytes=int(sent_bytes[: ctime[index] or None, index].sum()),
+        )
+        for index, trial_seed in enumerate(task.seeds)
+    ])
+
+
+def stationary_cell(rows: list[StationaryTrial], scenario: Scenario) -> StationaryCell:
+    """The :class:`StationaryCell` of one strategy and team size from its trials' rows."""
+    done = [row for row in rows if row.converged]
+    ctime = np.array([row.ctime for row in done], dtype=float)
+    com_bar = np.array([row.com_bar for row in done], dtype=float)
+    return StationaryCell(
+        robots=rows[0].robots,
+        strategy=rows[0].strategy,
+        trials=len(rows),
+        converged=len(done),
+        ctime_mean=float(ctime.mean()) if done else None,
+        ctime_std=float(ctime.std()) if done else None,
+        com_bar_mean=float(com_bar.mean()) if done else None,
+        com_bar_std=float(com_bar.std()) if done else None,
+        robot_bytes_mean=float(np.mean([row.robot_bytes for row in rows])),
+        sigma_deg=float(np.rad2deg(scenario.control.sigma)),
+        law=scenario.control.law,
+        threshold_deg=float(np.rad2deg(scenario.threshold)),
+    )
+
+
 def stationary_experiment(
     base: str,
     robots: Sequence[int],
     trials: int,
     seed: int,
-    on_step: Callable[[int, str, int], None] | None = None,
     strategies: Sequence[str] = STRATEGIES,
+    execution: Execution = IN_PROCESS,
     **overrides: object,
 ) -> StationaryStudy:
     """Run the ``strategies`` (default constant and self) for every team size on seeds ``seed ..
-    seed + trials - 1``.
+    seed + trials - 1``, in tasks of ``execution.batch`` trials (:mod:`tools.studies.runner`).
 
     Returns the study: a :class:`StationaryTrial` per trial, a :class:`StationaryCell` per team size
     and strategy (mean and standard deviation of Ctime and Com-bar), and per team size and strategy
     after the first the :class:`Ratio` of its means to the first's (the baseline; by default
-    self / constant). ``on_step(robots, strategy, step)`` reports progress.
+    self / constant).
     """
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
-    seeds = list(range(seed, seed + trials))
-    rows: list[StationaryTrial] = []
-    summary: list[StationaryCell] = []
-    ratios: list[Ratio] = []
     started = time.perf_counter()
-    for size in robots:
-        scenarios = random_start_scenarios(base, size, strategies, **overrides)
-        means: dict[str, StationaryCell] = {}
-        for strategy, scenario in scenarios.items():
-            report = None if on_step is None else (lambda k, s=strategy, n=size: on_step(n, s, k))
-            history = engine.run(scenario, seeds, until_converged=True, record_positions=False, on_step=report)
-            ctime, com_bar = history.ctime, history.com_bar
-            assert history.sent_bytes is not None  # engine runs count bytes
-            sent_bytes = history.sent_bytes
-            trial_rows = [
-                StationaryTrial(
-                    robots=size,
-                    strategy=strategy,
-                    trial=index,
-                    seed=trial_seed,
-                    converged=bool(ctime[index] > 0),
-                    ctime=int(ctime[index]) or None,
-                    ctime_true=int(history.ctime_true[index]) or None,
-                    com_bar=None if ctime[index] == 0 else float(com_bar[index]),
-                    triggers=int((history.triggers[: ctime[index] or None, index] != 0).sum()),
-                    robot_bytes=int(sent_bytes[: ctime[index] or None, index].sum()),
-                )
-                for index, trial_seed in enumerate(seeds)
-            ]
-            rows += trial_rows
-            done = ctime > 0
-            means[strategy] = StationaryCell(
-                robots=size,
-                strategy=strategy,
-                trials=trials,
-                converged=int(done.sum()),
-                ctime_mean=float(ctime[done].mean()) if done.any() else None,
-                ctime_std=float(ctime[done].std()) if done.any() else None,
-                com_bar_mean=float(com_bar[done].mean()) if done.any() else None,
-                com_bar_std=float(com_bar[done].std()) if done.any() else None,
-                robot_bytes_mean=float(np.mean([row.robot_bytes for row in trial_rows])),
-                sigma_deg=float(np.rad2deg(scenario.control.sigma)),
-                law=scenario.control.law,
-                threshold_deg=float(np.rad2deg(scenario.threshold)),
-            )
-            summary.append(means[strategy])
-        first, *others = list(scenarios)
-        baseline = means[first]
-        for strategy in others:
-            compared = means[strategy]
-            if baseline.ctime_mean and compared.ctime_mean:
-                assert baseline.com_bar_mean is not None and compared.com_bar_mean is not None  # known when converged
-                ratios.append(Ratio(robots=size, strategy=strategy, baseline=first,
-                                    ctime_ratio=compared.ctime_mean / baseline.ctime_mean,
-                                    com_bar_ratio=compared.com_bar_mean / baseline.com_bar_mean))
+    scenarios = {size: random_start_scenarios(base, size, strategies, **overrides) for size in robots}
+    seeds = list(range(seed, seed + trials))
+    tasks = [StationaryTask(f"N={size} {strategy} {seed_range(part)}", first, part, size, strategy, scenario)
+             for size in robots for strategy, scenario in scenarios[size].items()
+             for first, part in chunks(seeds, execution.batch)]
+    parameters = {"scenario": base, "robots": list(robots), "trials": trials, "seed": seed,
+                  "strategies": list(strategies), **overrides}
+    parts = run_study(Study("stationary", parameters, tasks, stationary_task, StationaryPart), execution)
+    by_cell: dict[tuple[int, str], list[StationaryTrial]] = {}
+    for task, part in zip(tasks, parts, strict=True):
+        by_cell.setdefault((task.robots, task.strategy), []).extend(part.rows)
+    summary = [stationary_cell(rows, scenarios[size][strategy]) for (size, strategy), rows in by_cell.items()]
     return StationaryStudy(
         scenario=base,
         seed=seed,
@@ -274,9 +295,22 @@ def stationary_experiment(
         labels=strategy_labels(strategies),
         wall_s=time.perf_counter() - started,
         summary=summary,
-        ratios=ratios,
-        rows=rows,
+        ratios=[ratio for size in robots for ratio in size_ratios([cell for cell in summary if cell.robots == size])],
+        rows=[row for rows in by_cell.values() for row in rows],
     )
+
+
+def size_ratios(cells: list[StationaryCell]) -> list[Ratio]:
+    """At one team size, each strategy's means to the first's (the baseline), where both converged."""
+    baseline, *others = cells
+    ratios = []
+    for compared in others:
+        if baseline.ctime_mean and compared.ctime_mean:
+            assert baseline.com_bar_mean is not None and compared.com_bar_mean is not None  # known when converged
+            ratios.append(Ratio(robots=compared.robots, strategy=compared.strategy, baseline=baseline.strategy,
+                                ctime_ratio=compared.ctime_mean / baseline.ctime_mean,
+                                com_bar_ratio=compared.com_bar_mean / baseline.com_bar_mean))
+    return ratios
 
 
 def strategy_labels(strategies: Sequence[str]) -> dict[str, str]:
@@ -314,26 +348,112 @@ def moving_scenario(base: str, strategy: str, mode: str, speed: float, angular_s
     return resolve(apply_overrides(spec, strategy=strategy, estimation=mode, max_steps=steps), label)
 
 
+class StepTotals(msgspec.Struct, frozen=True):
+    """Per-step sums over some ``trials`` of a moving-target run (what a task hands on, and what a
+    run's figures and series are computed from): true Cerr (degrees) and Terr (metres), robots that
+    polled, robot-to-robot messages (pushes included) and their payload bytes."""
+
+    trials: int
+    cerr_deg: list[float]
+    terr: list[float]
+    polls: list[int]
+    messages: list[int]
+    payload: list[int]
+
+    def mean(self, name: str) -> FloatArray:
+        """The trial-mean series of the quantity ``name`` (one of the sums), per step."""
+        return np.asarray(getattr(self, name), dtype=float) / self.trials
+
+
+def step_totals(history: engine.History, trials: slice) -> StepTotals:
+    """The :class:`StepTotals` of the ``trials`` of a batch (a slice of its trial axis)."""
+    assert history.sent_bytes is not None  # engine runs count bytes
+    return StepTotals(
+        trials=len(history.seeds[trials]),
+        cerr_deg=history.cerr_true[:, trials].sum(axis=1).tolist(),
+        terr=history.terr[:, trials].sum(axis=1).tolist(),
+        polls=(history.triggers[:, trials] != 0).sum(axis=(1, 2)).tolist(),
+        messages=history.sent[:, trials].sum(axis=(1, 2)).tolist(),
+        payload=history.sent_bytes[:, trials].sum(axis=(1, 2)).tolist(),
+    )
+
+
+def combined(parts: Sequence[StepTotals]) -> StepTotals:
+    """The totals over the trials of all ``parts`` (summed step by step, in the order given)."""
+    sums = {name: functools.reduce(np.add, (np.asarray(getattr(part, name)) for part in parts)).tolist()
+            for name in ("cerr_deg", "terr", "polls", "messages", "payload")}
+    return StepTotals(trials=sum(part.trials for part in parts), **sums)
+
+
+def moving_figures(totals: StepTotals, robots: int, settle: int, mode: str) -> MovingFigures:
+    """The figures of a moving-target run of ``robots`` robots over the trials ``totals`` sums, means
+    from step ``settle`` on (:func:`world.metrics.settled_mean` of the trial-mean series): see
+    :class:`MovingFigures`."""
+    steps, trials = len(totals.polls), totals.trials
+    polls, messages, payload = (int(np.sum(getattr(totals, name))) for name in ("polls", "messages", "payload"))
+    return MovingFigures(
+        cerr_mean_deg=settled_mean(totals.mean("cerr_deg"), settle),
+        terr_mean=settled_mean(totals.mean("terr"), settle),
+        poll_rate=polls / (steps * trials * robots),
+        polls=polls / trials,
+        robot_messages=messages / trials,
+        robot_bytes=payload / trials,
+        robot_messages_per_step=messages / (steps * trials),
+        robot_messages_per_robot_step=(settled_mean(totals.mean("messages"), settle) or 0.0) / robots,
+        robot_bytes_per_step=payload / (steps * trials),
+        estimation_messages_per_step=robots + 1 if mode == "centralized" else 0,
+    )
+
+
+@dataclass(frozen=True)
+class MovingTask(Task):
+    """A chunk of the trials of one distinct moving-target run: its scenario, where it stands (the
+    fields of :class:`MovingSetting`) and the step its means start from."""
+
+    scenario: Scenario
+    setting: dict[str, Any]
+    settle: int
+
+
+class MovingPart(msgspec.Struct, frozen=True):
+    """What a :class:`MovingTask` came to: a row per trial and the chunk's :class:`StepTotals`."""
+
+    rows: list[MovingTrial]
+    totals: StepTotals
+
+
+def moving_task(task: MovingTask) -> MovingPart:
+    """Run a chunk of trials of a moving-target run as one batch."""
+    history = engine.run(task.scenario, task.seeds, record_positions=False)
+    robots, mode = task.scenario.robots, task.setting["estimation"]
+    rows = [MovingTrial(**task.setting, trial=task.first + index, seed=trial_seed,
+                        **msgspec.structs.asdict(moving_figures(step_totals(history, slice(index, index + 1)), robots,
+                                                                task.settle, mode)))
+            for index, trial_seed in enumerate(task.seeds)]
+    return MovingPart(rows, step_totals(history, slice(None)))
+
+
 def moving_experiment(
     base: str,
     trials: int,
     seed: int,
     steps: int | None = None,
     settle: int = 300,
-    on_step: Callable[[str, int], None] | None = None,
     velocities: bool = True,
     fusion: str | None = None,
     strategies: Sequence[str] | None = None,
+    execution: Execution = IN_PROCESS,
 ) -> MovingStudy:
     """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
-    settings; returns the study with, per run (:class:`MovingRun`), means from step ``settle`` on and
-    the trial-mean Cerr (true, degrees) and Terr (metres) series, and per-trial rows
-    (:class:`MovingTrial`) of every distinct run (the velocity setting equal to the scenario's circle
-    repeats the comparison's runs: their trials are rows of group "comparison" only). ``strategies``
-    replaces the paper's runs by each strategy with a centralized and a decentralized EKF
-    (:func:`moving_variants`)."""
+    settings, in tasks of ``execution.batch`` trials (:mod:`tools.studies.runner`); returns the
+    study with, per run (:class:`MovingRun`), means from step ``settle`` on and the trial-mean Cerr
+    (true, degrees) and Terr (metres) series, and per-trial rows (:class:`MovingTrial`) of every
+    distinct run (the velocity setting equal to the scenario's circle repeats the comparison's runs:
+    their trials are rows of group "comparison" only). ``strategies`` replaces the paper's runs by
+    each strategy with a centralized and a decentralized EKF (:func:`moving_variants`)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
+    started = time.perf_counter()
     main = circle_of(base)
     compared = MAIN_STRATEGIES if strategies is None else moving_variants(strategies)
     plan = [("comparison", main, strategy) for strategy in compared]
@@ -341,10 +461,9 @@ def moving_experiment(
         plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS
                  for strategy in (VELOCITY_STRATEGIES if strategies is None else compared)]
     seeds = list(range(seed, seed + trials))
-    histories: dict[tuple, engine.History] = {}
-    runs: list[MovingRun] = []
-    rows: list[MovingTrial] = []
-    started = time.perf_counter()
+    runs: list[tuple[dict[str, Any], tuple]] = []  # (MovingSetting's own fields, the run's key)
+    tasks: list[MovingTask] = []
+    owners: list[tuple] = []  # the key of each task's run
     for group, (speed, angular_speed), (strategy, mode) in plan:
         key = (speed, angular_speed, strategy, mode)
         scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
@@ -354,21 +473,19 @@ def moving_experiment(
             "group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
             "strategy": strategy_name(strategy), "estimation": mode,
             "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
-        if key not in histories:  # a velocity setting equal to the scenario's circle repeats two runs
-            label = f"v={speed} w={angular_speed} {strategy}+{mode}"
-            report = None if on_step is None else (lambda k, text=label: on_step(text, k))
-            histories[key] = engine.run(scenario, seeds, record_positions=False, on_step=report)
-            rows += [MovingTrial(**setting, trial=index, seed=trial_seed,
-                                 **msgspec.structs.asdict(moving_figures(histories[key], [index], settle, mode)))
-                     for index, trial_seed in enumerate(seeds)]
-        history = histories[key]
-        runs.append(MovingRun(
-            **setting,
-            **msgspec.structs.asdict(moving_figures(history, list(range(trials)), settle, mode)),
-            cerr_series_deg=history.cerr_true.mean(axis=1)[::SERIES_STRIDE].tolist(),
-            terr_series=history.terr.mean(axis=1)[::SERIES_STRIDE].tolist(),
-        ))
-    any_scenario = moving_scenario(base, *compared[0], *main, steps)
+        if key not in owners:  # a velocity setting equal to the scenario's circle repeats two runs
+            chunked = [MovingTask(f"v={speed} w={angular_speed} {strategy}+{mode} {seed_range(part)}", first, part,
+                                  scenario, setting, settle) for first, part in chunks(seeds, execution.batch)]
+            tasks += chunked
+            owners += [key] * len(chunked)
+        runs.append((setting, key))
+    parameters = {"scenario": base, "trials": trials, "seed": seed, "steps": steps, "settle": settle,
+                  "velocities": velocities, "fusion": fusion, "strategies": strategies}
+    parts = run_study(Study("moving", parameters, tasks, moving_task, MovingPart), execution)
+    by_run: dict[tuple, list[StepTotals]] = {}
+    for key, part in zip(owners, parts, strict=True):
+        by_run.setdefault(key, []).append(part.totals)
+    any_scenario = tasks[0].scenario
     return MovingStudy(
         scenario=base,
         trials=trials,
@@ -379,30 +496,18 @@ def moving_experiment(
         series_stride=SERIES_STRIDE,
         labels=strategy_labels([strategy for strategy, _ in compared]),
         wall_s=time.perf_counter() - started,
-        runs=runs,
-        rows=rows,
+        runs=[moving_run(setting, combined(by_run[key]), any_scenario.robots, settle) for setting, key in runs],
+        rows=[row for part in parts for row in part.rows],
     )
 
 
-def moving_figures(history: engine.History, trials: list[int], settle: int, mode: str) -> MovingFigures:
-    """The figures of a moving-target run over ``trials`` (indices into the batch), means from step
-    ``settle`` on (:func:`world.metrics.settled_mean`): see :class:`MovingFigures`."""
-    robots = history.triggers.shape[2]
-    polled = history.triggers[:, trials] != 0
-    assert history.sent_bytes is not None  # engine runs count bytes
-    messages = history.sent[:, trials].sum(axis=-1)  # (K, trials) robot-to-robot messages published
-    payload = history.sent_bytes[:, trials].sum(axis=-1)
-    return MovingFigures(
-        cerr_mean_deg=settled_mean(history.cerr_true[:, trials], settle),
-        terr_mean=settled_mean(history.terr[:, trials], settle),
-        poll_rate=float(polled.mean()),
-        polls=int(polled.sum()) / len(trials),
-        robot_messages=int(messages.sum()) / len(trials),
-        robot_bytes=int(payload.sum()) / len(trials),
-        robot_messages_per_step=float(messages.mean()),
-        robot_messages_per_robot_step=(settled_mean(messages, settle) or 0.0) / robots,
-        robot_bytes_per_step=float(payload.mean()),
-        estimation_messages_per_step=robots + 1 if mode == "centralized" else 0,
+def moving_run(setting: dict[str, Any], totals: StepTotals, robots: int, settle: int) -> MovingRun:
+    """A run of the moving-target study from its setting and its trials' totals."""
+    return MovingRun(
+        **setting,
+        **msgspec.structs.asdict(moving_figures(totals, robots, settle, setting["estimation"])),
+        cerr_series_deg=totals.mean("cerr_deg")[::SERIES_STRIDE].tolist(),
+        terr_series=totals.mean("terr")[::SERIES_STRIDE].tolist(),
     )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -12,8 +13,8 @@ import matplotlib.pyplot as plt
 import msgspec
 
 from ringtrack.agents import engine
-from ringtrack.tools.output.console import err
-from ringtrack.tools.studies.experiment import strategy_labels
+from ringtrack.tools.studies.experiment import StepTotals, combined, step_totals, strategy_labels
+from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, load_scenario, resolve
 
@@ -60,28 +61,50 @@ def with_gate(scenario: Scenario, gate: float) -> Scenario:
     return resolve(apply_overrides(scenario.spec, strategy_parameters={GATED: {GATE_PARAMETER: gate}}), scenario.name)
 
 
-def point(history: engine.History, settle: int) -> GateFigures:
-    """Terr (metres), Cerr (degrees, true) and robot-to-robot messages per robot-step, settled means."""
-    robots = history.angles.shape[2]
-    messages = settled_mean(history.sent.sum(axis=-1), settle)
-    return GateFigures(terr_mean=settled_mean(history.terr, settle),
-                       cerr_mean_deg=settled_mean(history.cerr_true, settle),
+@dataclass(frozen=True)
+class GatesTask(Task):
+    """A chunk of the trials of the reference run or of one gate's run."""
+
+    scenario: Scenario
+
+
+def gates_task(task: GatesTask) -> StepTotals:
+    """Run a chunk of trials as one batch: their :class:`StepTotals`."""
+    return step_totals(engine.run(task.scenario, task.seeds, record_positions=False), slice(None))
+
+
+def point(totals: StepTotals, robots: int, settle: int) -> GateFigures:
+    """Terr (metres), Cerr (degrees, true) and robot-to-robot messages per robot-step of ``robots``
+    robots, settled means of the trial-mean series."""
+    messages = settled_mean(totals.mean("messages"), settle)
+    return GateFigures(terr_mean=settled_mean(totals.mean("terr"), settle),
+                       cerr_mean_deg=settled_mean(totals.mean("cerr_deg"), settle),
                        robot_messages_per_robot_step=None if messages is None else messages / robots)
 
 
-def gates_experiment(base: str, gates: list[float], trials: int, settle: int) -> GatesStudy:
-    seeds = list(range(trials))
+def gates_experiment(base: str, gates: list[float], trials: int, settle: int, steps: int | None = None,
+                     execution: Execution = IN_PROCESS) -> GatesStudy:
+    """The reference run and the gated strategy at every gate on seeds ``0 .. trials - 1`` for
+    ``steps`` steps (default the scenario's), in tasks of ``execution.batch`` trials
+    (:mod:`tools.studies.runner`), means from step ``settle`` on."""
     started = time.perf_counter()
     reference, mode = REFERENCE
-    central = engine.run(load_scenario(base, strategy=reference, estimation=mode), seeds, record_positions=False)
-    points = []
-    for gate in gates:
-        err.print(f"gates: g = {gate:g}", highlight=False)
-        scenario = with_gate(load_scenario(base, strategy=GATED, estimation="decentralized"), gate)
-        figures = point(engine.run(scenario, seeds, record_positions=False), settle)
-        points.append(GatePoint(gate, **msgspec.structs.asdict(figures)))
+    gated = load_scenario(base, strategy=GATED, estimation="decentralized", max_steps=steps)
+    runs = [(reference, load_scenario(base, strategy=reference, estimation=mode, max_steps=steps))]
+    runs += [(f"{GATED} g={gate:g} (gate {number})", with_gate(gated, gate)) for number, gate in enumerate(gates)]
+    parts = chunks(list(range(trials)), execution.batch)
+    tasks = [GatesTask(f"{name} {seed_range(seeds)}", first, seeds, scenario)
+             for name, scenario in runs for first, seeds in parts]
+    parameters = {"scenario": base, "gates": gates, "trials": trials, "steps": steps, "settle": settle}
+    totals = run_study(Study("gates", parameters, tasks, gates_task, StepTotals), execution)
+    robots = runs[0][1].robots
+    central, *points = [point(combined(totals[index:index + len(parts)]), robots, settle)
+                        for index in range(0, len(tasks), len(parts))]
     return GatesStudy(scenario=base, trials=trials, settle=settle, labels=strategy_labels([reference, GATED]),
-                      centralized=point(central, settle), points=points, wall_s=time.perf_counter() - started)
+                      centralized=central,
+                      points=[GatePoint(gate, **msgspec.structs.asdict(entry))
+                              for gate, entry in zip(gates, points, strict=True)],
+                      wall_s=time.perf_counter() - started)
 
 
 def plot_gates(result: GatesStudy, path: Path) -> None:

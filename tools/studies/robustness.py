@@ -15,7 +15,8 @@ step, with Cerr (true, degrees) and Terr (metres) averaged from ``--settle`` on.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -28,6 +29,7 @@ from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.tools.studies.experiment import strategy_labels
+from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
 from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
@@ -230,9 +232,9 @@ def variants(scenario: Scenario, strategies: Sequence[str] = STRATEGIES) -> list
     return [(strategy, mode) for mode in modes for strategy in strategies]
 
 
-def trial_rows(history: engine.History, settle: int, variant: FaultVariant) -> list[FaultTrial]:
-    """Per trial of a cell and variant: Ctime, converged, Com-bar and the costs of the run (see the
-    module docstring)."""
+def trial_rows(history: engine.History, settle: int, variant: FaultVariant, first: int) -> list[FaultTrial]:
+    """Per trial of a cell and variant (the study's trial ``first`` onwards): Ctime, converged, Com-bar
+    and the costs of the run (see the module docstring)."""
     scenario = history.scenario
     robots = scenario.robots
     ctime, com_bar = history.ctime, history.com_bar
@@ -245,7 +247,7 @@ def trial_rows(history: engine.History, settle: int, variant: FaultVariant) -> l
         polls = history.triggers[window, trial] != 0
         rows.append(FaultTrial(
             **head,
-            trial=trial,
+            trial=first + trial,
             seed=history.seeds[trial],
             ctime=int(ctime[trial]) if converged else None,
             converged=converged,
@@ -272,6 +274,37 @@ def summarise(rows: list[FaultTrial], keys: list[str]) -> dict[str, float | None
     return summary
 
 
+@dataclass(frozen=True)
+class FaultTask(Task):
+    """A chunk of the trials of one variant in a group of cells that differ only in their faults
+    (:func:`_batches`): each cell's :class:`FaultVariant` and scenario, and the step a moving
+    target's means start from."""
+
+    variants: list[FaultVariant]
+    scenarios: list[Scenario]
+    settle: int
+
+
+class FaultPart(msgspec.Struct, frozen=True):
+    """What a :class:`FaultTask` came to: a row per cell and trial, and the steps its batch ran."""
+
+    rows: list[FaultTrial]
+    steps_run: int
+
+
+def fault_task(task: FaultTask) -> FaultPart:
+    """Run a chunk of trials of every cell of the task as one engine batch, a fault plan per trial."""
+    first, count = task.scenarios[0], len(task.seeds)
+    batch = engine.run(first, task.seeds * len(task.scenarios), until_converged=not first.moving,
+                       record_positions=False, plans=[scenario.faults for scenario in task.scenarios
+                                                      for _ in task.seeds])
+    rows = []
+    for position, (variant, scenario) in enumerate(zip(task.variants, task.scenarios, strict=True)):
+        history = batch.select(slice(position * count, (position + 1) * count), scenario)
+        rows += trial_rows(history, task.settle, variant, task.first)
+    return FaultPart(rows, batch.steps)
+
+
 def faults_experiment(
     base: str,
     cells: list[Cell],
@@ -279,12 +312,11 @@ def faults_experiment(
     seed: int,
     steps: int | None = None,
     settle: int = 300,
-    on_step: Callable[[str, int], None] | None = None,
     strategies: Sequence[str] = STRATEGIES,
-) -> tuple[FaultStudy, dict[tuple, engine.History]]:
+    execution: Execution = IN_PROCESS,
+) -> FaultStudy:
     """Run every cell and variant of the ``strategies`` (the first the baseline of the savings) in
-    the engine; returns the study and the histories by ``(cell index, strategy, mode)`` (what
-    ``--verify`` compares with)."""
+    the engine, in tasks of ``execution.batch`` trials (:mod:`tools.studies.runner`)."""
     spec, label = base_spec(base)
     seeds = list(range(seed, seed + trials))
     probe = cell_scenario(spec, label, cells[0], strategies[0], None, steps)
@@ -292,29 +324,29 @@ def faults_experiment(
         raise UsageError(f"--settle {settle}: must be below the {probe.max_steps} steps of a run")
     keys = [key for key, _, _ in METRICS + (MOVING_METRICS if probe.moving else ())]
     started = time.perf_counter()
-    histories: dict[tuple, engine.History] = {}
-    summary: list[FaultSummary] = []
-    rows: list[FaultTrial] = []
+    tasks = []
     for group in _batches(cells):
         for strategy, mode in variants(probe, strategies):
-            scenarios = [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group]
             more = f" and {len(group) - 1} more cells" if len(group) > 1 else ""
-            name = _run_label(cells[group[0]], strategy, mode) + more
-            report = None if on_step is None else (lambda k, text=name: on_step(text, k))
-            batch = engine.run(scenarios[0], seeds * len(group), until_converged=not scenarios[0].moving,
-                               record_positions=False, on_step=report,
-                               plans=[scenario.faults for scenario in scenarios for _ in seeds])
-            for position, (index, scenario) in enumerate(zip(group, scenarios, strict=True)):
-                history = batch.select(slice(position * trials, (position + 1) * trials), scenario)
-                histories[index, strategy, mode] = history
-                variant = FaultVariant(cell=index, **msgspec.structs.asdict(cells[index]), strategy=strategy,
-                                       estimation=mode)
-                trial = trial_rows(history, settle, variant)
-                rows += trial
-                summary.append(FaultSummary(**msgspec.structs.asdict(variant), trials=trials, steps_run=history.steps,
-                                            **summarise(trial, keys)))  # type: ignore[arg-type]  # means, sds
-    summary.sort(key=lambda entry: (entry.cell, entry.estimation, entry.strategy))
-    rows.sort(key=lambda row: (row.cell, row.estimation, row.strategy, row.trial))
+            tasks += [FaultTask(f"{_run_label(cells[group[0]], strategy, mode)}{more} {seed_range(part)}", first,
+                                part, [FaultVariant(cell=index, **msgspec.structs.asdict(cells[index]),
+                                                    strategy=strategy, estimation=mode) for index in group],
+                                [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group],
+                                settle)
+                      for first, part in chunks(seeds, execution.batch)]
+    parameters = {"scenario": base, "cells": [msgspec.to_builtins(cell) for cell in cells], "trials": trials,
+                  "seed": seed, "steps": steps, "settle": settle, "strategies": list(strategies)}
+    parts = run_study(Study("faults", parameters, tasks, fault_task, FaultPart), execution)
+    rows: dict[FaultVariant, list[FaultTrial]] = {}
+    steps_run: dict[FaultVariant, int] = {}
+    for task, part in zip(tasks, parts, strict=True):
+        for variant in task.variants:
+            steps_run[variant] = max(steps_run.get(variant, 0), part.steps_run)
+            rows.setdefault(variant, []).extend(row for row in part.rows if row.cell == variant.cell)
+    summary = sorted((FaultSummary(**msgspec.structs.asdict(variant), trials=trials, steps_run=steps_run[variant],
+                                   **summarise(trial, keys))  # type: ignore[arg-type]  # means, sds
+                      for variant, trial in rows.items()),
+                     key=lambda entry: (entry.cell, entry.estimation, entry.strategy))
     return FaultStudy(
         scenario=base,
         moving=probe.moving,
@@ -329,8 +361,9 @@ def faults_experiment(
         wall_s=time.perf_counter() - started,
         summary=summary,
         savings=savings(summary, strategies[0]),
-        rows=rows,
-    ), histories
+        rows=sorted((row for trial in rows.values() for row in trial),
+                    key=lambda row: (row.cell, row.estimation, row.strategy, row.trial)),
+    )
 
 
 def _batches(cells: list[Cell]) -> list[list[int]]:
@@ -364,21 +397,24 @@ def _run_label(cell: Cell, strategy: str, mode: str) -> str:
 
 
 # ---------------------------------------------------------------------------- verification
-def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History], count: int, seed: int,
-           runs: Path) -> list[VerifyCheck]:
-    """Re-run ``count`` (cell, variant, trial) runs drawn by ``seed`` as lockstep teams over Zenoh
-    for as many steps as the engine ran them; each must equal its engine run: angles to 1e-9, every
-    trigger, the fault counts, and each robot's radio energy to a relative 1e-9."""
+def verify(base: str, cells: list[Cell], trials: int, count: int, seed: int, steps: int | None, runs: Path,
+           strategies: Sequence[str] = STRATEGIES) -> list[VerifyCheck]:
+    """Re-run ``count`` (cell, variant, trial) runs of a sweep on seeds ``seed ..`` (drawn by
+    ``seed``) alone in the engine (a stationary target's until it converged) and as lockstep teams
+    over Zenoh for as many steps; each team must equal its engine run: angles to 1e-9, every trigger,
+    the fault counts, and each robot's radio energy to a relative 1e-9."""
     spec, label = base_spec(base)
-    keys = sorted(histories)
-    trials = len(next(iter(histories.values())).seeds)
+    probe = cell_scenario(spec, label, cells[0], strategies[0], None, steps)
+    keys = sorted((index, strategy, mode) for index in range(len(cells))
+                  for strategy, mode in variants(probe, strategies))
     choices = [(key, trial) for key in keys for trial in range(trials)]
     picked = np.random.default_rng(seed).choice(len(choices), size=min(count, len(choices)), replace=False)
     checks = []
     for choice in sorted(int(index) for index in picked):
         (cell_index, strategy, mode), trial = choices[choice]
-        history = histories[cell_index, strategy, mode]
-        trial_seed = history.seeds[trial]
+        trial_seed = seed + trial
+        alone = cell_scenario(spec, label, cells[cell_index], strategy, mode, steps)
+        history = engine.run(alone, [trial_seed], until_converged=not alone.moving, record_positions=False)
         scenario = cell_scenario(spec, label, cells[cell_index], strategy, mode, history.steps, trial_seed)
         result = spawn_team(TeamPlan(scenario=scenario, clock="lockstep", runs=runs, dashboard=False, quiet=True))
         run = {"cell": cell_index, **msgspec.structs.asdict(cells[cell_index]), "strategy": strategy,
@@ -386,12 +422,12 @@ def verify(base: str, cells: list[Cell], histories: dict[tuple, engine.History],
                "exit_code": result.exit_code}
         if result.exit_code == 0 and result.energy is not None:
             logged = history_from_log(read_log(Path(result.log)))
-            engine_faults = engine.fault_totals(history, trial)
-            energy = history.energy[:, trial].sum(axis=0)  # type: ignore[index]
+            engine_faults = engine.fault_totals(history, 0)
+            energy = history.energy[:, 0].sum(axis=0)  # type: ignore[index]
             wire_energy = np.array([result.energy.transmit_j, result.energy.receive_j]).T
             same_steps = logged.steps == history.steps
-            difference = float(np.max(np.abs(logged.angles[:, 0] - history.angles[:, trial]))) if same_steps else None
-            triggers_equal = same_steps and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, trial]))
+            difference = float(np.max(np.abs(logged.angles[:, 0] - history.angles[:, 0]))) if same_steps else None
+            triggers_equal = same_steps and bool(np.array_equal(logged.triggers[:, 0], history.triggers[:, 0]))
             faults_equal = all(result.faults.get(name) == engine_faults[name] for name in engine.FAULT_COLUMNS)
             energy_equal = bool(np.allclose(wire_energy, energy, rtol=1e-9, atol=0.0))
             checks.append(VerifyCheck(

@@ -1,0 +1,169 @@
+"""Studies at scale (tools/studies/runner.py): the same bytes from one process, a pool of workers
+and a Dask cluster; a journal that survives a kill and a ``--resume`` that runs only what it lacks;
+progress in trials."""
+
+from __future__ import annotations
+
+import io
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from ringtrack.tools.cli import main
+from ringtrack.tools.output.progress import TrialProgress, duration
+from ringtrack.tools.studies import runner
+from tests.helpers import RINGTRACK
+
+# Small studies of several tasks each (--batch 2), one per experiment command.
+STUDIES = {
+    "stationary": ["experiment", "stationary", "--robots", "4", "--trials", "3", "--batch", "2"],
+    "moving": ["experiment", "moving", "authors-moving", "--no-velocities", "--trials", "3", "--steps", "100",
+               "--settle", "20", "--batch", "2"],
+    "faults": ["experiment", "faults", "--drop", "0,0.3", "--trials", "3", "--steps", "150", "--batch", "2"],
+    "gates": ["experiment", "gates", "--gates", "1,2", "--trials", "3", "--steps", "100", "--settle", "20",
+              "--batch", "2"],
+}
+WALL = re.compile(rb'\n *"wall_s": [^\n]*')
+
+
+def without_wall(path: Path) -> bytes:
+    """The JSON file's bytes but its wall-clock lines (``wall_s``)."""
+    return WALL.sub(b"", path.read_bytes())
+
+
+def run(arguments: list[str], folder: Path, name: str, *more: str) -> tuple[bytes, bytes | None]:
+    """Run the study in-process writing ``folder/name.json`` (and ``.csv`` where the command has
+    one); its JSON without wall-clock lines and its CSV bytes."""
+    json_path, csv_path = folder / f"{name}.json", folder / f"{name}.csv"
+    outputs = ["--json", str(json_path)] + ([] if "gates" in arguments else ["--csv", str(csv_path)])
+    assert main([*arguments, *outputs, *more]) == 0
+    return without_wall(json_path), csv_path.read_bytes() if csv_path.exists() else None
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize("study", sorted(STUDIES))
+def test_two_workers_write_the_bytes_of_one(study: str, tmp_path: Path) -> None:
+    one = run(STUDIES[study], tmp_path, "one", "--workers", "1", "--quiet")
+    two = run(STUDIES[study], tmp_path, "two", "--workers", "2", "--quiet")
+    assert one == two
+    assert b'"rows"' in one[0] or b'"points"' in one[0]
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[str]:
+    """A Dask LocalCluster of two single-threaded worker processes on loopback: its address."""
+    distributed = pytest.importorskip("dask.distributed")
+    local = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                     dashboard_address=None)
+    try:
+        yield local.scheduler_address
+    finally:
+        local.close()
+
+
+@pytest.mark.processes
+def test_a_dask_cluster_writes_the_bytes_of_one_process(cluster: str, tmp_path: Path) -> None:
+    local = run(STUDIES["moving"], tmp_path, "local", "--workers", "1", "--quiet")
+    remote = run(STUDIES["moving"], tmp_path, "remote", "--cluster", cluster, "--quiet")
+    assert local == remote
+
+
+def test_cluster_without_dask_names_the_extra(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # import dask.distributed raises ImportError
+    assert main([*STUDIES["stationary"], "--cluster", "tcp://127.0.0.1:1", "--json", str(tmp_path / "s.json")]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "ringtrack: error: --cluster needs Dask: pip install 'ringtrack[cluster]'"]
+    assert not (tmp_path / "s.journal.jsonl").exists()
+
+
+def counted_tasks(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The keys of the tasks this process runs from now on (the runner's in-process path)."""
+    keys: list[str] = []
+    execute = runner.execute
+
+    def counting(work, task):  # type: ignore[no-untyped-def]
+        keys.append(task.key)
+        return execute(work, task)
+
+    monkeypatch.setattr(runner, "execute", counting)
+    return keys
+
+
+def test_resume_after_a_torn_journal_runs_only_the_missing_tasks(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    arguments = [*STUDIES["moving"], "--workers", "1", "--quiet"]
+    whole = run(arguments, tmp_path, "whole")
+    journal = tmp_path / "whole.journal.jsonl"
+    lines = journal.read_bytes().splitlines(keepends=True)
+    assert len(lines) == 1 + 6  # the header and 3 runs x 2 chunks
+    journal.write_bytes(b"".join(lines[:3]) + lines[3][: len(lines[3]) // 2])  # killed while writing task 3
+    (tmp_path / "whole.json").unlink()
+    keys = counted_tasks(monkeypatch)
+    assert run(arguments, tmp_path, "whole", "--resume") == whole
+    assert len(keys) == 4 and "2 of 6 tasks done, 4 to run" in capsys.readouterr().err
+    assert journal.read_bytes().splitlines(keepends=True)[:3] == lines[:3]
+    assert len(journal.read_bytes().splitlines()) == 7
+
+
+@pytest.mark.processes
+def test_a_study_killed_mid_way_resumes_to_the_bytes_of_an_uninterrupted_one(monkeypatch: pytest.MonkeyPatch,
+                                                                              tmp_path: Path) -> None:
+    arguments = ["experiment", "moving", "authors-moving", "--no-velocities", "--trials", "4", "--steps", "100",
+                 "--settle", "20", "--batch", "1", "--workers", "1", "--quiet"]
+    output, journal = tmp_path / "killed.json", tmp_path / "killed.journal.jsonl"
+    child = subprocess.Popen([*RINGTRACK, *arguments, "--json", str(output)], stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while child.poll() is None and time.monotonic() < deadline:
+            if journal.exists() and journal.read_bytes().count(b"\n") >= 2:  # the header and a task
+                break
+            time.sleep(0.05)
+        child.send_signal(signal.SIGKILL)
+    finally:
+        child.wait(timeout=30)
+    finished = journal.read_bytes().count(b"\n") - 1
+    assert not output.exists() and 1 <= finished < 12
+    keys = counted_tasks(monkeypatch)
+    resumed = run(arguments, tmp_path, "killed", "--resume")
+    assert len(keys) == 12 - finished and len(set(keys)) == len(keys)
+    assert resumed == run(arguments, tmp_path, "whole")
+
+
+def test_resume_without_a_journal_or_with_another_studys(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    arguments = [*STUDIES["stationary"], "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]
+    assert main([*arguments, "--resume"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"ringtrack: error: --resume: no journal at {tmp_path / 's.journal.jsonl'}; run without --resume to start "
+        "the study"]
+    assert main(arguments) == 0
+    assert main([*arguments, "--resume", "--trials", "4"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"ringtrack: error: --resume: {tmp_path / 's.journal.jsonl'} is the journal of another study (trials 3 there, "
+        "4 here); give the same flags or run without --resume to start over")
+    assert main(arguments) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        f"experiment stationary: replacing the journal {tmp_path / 's.journal.jsonl'} (--resume continues one)"]
+
+
+def test_progress_off_a_terminal_is_plain_lines_and_quiet_is_nothing() -> None:
+    piped = Console(file=io.StringIO(), force_terminal=False, width=60)
+    with TrialProgress("experiment moving", 120, console=piped, every_s=0.0) as progress:
+        progress.advance(40)
+        progress.advance(80)
+    lines = piped.file.getvalue().splitlines()  # type: ignore[attr-defined]
+    assert re.fullmatch(r"experiment moving: 40/120 trials, 33%, eta \d+s", lines[0])
+    assert lines[1:] == ["experiment moving: 120/120 trials, 100%, eta 0s"] * 2
+    quiet = Console(file=io.StringIO(), force_terminal=True)
+    with TrialProgress("experiment moving", 10, quiet=True, console=quiet) as progress:
+        progress.advance(10)
+    assert quiet.file.getvalue() == ""  # type: ignore[attr-defined]
+    assert [duration(seconds) for seconds in (45, 80, 3720)] == ["45s", "1m20s", "1h02m"]

@@ -1,0 +1,153 @@
+"""``ringtrack bench studies``: how fast the studies run: trials per second on one worker and on
+every core, the engine's seconds per trial alone and in batches, the decentralized EKF's cost
+against the centralized one, and the wall time of whole studies (each beside its target:
+:data:`TARGETS`; targets are reported, never asserted)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import msgspec
+
+from ringtrack.agents import engine
+from ringtrack.tools.bench.bench import machine
+from ringtrack.tools.output.console import err
+from ringtrack.tools.studies.experiment import random_start_scenarios, stationary_experiment
+from ringtrack.tools.studies.robustness import Cell, faults_experiment
+from ringtrack.tools.studies.runner import Execution, Study, Task, available_cores, chunks, run_study, seed_range
+from ringtrack.world.scenario import Scenario, load_scenario
+
+MOVING = "authors-moving"
+STATIONARY = "paper-stationary"
+FAULT_DROPS = (0.0, 0.1, 0.2, 0.3, 0.5)
+# Measured value -> (comparison, target): "<=" a ceiling, ">=" a floor.
+TARGETS: dict[str, tuple[str, float]] = {
+    "alone_s_per_trial": ("<=", 0.5),
+    "batch_10_s_per_trial": ("<=", 0.15),
+    "batch_100_s_per_trial": ("<=", 0.05),
+    "decentralized_over_centralized": ("<=", 1.5),
+    "faults_study_s": ("<=", 10.0),
+    "stationary_sweep_s": ("<=", 3.0),
+    "workers_2_speedup": (">=", 1.7),
+}
+# Throughput runs: name -> (scenario, strategy, estimation mode; None: a stationary target until converged).
+THROUGHPUT: dict[str, tuple[str, str, str | None]] = {
+    "stationary_n6_self": (STATIONARY, "self", None),
+    "moving_decentralized_self": (MOVING, "self", "decentralized"),
+    "moving_decentralized_belief": (MOVING, "belief", "decentralized"),
+    "moving_centralized_self": (MOVING, "self", "centralized"),
+}
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """How much a benchmark runs: moving-target steps (None: the scenario's 1300), throughput
+    trials and their batch, the stationary step limit (None: the scenario's), the sweep's team sizes
+    and trials, the faults study's trials and the trials of the speed-up study."""
+
+    moving_steps: int | None
+    throughput_trials: int
+    throughput_batch: int
+    stationary_steps: int | None
+    sweep: range
+    sweep_trials: int
+    fault_trials: int
+    speedup_trials: int
+
+
+FULL = Sizes(None, 20, 5, None, range(3, 31), 30, 10, 100)
+QUICK = Sizes(20, 2, 1, 60, range(3, 5), 1, 1, 4)
+
+
+@dataclass(frozen=True)
+class BenchTask(Task):
+    """A chunk of trials of one scenario (a stationary target's until they converged)."""
+
+    scenario: Scenario
+
+
+class BenchPart(msgspec.Struct, frozen=True):
+    """Steps the chunk's batch ran."""
+
+    steps: int
+
+
+def bench_task(task: BenchTask) -> BenchPart:
+    """Run one chunk of trials as an engine batch."""
+    history = engine.run(task.scenario, task.seeds, until_converged=not task.scenario.moving, record_positions=False)
+    return BenchPart(history.steps)
+
+
+def scenario_of(base: str, strategy: str, mode: str | None, sizes: Sizes) -> Scenario:
+    """The benchmarked scenario: a moving target's with ``mode`` estimation, or random starts of six
+    robots for a stationary one."""
+    if mode is None:
+        return random_start_scenarios(base, 6, (strategy,), max_steps=sizes.stationary_steps)[strategy]
+    return load_scenario(base, strategy=strategy, estimation=mode, max_steps=sizes.moving_steps)
+
+
+def trials_per_s(scenario: Scenario, trials: int, batch: int, workers: int) -> float:
+    """Trials per second of a study of ``trials`` trials of ``scenario`` in tasks of ``batch`` on
+    ``workers`` local processes (pool start-up included)."""
+    tasks = [BenchTask(seed_range(seeds), first, seeds, scenario)
+             for first, seeds in chunks(list(range(trials)), batch)]
+    started = time.perf_counter()
+    run_study(Study("bench", {}, tasks, bench_task, BenchPart), Execution(workers=workers, batch=batch))
+    return trials / (time.perf_counter() - started)
+
+
+def seconds_per_trial(scenario: Scenario, trials: int) -> float:
+    """Seconds per trial of one engine batch of ``trials`` trials of ``scenario``."""
+    return timed(lambda: engine.run(scenario, list(range(trials)), record_positions=False)) / trials
+
+
+def timed(call: Callable[[], object]) -> float:
+    """Wall seconds ``call`` took."""
+    started = time.perf_counter()
+    call()
+    return time.perf_counter() - started
+
+
+def studies_results(sizes: Sizes) -> dict[str, Any]:
+    """Every measurement of ``bench studies`` at ``sizes`` (seconds, trials per second, ratios)."""
+    cores = available_cores()
+    throughput = {}
+    for name, (base, strategy, mode) in THROUGHPUT.items():
+        err.print(f"bench studies: {name}, {sizes.throughput_trials} trials on 1 and {cores} workers", highlight=False)
+        scenario = scenario_of(base, strategy, mode, sizes)
+        throughput[name] = {f"workers_{workers}": trials_per_s(scenario, sizes.throughput_trials,
+                                                                sizes.throughput_batch, workers)
+                            for workers in dict.fromkeys((1, cores))}
+    err.print("bench studies: per-trial seconds alone and in batches of 10 and 100", highlight=False)
+    decentralized = scenario_of(MOVING, "self", "decentralized", sizes)
+    per_trial = {f"{label}_s_per_trial": seconds_per_trial(decentralized, trials)
+                 for label, trials in (("alone", 1), ("batch_10", 10), ("batch_100", 100))}
+    centralized = seconds_per_trial(scenario_of(MOVING, "self", "centralized", sizes), 10)
+    err.print("bench studies: the faults study, the stationary sweep and the speed-up of 2 workers", highlight=False)
+    cells = [Cell(drop, 0, None) for drop in FAULT_DROPS]
+    stationary = scenario_of(STATIONARY, "self", None, sizes)
+    one, two = (trials_per_s(stationary, sizes.speedup_trials, max(1, sizes.speedup_trials // 10), workers)
+                for workers in (1, 2))
+    return {
+        "benchmark": "studies",
+        "machine": machine(),
+        "moving_steps": decentralized.max_steps,
+        "throughput_trials_per_s": throughput,
+        **per_trial,
+        "decentralized_over_centralized": per_trial["batch_10_s_per_trial"] / centralized,
+        "faults_study_s": timed(lambda: faults_experiment(MOVING, cells, sizes.fault_trials, 0, sizes.moving_steps,
+                                                          settle=min(300, decentralized.max_steps - 1))),
+        "stationary_sweep_s": timed(lambda: stationary_experiment(
+            STATIONARY, list(sizes.sweep), sizes.sweep_trials, 0, max_steps=sizes.stationary_steps)),
+        "workers_2_speedup": two / one,
+        "speedup_trials": sizes.speedup_trials,
+    }
+
+
+def targets_met(results: dict[str, Any]) -> dict[str, bool]:
+    """Whether each measured value with a target meets it."""
+    return {name: results[name] <= target if way == "<=" else results[name] >= target
+            for name, (way, target) in TARGETS.items()}

@@ -1,0 +1,296 @@
+"""Studies as tasks: a study is an ordered list of tasks (a cell or run of the study times a fixed
+chunk of its seeds), run in this process, in a pool of local processes (``--workers``) or on a Dask
+cluster (``--cluster``), journalled as they finish so that ``--resume`` continues an interrupted
+study.
+
+A task's result leaves the process that ran it as JSON (msgspec), and the study is assembled from
+the decoded results in the tasks' order, whoever ran them and in whatever order they finished: the
+same bytes whether a result came from this process, a pool, a cluster or the journal. The chunks
+(``batch`` trials each) never depend on the number of workers: a stationary batch stops once all
+its trials converged, so a trial's Ctime on the true Cerr depends on the batch it ran in.
+
+The journal (``PATH.journal.jsonl`` beside the study's ``--json`` or ``--csv`` output) is JSON
+lines: a header (:class:`JournalHeader`: the experiment, every parameter that changes results, the
+chunk size), then one :class:`JournalTask` per finished task, each flushed and fsync'd, so a killed
+study loses only its tasks in flight; a last line cut by the kill is left out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import multiprocessing
+import os
+from collections.abc import Callable, Generator, Iterator, Mapping
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any, BinaryIO, Generic, TypeVar
+
+import msgspec
+
+from ringtrack.tools.output.console import UsageError, err
+from ringtrack.tools.output.progress import TrialProgress
+
+BATCH = 25  # trials per task unless --batch says otherwise (results depend on it: see the module docstring)
+CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
+
+
+def available_cores() -> int:
+    """The cores this process may run on (the default of ``--workers``)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class Task:
+    """One task of a study: ``key`` names it (unique in the study, e.g. ``N=6 self seeds 0-24``),
+    ``first`` is the study's index of its first trial, ``seeds`` the seeds of its trials. A study
+    adds what its work function needs (scenarios, settings)."""
+
+    key: str
+    first: int
+    seeds: list[int]
+
+
+TaskT = TypeVar("TaskT", bound=Task)
+ResultT = TypeVar("ResultT", bound=msgspec.Struct)
+
+
+@dataclass(frozen=True)
+class Study(Generic[TaskT, ResultT]):
+    """What the runner runs: the ``experiment``'s name, the ``parameters`` that change its results
+    (plain values; the journal's header), its ``tasks`` in the study's order, the module-level
+    function ``work`` that runs one task in any process, and the type of its result."""
+
+    experiment: str
+    parameters: Mapping[str, object]
+    tasks: list[TaskT]
+    work: Callable[[TaskT], ResultT]
+    result: type[ResultT]
+
+
+@dataclass(frozen=True)
+class Execution:
+    """How a study runs: ``workers`` local processes (1: this process), or the Dask scheduler at
+    ``cluster`` (``tcp://host:8786``); ``batch`` trials per task; the ``journal`` file (None: none),
+    continued with ``resume``; ``quiet``: no progress."""
+
+    workers: int = 1
+    cluster: str | None = None
+    batch: int = BATCH
+    journal: Path | None = None
+    resume: bool = False
+    quiet: bool = True
+
+
+IN_PROCESS = Execution()  # a study run from code: in this process, chunks of BATCH, no journal, no progress
+
+
+def chunks(seeds: list[int], size: int) -> list[tuple[int, list[int]]]:
+    """``(first trial index, seeds)`` of the consecutive chunks of ``size`` seeds (the last may be short)."""
+    return [(start, seeds[start:start + size]) for start in range(0, len(seeds), size)]
+
+
+def seed_range(seeds: list[int]) -> str:
+    """``seeds 0-24``: a chunk's seeds as a task's key names them."""
+    return f"seeds {seeds[0]}-{seeds[-1]}"
+
+
+def journal_path(*outputs: Path | None) -> Path | None:
+    """Where a study's journal lives: beside the first output given (``out.json``:
+    ``out.journal.jsonl``); None when the study writes no file."""
+    for output in outputs:
+        if output is not None:
+            return output.with_suffix(".journal.jsonl")
+    return None
+
+
+# ---------------------------------------------------------------------------------------- journal
+class JournalHeader(msgspec.Struct, frozen=True, tag="study"):
+    """The journal's first line: the experiment, the parameters that change its results, the
+    trials per task."""
+
+    experiment: str
+    batch: int
+    parameters: dict[str, Any]
+
+
+class JournalTask(msgspec.Struct, frozen=True, tag="task"):
+    """A finished task: its index in the study's order, its key and its result (JSON)."""
+
+    index: int
+    key: str
+    result: msgspec.Raw
+
+
+JOURNAL_LINE = msgspec.json.Decoder(JournalHeader | JournalTask)
+
+
+def header_of(study: Study, batch: int) -> JournalHeader:
+    """The journal header of ``study`` cut in chunks of ``batch`` trials, its parameters as JSON
+    gives them back (tuples as lists), so that a header read from a journal compares equal."""
+    parameters = msgspec.json.decode(msgspec.json.encode(dict(study.parameters)))
+    return JournalHeader(experiment=study.experiment, batch=batch, parameters=parameters)
+
+
+def header_difference(found: JournalHeader, wanted: JournalHeader) -> str | None:
+    """The first setting in which two headers differ, as ``trials 30 there, 40 here``; None: equal."""
+    there = {"experiment": found.experiment, "batch": found.batch, **found.parameters}
+    here = {"experiment": wanted.experiment, "batch": wanted.batch, **wanted.parameters}
+    for name in dict.fromkeys([*here, *there]):
+        if there.get(name) != here.get(name):
+            return f"{name} {there.get(name)} there, {here.get(name)} here"
+    return None
+
+
+def whole_lines(path: Path) -> bytes:
+    """The journal's bytes up to its last newline (a line cut by a kill mid-write is left out)."""
+    data = path.read_bytes()
+    return data[: data.rfind(b"\n") + 1]
+
+
+def read_journal(path: Path, study: Study, header: JournalHeader) -> dict[int, bytes]:
+    """The results (JSON) of the tasks a journal records, by index; a :class:`UsageError` naming
+    ``--resume`` when there is no journal, it is of another study or a line is not a record."""
+    if not path.is_file():
+        raise UsageError(f"--resume: no journal at {path}; run without --resume to start the study")
+    lines = whole_lines(path).splitlines()
+    done: dict[int, bytes] = {}
+    for number, line in enumerate(lines, 1):
+        try:
+            record = JOURNAL_LINE.decode(line)
+        except msgspec.DecodeError:
+            raise UsageError(f"--resume: {path} line {number} is not a journal record; run without --resume "
+                             "to start over") from None
+        if number == 1:
+            if not isinstance(record, JournalHeader):
+                raise UsageError(f"--resume: {path} does not start with a study header; run without --resume")
+            difference = header_difference(record, header)
+            if difference is not None:
+                raise UsageError(f"--resume: {path} is the journal of another study ({difference}); "
+                                 "give the same flags or run without --resume to start over")
+        elif not (isinstance(record, JournalTask) and record.index < len(study.tasks)
+                  and study.tasks[record.index].key == record.key):
+            raise UsageError(f"--resume: {path} line {number} is no task of this study; run without --resume")
+        else:
+            done[record.index] = bytes(record.result)
+    if not lines:
+        raise UsageError(f"--resume: {path} is empty; run without --resume to start the study")
+    return done
+
+
+@contextlib.contextmanager
+def journal_file(path: Path | None, header: JournalHeader, resume: bool) -> Iterator[BinaryIO | None]:
+    """The journal opened for appending: continued (cut to its whole lines) with ``resume``, else
+    started afresh with its header (saying so on stderr when it replaces one). None: no journal."""
+    if path is None:
+        yield None
+        return
+    if resume:
+        kept = len(whole_lines(path))
+        with path.open("r+b") as file:
+            file.truncate(kept)
+            file.seek(kept)
+            yield file
+        return
+    if path.exists():
+        err.print(f"experiment {header.experiment}: replacing the journal {path} (--resume continues one)",
+                  highlight=False, markup=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as file:
+        append(file, msgspec.json.encode(header))
+        yield file
+
+
+def append(file: BinaryIO, line: bytes) -> None:
+    """Write one journal line and make it durable (flushed and fsync'd) before going on."""
+    file.write(line + b"\n")
+    file.flush()
+    os.fsync(file.fileno())
+
+
+# ---------------------------------------------------------------------------------------- running
+def execute(work: Callable[[TaskT], msgspec.Struct], task: TaskT) -> bytes:
+    """Run one task (in any process) and return its result as JSON: how every result travels."""
+    return msgspec.json.encode(work(task))
+
+
+def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[ResultT]:
+    """Run the study's tasks not yet journalled (all unless ``execution.resume``), journal each as it
+    finishes and return every task's result in the study's order."""
+    header = header_of(study, execution.batch)
+    label = f"experiment {study.experiment}"
+    if execution.resume and execution.journal is None:
+        raise UsageError("--resume: give the --json or --csv of the interrupted study (its journal lies beside it)")
+    if execution.cluster is not None:
+        dask_distributed()  # a missing extra is reported before any journal is touched
+    results = read_journal(execution.journal, study, header) if execution.resume and execution.journal else {}
+    pending = [index for index in range(len(study.tasks)) if index not in results]
+    if execution.resume:
+        err.print(f"{label}: resuming {execution.journal}: {len(results)} of {len(study.tasks)} tasks done, "
+                  f"{len(pending)} to run", highlight=False, markup=False)
+    total = sum(len(task.seeds) for task in study.tasks)
+    done = sum(len(study.tasks[index].seeds) for index in results)
+    with (journal_file(execution.journal, header, execution.resume) as journal,
+          TrialProgress(label, total, done, execution.quiet) as progress,
+          contextlib.closing(finished(study, pending, execution)) as outcomes):
+        for index, result in outcomes:
+            if journal is not None:
+                append(journal, msgspec.json.encode(JournalTask(index, study.tasks[index].key, msgspec.Raw(result))))
+            results[index] = result
+            progress.advance(len(study.tasks[index].seeds))
+    decoder = msgspec.json.Decoder(study.result)
+    return [decoder.decode(results[index]) for index in range(len(study.tasks))]
+
+
+def finished(study: Study, pending: list[int], execution: Execution) -> Generator[tuple[int, bytes], None, None]:
+    """``(task index, result)`` of the ``pending`` tasks as they finish, wherever they run."""
+    if execution.cluster is not None:
+        return on_cluster(study, pending, execution.cluster)
+    if execution.workers > 1 and len(pending) > 1:
+        return in_pool(study, pending, execution.workers)
+    return ((index, execute(study.work, study.tasks[index])) for index in pending)
+
+
+def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
+    """Run the tasks in up to ``workers`` local processes (started by a fork server: this process
+    may run a progress thread, which a fork would copy mid-flight); the pool is shut down, its queued
+    tasks cancelled, however the loop ends (an error, Ctrl-C)."""
+    context = multiprocessing.get_context("forkserver")
+    # The fork server imports the work's module (numpy, the engine) once; each pool's workers fork
+    # from it ready (a preload counts when this process starts its fork server, at its first pool).
+    context.set_forkserver_preload([study.work.__module__])
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(pending)), mp_context=context)
+    try:
+        futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def dask_distributed() -> ModuleType:
+    """``dask.distributed``, or a :class:`UsageError` naming the extra that installs it."""
+    try:
+        return importlib.import_module("dask.distributed")
+    except ImportError:
+        raise UsageError(f"--cluster needs Dask: {CLUSTER_EXTRA}") from None
+
+
+def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tuple[int, bytes], None, None]:
+    """Run the tasks on the Dask scheduler at ``address`` (its workers import ringtrack); the client
+    is closed however the loop ends."""
+    distributed = dask_distributed()
+    try:
+        client = distributed.Client(address, timeout="20s")
+    except (OSError, TimeoutError) as error:
+        raise UsageError(f"--cluster {address}: no Dask scheduler answers there ({error}); start one with "
+                         "'dask scheduler' and give its tcp://HOST:PORT") from None
+    try:
+        futures = [client.submit(execute, study.work, study.tasks[index], pure=False) for index in pending]
+        index_of = {future.key: index for future, index in zip(futures, pending, strict=True)}
+        for future in distributed.as_completed(futures):
+            yield index_of[future.key], future.result()
+    finally:
+        client.close()
