@@ -35,7 +35,7 @@ from ringtrack.world.metrics import (
 from ringtrack.world.ranges import link_distance
 from ringtrack.world.ring import predecessor_values, successor_values
 from ringtrack.world.scenario import Scenario
-from ringtrack.world.sensing import RangeSensor
+from ringtrack.world.sensing import RangeSensors
 from ringtrack.world.state import motion_step
 
 
@@ -137,7 +137,7 @@ class TeamEstimate:
         self.robots = scenario.robots
         self.trials = len(seeds)
         sensing = scenario.spec.sensing
-        self.sensors = [RangeSensor(sensing.range_sigma, sensing.range, seed) for seed in seeds]
+        self.sensors = RangeSensors(sensing.range_sigma, sensing.range, seeds)
         count = {"known": 0, "centralized": 1, "decentralized": scenario.robots}[self.mode]
         self.estimators = Estimators(scenario.estimation, scenario.region, np.repeat(paths[:, 0], count, axis=0))
 
@@ -150,8 +150,7 @@ class TeamEstimate:
         told them (``told``, per side) in the previous step, predecessor first."""
         if self.mode == "known":
             return np.repeat(targets[:, None, :], self.robots, axis=1)
-        ranges = np.stack([sensor.measure(positions[trial], targets[trial])
-                           for trial, sensor in enumerate(self.sensors)])  # (T, N)
+        ranges = self.sensors.measure(positions, targets)  # (T, N)
         if self.mode == "centralized":
             self.estimators.measure(positions, ranges)
             return np.repeat(self.estimators.centre[:, None, :], self.robots, axis=1)

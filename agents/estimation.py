@@ -32,6 +32,7 @@ SINGULAR_DISTANCE = 1e-9  # m: a robot this close to the estimate gives no usabl
 # Robots whose spread across their line is below this fraction of their spread along it are on one
 # line (up to rounding: points of one boundary edge are not exactly collinear in floating point).
 COLLINEAR = 1e-9
+MARGIN_ROUNDING = 1e-9  # relative: a mean this close to the margin is on it (clamped before)
 
 
 class NoFix(ValueError):
@@ -234,7 +235,8 @@ class Estimators:
         the region if it is not that deep (covariance unchanged); a mean already inside is left
         exactly as it is."""
         mean = self.filters.mean
-        outside = ~self.region.is_interior(mean, self.params.margin)
+        # a mean clamped before sits on the margin up to rounding: inside, so clamping is idempotent
+        outside = ~self.region.is_interior(mean, self.params.margin * (1.0 - MARGIN_ROUNDING))
         if rows is not None:
             outside &= rows
         if outside.any():

@@ -47,6 +47,7 @@ from ringtrack.world.params import Criterion
 TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
 FEASIBLE = -1e-12  # a face's stationary weights at least this are on the simplex (clipped to 0)
 DEGENERATE = 1e-12  # relative determinant below which a face's system is singular
+SHORT_SUM = 8  # terms a sum adds one by one; longer ones take a cumulative sum
 
 
 @dataclass(frozen=True)
@@ -97,9 +98,46 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
 
 
 def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
-    """The sum along ``axis`` added strictly in order (a cumulative sum's last entry), so that a row's
-    sum never depends on the shape of its batch (numpy's ``sum`` may pair terms differently)."""
-    return np.take(np.cumsum(values, axis=axis), -1, axis=axis)
+    """The sum along ``axis`` added strictly in order, so that a row's sum never depends on the shape
+    of its batch (numpy's ``sum`` may pair terms differently)."""
+    parts = np.moveaxis(np.asarray(values), axis, 0)
+    if len(parts) > SHORT_SUM:
+        return np.cumsum(parts, axis=0)[-1]
+    total = parts[0]
+    for part in parts[1:]:
+        total = total + part
+    return total
+
+
+def solve_small(matrices: FloatArray, right: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(X, det)`` with ``matrices X = right`` for square ``matrices`` (..., k, k) and ``right``
+    (..., k, r), and each matrix's determinant; for k <= 3 by the adjugate, component by component
+    (elementwise along the batch, and without LAPACK's cost per call), else by LAPACK."""
+    size = matrices.shape[-1]
+    if size > 3:
+        determinant: FloatArray = np.asarray(np.linalg.det(matrices), dtype=float)
+        safe = np.where(determinant[..., None, None] != 0.0, matrices, np.eye(size))
+        return np.asarray(np.linalg.solve(safe, right), dtype=float), determinant
+    m = [[matrices[..., row, column] for column in range(size)] for row in range(size)]
+    if size == 1:
+        adjugate = [[np.ones(matrices.shape[:-2])]]
+        determinant = m[0][0]
+    elif size == 2:
+        adjugate = [[m[1][1], -m[0][1]], [-m[1][0], m[0][0]]]
+        determinant = m[0][0] * m[1][1] - m[0][1] * m[1][0]
+    else:
+        def cofactor(row: int, column: int) -> FloatArray:
+            r0, r1 = [r for r in range(3) if r != row]
+            c0, c1 = [c for c in range(3) if c != column]
+            sign = -1.0 if (row + column) % 2 else 1.0
+            return sign * (m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0])
+
+        adjugate = [[cofactor(column, row) for column in range(3)] for row in range(3)]  # transposed cofactors
+        determinant = m[0][0] * adjugate[0][0] + m[0][1] * adjugate[1][0] + m[0][2] * adjugate[2][0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        solution = np.stack([sum((adjugate[row][inner][..., None] * right[..., inner, :] for inner in range(1, size)),
+                                 adjugate[row][0][..., None] * right[..., 0, :]) for row in range(size)], axis=-2)
+        return solution / determinant[..., None, None], determinant
 
 
 @lru_cache(maxsize=16)
@@ -213,11 +251,11 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     inside = members[:, :, None] & members[:, None, :]  # (F, k, k)
     sub = np.where(inside, determinants[:, None], np.eye(count))  # (B, F, k, k)
     scale = np.where(inside, np.abs(sub), 0.0).max(axis=(2, 3))
-    usable = on_face & (np.abs(np.linalg.det(sub)) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
-    # a degenerate face's optimum lies on a smaller face; solve a harmless system in its place
-    sub = np.where(usable[..., None, None], sub, np.eye(count))
     face_traces = np.where(members, traces[:, None], 0.0)  # (B, F, k)
-    solved = np.linalg.solve(sub, np.stack([face_traces, np.broadcast_to(members, face_traces.shape)], axis=3))
+    solved, determinant = solve_small(sub, np.stack([face_traces, np.broadcast_to(members, face_traces.shape)], axis=3))
+    # a degenerate face's optimum lies on a smaller face
+    usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
+    solved = np.where(usable[..., None, None], solved, 0.0)
     a, b = solved[..., 0], solved[..., 1]
     a_sum, b_sum = sequential_sum(a, axis=2), sequential_sum(b, axis=2)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -15,6 +15,7 @@ Q is stored as ``{x : n_k . x <= c_k for every edge k}`` with unit outward norma
 from __future__ import annotations
 
 from functools import cached_property
+from itertools import combinations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -263,20 +264,22 @@ class ConvexRegion:
     # ------------------------------------------------------------------ sizes (section 11)
     @cached_property
     def chebyshev_centre(self) -> tuple[FloatArray, float]:
-        """Centre (metres) and radius of the largest inscribed disc: ``max r s.t. n_k.c + r <= c_k``."""
-        from scipy.optimize import linprog
+        """Centre (metres) and radius of the largest inscribed disc: ``max r s.t. n_k.c + r <= c_k``.
 
-        constraints = np.hstack([self.normals, np.ones((len(self.normals), 1))])
-        solution = linprog(
-            c=[0.0, 0.0, -1.0],
-            A_ub=constraints,
-            b_ub=self.offsets,
-            bounds=[(None, None), (None, None), (0, None)],
-            method="highs",
-        )
-        if not solution.success:  # pragma: no cover - a validated convex polygon always has one
-            raise RegionError(f"could not find the inscribed circle: {solution.message}")
-        return solution.x[:2].copy(), float(solution.x[2])
+        A linear programme in ``(c, r)`` whose optimum lies where three edge constraints are tight:
+        every triple of edges is solved exactly (3 x 3, batched), and of the feasible solutions the
+        largest radius wins, the mean of the ties where the optimum is not unique (a rectangle's
+        centre line: its midpoint). Exact, and no optimiser to import in a robot process."""
+        edges = np.array(list(combinations(range(len(self.normals)), 3)))
+        systems = np.concatenate([self.normals[edges], np.ones((len(edges), 3, 1))], axis=2)
+        solvable = np.abs(np.linalg.det(systems)) > 1e-12
+        solutions = np.linalg.solve(systems[solvable], self.offsets[edges[solvable]][..., None])[..., 0]
+        centres, radii = solutions[:, :2], solutions[:, 2]
+        slack = 1e-9 * max(self.outer_diameter, 1.0)
+        feasible = np.all(dot_rows(centres, self.normals) + radii[:, None] <= self.offsets + slack, axis=1)
+        best = radii[feasible].max()
+        tied = feasible & (radii >= best - slack)
+        return centres[tied].mean(axis=0), float(radii[tied].mean())
 
     @property
     def inner_diameter(self) -> float:
