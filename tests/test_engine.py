@@ -204,3 +204,22 @@ def test_authors_quadrilateral_speed_cap():
     moved = np.abs(np.mod(np.diff(s, axis=0) + region.perimeter / 2, region.perimeter) - region.perimeter / 2)
     assert moved.max() <= scenario.v_max * scenario.control.dt * (1 + 1e-9)
     assert np.abs(np.diff(history.angles[:, 0], axis=0)).max() <= scenario.control.omega_max * scenario.control.dt * (1 + 1e-9)
+
+
+@pytest.mark.parametrize(("name", "strategy", "estimation"), [
+    ("authors-moving", "self", "decentralized"),
+    ("authors-moving", "belief", "decentralized"),
+    ("authors-moving", "constant", "centralized"),
+    ("paper-stationary", "self", None),
+])
+def test_a_trial_is_the_same_alone_and_in_any_batch(name, strategy, estimation):
+    """Studies cut their trials into batches (and workers) as they like: a trial's history, bit for
+    bit, does not depend on the other trials of its batch."""
+    overrides = {"strategy": strategy} | ({"estimation": estimation} if estimation else {})
+    scenario = load_scenario(name, **overrides, max_steps=150)
+    together = engine.run(scenario, [4, 5, 6, 7], record_positions=True)
+    for index, seed in enumerate([4, 5, 6, 7]):
+        alone = engine.run(scenario, [seed], record_positions=True)
+        for field in ("angles", "positions", "triggers", "offsets", "cerr_true", "terr", "estimates", "sent",
+                      "sent_bytes", "energy"):
+            np.testing.assert_array_equal(getattr(together, field)[:, index], getattr(alone, field)[:, 0], field)

@@ -56,6 +56,17 @@ def test_two_workers_write_the_bytes_of_one(study: str, tmp_path: Path) -> None:
     assert b'"rows"' in one[0] or b'"points"' in one[0]
 
 
+@pytest.mark.parametrize("study", sorted(STUDIES))
+def test_batching_does_not_change_a_study(study: str, tmp_path: Path) -> None:
+    """Trials in batches of 2 or all in one: the same bytes (a trial's history does not depend on its
+    batch, and trials are added up exactly)."""
+    assert STUDIES[study][-2:] == ["--batch", "2"]
+    arguments = STUDIES[study][:-2]
+    pairs = run([*arguments, "--batch", "2"], tmp_path, "pairs", "--workers", "1", "--quiet")
+    whole = run([*arguments, "--batch", "3"], tmp_path, "whole", "--workers", "1", "--quiet")
+    assert pairs == whole
+
+
 @pytest.fixture(scope="module")
 def cluster() -> Iterator[str]:
     """A Dask LocalCluster of two single-threaded worker processes on loopback: its address."""

@@ -19,7 +19,7 @@ from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
 from ringtrack.world.geometry import FloatArray
-from ringtrack.world.metrics import settled_mean
+from ringtrack.world.metrics import convergence_step, settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.target import Circle
 
@@ -30,8 +30,8 @@ class StationaryTrial(msgspec.Struct, frozen=True):
     """One trial of one strategy and team size (a row of ``experiment stationary --csv``).
 
     ``ctime`` is the trial's Ctime (steps; None: not converged within the steps run), ``ctime_true``
-    the same by the true Cerr (None: not reached, as a batch stops once every trial has converged by
-    the strategy's own Cerr), ``com_bar`` polls per robot per step up to Ctime (None unless
+    the same by the true Cerr within the steps the trial ran alone, up to its Ctime (None: not
+    reached by then), ``com_bar`` polls per robot per step up to Ctime (None unless
     converged); ``triggers`` counts the polls of steps 1..Ctime (Com-bar's numerator) and
     ``robot_bytes`` the robot-to-robot payload bytes of those steps."""
 
@@ -213,7 +213,11 @@ class StationaryPart(msgspec.Struct, frozen=True):
 def stationary_task(task: StationaryTask) -> StationaryPart:
     """Run a chunk of trials as one batch until all converged: a :class:`StationaryTrial` each."""
     history = engine.run(task.scenario, task.seeds, until_converged=True, record_positions=False)
-    ctime, com_bar, ctime_true = history.ctime, history.com_bar, history.ctime_true
+    ctime, com_bar = history.ctime, history.com_bar
+    # a trial alone stops at its own Ctime: judge the true Cerr up to there, whatever its batch ran on
+    threshold_deg = np.rad2deg(task.scenario.threshold)
+    ctime_true = [int(convergence_step(history.cerr_true[: ctime[index] or None, index], threshold_deg))
+                  for index in range(len(task.seeds))]
     assert history.sent_bytes is not None  # engine runs count bytes
     sent_bytes = history.sent_bytes
     return StationaryPart([
@@ -224,7 +228,7 @@ def stationary_task(task: StationaryTask) -> StationaryPart:
             seed=trial_seed,
             converged=bool(ctime[index] > 0),
             ctime=int(ctime[index]) or None,
-            ctime_true=int(ctime_true[index]) or None,
+            ctime_true=ctime_true[index] or None,
             com_bar=None if ctime[index] == 0 else float(com_bar[index]),
             triggers=int((history.triggers[: ctime[index] or None, index] != 0).sum()),
             robot_bytes=int(sent_bytes[: ctime[index] or None, index].sum()),
@@ -348,21 +352,35 @@ def moving_scenario(base: str, strategy: str, mode: str, speed: float, angular_s
     return resolve(apply_overrides(spec, strategy=strategy, estimation=mode, max_steps=steps), label)
 
 
+FIXED_POINT = 2.0**32  # units per degree or metre of the float sums of StepTotals
+
+
 class StepTotals(msgspec.Struct, frozen=True):
     """Per-step sums over some ``trials`` of a moving-target run (what a task hands on, and what a
     run's figures and series are computed from): true Cerr (degrees) and Terr (metres), robots that
-    polled, robot-to-robot messages (pushes included) and their payload bytes."""
+    polled, robot-to-robot messages (pushes included) and their payload bytes. Cerr and Terr are
+    summed in fixed point (integers of ``1 / FIXED_POINT`` degrees or metres, each trial's value
+    rounded once), so sums add exactly: a run's figures do not depend on how its trials were cut
+    into batches or which worker ran them."""
 
     trials: int
-    cerr_deg: list[float]
-    terr: list[float]
+    cerr_deg: list[int]
+    terr: list[int]
     polls: list[int]
     messages: list[int]
     payload: list[int]
 
     def mean(self, name: str) -> FloatArray:
-        """The trial-mean series of the quantity ``name`` (one of the sums), per step."""
-        return np.asarray(getattr(self, name), dtype=float) / self.trials
+        """The trial-mean series of the quantity ``name`` (one of the sums), per step (degrees or
+        metres for Cerr and Terr)."""
+        scale = FIXED_POINT if name in ("cerr_deg", "terr") else 1.0
+        return np.array(getattr(self, name), dtype=float) / (scale * self.trials)
+
+
+def fixed_point_sums(values: FloatArray) -> list[int]:
+    """Per-step sums (steps on axis 0, trials on axis 1) of ``values`` in fixed point (see
+    :class:`StepTotals`); exact whatever the order of the trials."""
+    return np.rint(values * FIXED_POINT).astype(np.int64).sum(axis=1).tolist()
 
 
 def step_totals(history: engine.History, trials: slice) -> StepTotals:
@@ -370,8 +388,8 @@ def step_totals(history: engine.History, trials: slice) -> StepTotals:
     assert history.sent_bytes is not None  # engine runs count bytes
     return StepTotals(
         trials=len(history.seeds[trials]),
-        cerr_deg=history.cerr_true[:, trials].sum(axis=1).tolist(),
-        terr=history.terr[:, trials].sum(axis=1).tolist(),
+        cerr_deg=fixed_point_sums(history.cerr_true[:, trials]),
+        terr=fixed_point_sums(history.terr[:, trials]),
         polls=(history.triggers[:, trials] != 0).sum(axis=(1, 2)).tolist(),
         messages=history.sent[:, trials].sum(axis=(1, 2)).tolist(),
         payload=history.sent_bytes[:, trials].sum(axis=(1, 2)).tolist(),
@@ -379,8 +397,8 @@ def step_totals(history: engine.History, trials: slice) -> StepTotals:
 
 
 def combined(parts: Sequence[StepTotals]) -> StepTotals:
-    """The totals over the trials of all ``parts`` (summed step by step, in the order given)."""
-    sums = {name: functools.reduce(np.add, (np.asarray(getattr(part, name)) for part in parts)).tolist()
+    """The totals over the trials of all ``parts`` (exact sums, step by step)."""
+    sums = {name: functools.reduce(np.add, (np.asarray(getattr(part, name), dtype=np.int64) for part in parts)).tolist()
             for name in ("cerr_deg", "terr", "polls", "messages", "payload")}
     return StepTotals(trials=sum(part.trials for part in parts), **sums)
 

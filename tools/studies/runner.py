@@ -5,9 +5,11 @@ study.
 
 A task's result leaves the process that ran it as JSON (msgspec), and the study is assembled from
 the decoded results in the tasks' order, whoever ran them and in whatever order they finished: the
-same bytes whether a result came from this process, a pool, a cluster or the journal. The chunks
-(``batch`` trials each) never depend on the number of workers: a stationary batch stops once all
-its trials converged, so a trial's Ctime on the true Cerr depends on the batch it ran in.
+same bytes whether a result came from this process, a pool, a cluster or the journal. Nor do
+results depend on the chunks (``batch`` trials each): the engine computes each trial elementwise
+along its batch and the studies add trials up exactly (:class:`tools.studies.experiment.StepTotals`),
+so ``batch`` only trades engine efficiency (bigger) against parallelism and the work a kill loses
+(smaller).
 
 The journal (``PATH.journal.jsonl`` beside the study's ``--json`` or ``--csv`` output) is JSON
 lines: a header (:class:`JournalHeader`: the experiment, every parameter that changes results, the
@@ -33,7 +35,7 @@ import msgspec
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.progress import TrialProgress
 
-BATCH = 25  # trials per task unless --batch says otherwise (results depend on it: see the module docstring)
+BATCH = 50  # trials per task unless --batch says otherwise (speed only: see the module docstring)
 CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
 
 
