@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from ringtrack.agents.estimation import Estimators, Told
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
-from ringtrack.bus.messages import robot_message_bytes
+from ringtrack.bus.messages import robot_message_bytes, uint_bytes
 from ringtrack.bus.radio import message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import (
@@ -308,9 +308,10 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     faults = np.stack([counts[name].reshape(trials, -1).sum(axis=1) for name in FAULT_COLUMNS], axis=-1)
     fresh = (requests > 0) & ~reply.dropped
     radio = groups[0][0].radio
-    request_bytes = robot_message_bytes("request", step, robot, neighbour, request_belief)
+    request_bytes = _ring_message_bytes("request", step, robots, request_belief)
     sides = None if content is None else np.stack(_to_sides(content), axis=2)  # what (predecessor, successor) carry
-    reply_bytes = robot_message_bytes("reply", step, neighbour, robot, belief, sides)
+    reply_bytes = (_ring_message_bytes("reply", step, robots, belief) if sides is None
+                   else robot_message_bytes("reply", step, neighbour, robot, belief, sides))
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
     on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
@@ -319,7 +320,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     other = np.stack([requests * reply_bytes, requests * transmit_energy(radio, reply_bits, distance),
                       requests * receive_energy(radio, request_bits)])
     if pushing:
-        push_bytes = robot_message_bytes("push", step, robot, neighbour)
+        push_bytes = _ring_message_bytes("push", step, robots, False)
         push_bits = message_bits(radio, push_bytes)
         own = own + np.stack([pushes * push_bytes, pushes * transmit_energy(radio, push_bits, distance),
                               np.zeros(reach.shape)])
@@ -329,6 +330,23 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
                     totals[0].astype(np.int64), np.stack([totals[1], totals[2]], axis=-1), pushes,
                     (pushes > 0) & ~push.dropped)
+
+
+def _ring_message_bytes(kind: str, step: int, robots: int, belief: bool) -> NDArray[np.int64]:
+    """:func:`bus.messages.robot_message_bytes` of a step's ``kind`` messages from every robot of a
+    ring of ``robots`` to its (predecessor, successor) (replies: from them), shape (1, N, 2), read-only;
+    they depend on the step only through its encoded size, which keys a cache."""
+    key = (kind, int(uint_bytes(step)), robots, belief)
+    if key not in _RING_MESSAGE_BYTES:
+        robot, neighbour = _ring_sides(robots)
+        sender, receiver = (neighbour, robot) if kind == "reply" else (robot, neighbour)
+        sizes = np.asarray(robot_message_bytes(kind, step, sender, receiver, belief), dtype=np.int64)
+        sizes.setflags(write=False)
+        _RING_MESSAGE_BYTES[key] = sizes
+    return _RING_MESSAGE_BYTES[key]
+
+
+_RING_MESSAGE_BYTES: dict[tuple[str, int, int, bool], NDArray[np.int64]] = {}  # see _ring_message_bytes
 
 
 @lru_cache(maxsize=8)

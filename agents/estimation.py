@@ -111,29 +111,28 @@ class RangeFilters:
         if not usable.any():
             return
         safe = np.where(usable, distances, 1.0)
-        ux, uy = np.where(usable, dx / safe, 0.0), np.where(usable, dy / safe, 0.0)  # H's rows, 0 where unused
+        rows = np.where(usable[:, None], np.stack([dx, dy], axis=1) / safe[:, None], 0.0)  # H^T, (B, 2, m)
         residual = np.where(usable, measured - distances, 0.0)
-        p00, p01, p11 = self.covariance[:, 0, 0, None], self.covariance[:, 0, 1, None], self.covariance[:, 1, 1, None]
-        ph0, ph1 = p00 * ux + p01 * uy, p01 * ux + p11 * uy  # P H^T, (B, m) per row of P
-        innovation = ux[:, :, None] * ph0[:, None, :] + uy[:, :, None] * ph1[:, None, :]  # H P H^T, (B, m, m)
+        covariance = self.covariance
+        gain_numerator = _products(covariance, rows)  # P H^T, (B, 2, m)
+        innovation = sequential_sum(rows[:, :, :, None] * gain_numerator[:, :, None, :], axis=1)  # H P H^T
         innovation = innovation + self.range_sigma**2 * np.eye(measured.shape[1])
         inverse = 1.0 / innovation if measured.shape[1] == 1 else np.linalg.inv(innovation)
-        k0 = sequential_sum(ph0[:, :, None] * inverse, axis=1)  # K = P H^T S^-1, (B, m) per row of K
-        k1 = sequential_sum(ph1[:, :, None] * inverse, axis=1)
-        sums = sequential_sum(np.stack([k0 * residual, k1 * residual, k0 * ux, k0 * uy, k1 * ux, k1 * uy,
-                                        k0 * k0, k0 * k1, k1 * k1]), axis=2)
-        mean = self.mean + np.stack([sums[0], sums[1]], axis=-1)
-        # Joseph form: (I - K H) P (I - K H)^T + K R K^T, component by component
-        a00, a01, a10, a11 = 1.0 - sums[2], -sums[3], -sums[4], 1.0 - sums[5]
-        p00, p01, p11 = p00[:, 0], p01[:, 0], p11[:, 0]
-        b00, b01 = a00 * p00 + a01 * p01, a00 * p01 + a01 * p11  # A P
-        b10, b11 = a10 * p00 + a11 * p01, a10 * p01 + a11 * p11
-        noise = self.range_sigma**2
-        c00 = b00 * a00 + b01 * a01 + noise * sums[6]
-        c01 = b00 * a10 + b01 * a11 + noise * sums[7]
-        c11 = b10 * a10 + b11 * a11 + noise * sums[8]
-        covariance = np.stack([np.stack([c00, c01], axis=-1), np.stack([c01, c11], axis=-1)], axis=-2)
+        gain = sequential_sum(gain_numerator[:, :, :, None] * inverse[:, None, :, :], axis=2)  # K, (B, 2, m)
+        mean = self.mean + sequential_sum(gain * residual[:, None, :], axis=2)
+        # Joseph form: (I - K H) P (I - K H)^T + K R K^T
+        keep = np.eye(2) - sequential_sum(gain[:, :, None, :] * rows[:, None, :, :], axis=3)  # I - K H
+        kept = _products(_products(keep, covariance), keep.transpose(0, 2, 1))  # (I - K H) P (I - K H)^T
+        noise = sequential_sum(gain[:, :, None, :] * gain[:, None, :, :], axis=3)  # K K^T
+        covariance = kept + self.range_sigma**2 * noise
+        covariance[:, 1, 0] = covariance[:, 0, 1]  # exactly symmetric
         self.adopt(mean, covariance, usable.any(axis=1))
+
+
+def _products(left: FloatArray, right: FloatArray) -> FloatArray:
+    """The matrix products ``L R`` of ``left`` (B, 2, 2) and ``right`` (B, 2, n),
+    ``sum_c L[a, c] R[c, j]`` term by term (elementwise along the batch: no BLAS kernel chosen by shape)."""
+    return left[:, :, 0, None] * right[:, None, 0, :] + left[:, :, 1, None] * right[:, None, 1, :]
 
 
 def _ranges(x: FloatArray, positions: FloatArray) -> FloatArray:

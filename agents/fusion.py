@@ -100,12 +100,16 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
 def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
     """The sum along ``axis`` added strictly in order, so that a row's sum never depends on the shape
     of its batch (numpy's ``sum`` may pair terms differently)."""
-    parts = np.moveaxis(np.asarray(values), axis, 0)
-    if len(parts) > SHORT_SUM:
-        return np.cumsum(parts, axis=0)[-1]
-    total = parts[0]
-    for part in parts[1:]:
-        total = total + part
+    values = np.asarray(values)
+    count = values.shape[axis]
+    if count > SHORT_SUM:
+        return np.take(np.cumsum(values, axis=axis), -1, axis=axis)
+    index: list[slice | int] = [slice(None)] * values.ndim
+    index[axis] = 0
+    total = values[tuple(index)]
+    for term in range(1, count):
+        index[axis] = term
+        total = total + values[tuple(index)]
     return total
 
 
@@ -201,21 +205,17 @@ def intersect_in_order(means: FloatArray, covariances: FloatArray, present: NDAr
 def _intersect(means: FloatArray, information: FloatArray, weights: FloatArray) -> Fused:
     """The CI of every row at its ``weights`` (B, k), from the information matrices ``P_k^{-1}``
     (B, k, 2, 2); absent estimates have weight 0."""
-    fused_information = np.zeros((len(means), 2, 2))
-    weighted_mean = np.zeros((len(means), 2))
-    for index in range(means.shape[1]):
-        weighted = weights[:, index, None, None] * information[:, index]
-        fused_information = fused_information + weighted
-        weighted_mean = weighted_mean + _times(weighted, means[:, index])
+    fused_information = sequential_sum(weights[:, :, None, None] * information, axis=1)
+    informed = _times(information, means)  # P_k^{-1} x_k, (B, k, 2)
     covariance = inverse_2x2(fused_information)
-    return Fused(mean=_times(covariance, weighted_mean), covariance=covariance, weights=weights)
+    return Fused(mean=_times(covariance, sequential_sum(weights[:, :, None] * informed, axis=1)),
+                 covariance=covariance, weights=weights)
 
 
 def _times(matrices: FloatArray, vectors: FloatArray) -> FloatArray:
     """``M v`` of 2x2 matrices (..., 2, 2) and vectors (..., 2), elementwise (no BLAS: the same bits
     whatever the batch)."""
-    return np.stack([matrices[..., 0, 0] * vectors[..., 0] + matrices[..., 0, 1] * vectors[..., 1],
-                     matrices[..., 1, 0] * vectors[..., 0] + matrices[..., 1, 1] * vectors[..., 1]], axis=-1)
+    return matrices[..., 0] * vectors[..., None, 0] + matrices[..., 1] * vectors[..., None, 1]
 
 
 def _determinant_form(information: FloatArray, traces: FloatArray) -> FloatArray:
