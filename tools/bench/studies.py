@@ -5,6 +5,8 @@ against the centralized one, and the wall time of whole studies (each beside its
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -18,6 +20,7 @@ from ringtrack.tools.output.console import err
 from ringtrack.tools.studies.experiment import random_start_scenarios, stationary_experiment
 from ringtrack.tools.studies.robustness import Cell, faults_experiment
 from ringtrack.tools.studies.runner import Execution, Study, Task, available_cores, chunks, run_study, seed_range
+from ringtrack.tools.team.launcher import PRELOADED
 from ringtrack.world.scenario import Scenario, load_scenario
 
 MOVING = "authors-moving"
@@ -32,6 +35,7 @@ TARGETS: dict[str, tuple[str, float]] = {
     "faults_study_s": ("<=", 10.0),
     "stationary_sweep_s": ("<=", 3.0),
     "workers_2_speedup": (">=", 1.7),
+    "robot_start_s": ("<=", 0.3),
 }
 # Throughput runs: name -> (scenario, strategy, estimation mode; None: a stationary target until converged).
 THROUGHPUT: dict[str, tuple[str, str, str | None]] = {
@@ -104,6 +108,35 @@ def seconds_per_trial(scenario: Scenario, trials: int) -> float:
     return timed(lambda: engine.run(scenario, list(range(trials)), record_positions=False)) / trials
 
 
+# A launcher's work, timed: import what it preloads, fork, and in the child build a decentralized
+# robot's estimator (its first step's work) and report the seconds since the fork.
+ROBOT_START = f"""
+import importlib, os, sys, time
+for name in {PRELOADED!r}:
+    importlib.import_module(name)
+from ringtrack.agents.estimation import Estimator
+from ringtrack.world.scenario import load_scenario
+scenario = load_scenario("{MOVING}", estimation="decentralized")
+read, write = os.pipe()
+forked = time.perf_counter()
+if os.fork() == 0:
+    estimator = Estimator(scenario.estimation, scenario.region, scenario.target)
+    estimator.measure(scenario.start_positions(0)[:1], [3.0])
+    os.write(write, repr(time.perf_counter() - forked).encode())
+    os._exit(0)
+os.close(write)
+print(os.read(read, 64).decode())
+os.wait()
+"""
+
+
+def robot_start_s() -> float:
+    """Seconds from the fork of a robot process by a launcher (its modules preloaded) until it has
+    built its estimator and measured once (a fresh interpreter runs :data:`ROBOT_START`)."""
+    output = subprocess.run([sys.executable, "-c", ROBOT_START], capture_output=True, text=True, check=True)
+    return float(output.stdout)
+
+
 def timed(call: Callable[[], object]) -> float:
     """Wall seconds ``call`` took."""
     started = time.perf_counter()
@@ -128,6 +161,7 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
     centralized = seconds_per_trial(scenario_of(MOVING, "self", "centralized", sizes), 10)
     err.print("bench studies: the faults study, the stationary sweep and the speed-up of 2 workers", highlight=False)
     cells = [Cell(drop, 0, None) for drop in FAULT_DROPS]
+    every_core = Execution(workers=cores)  # as the commands run by default
     stationary = scenario_of(STATIONARY, "self", None, sizes)
     one, two = (trials_per_s(stationary, sizes.speedup_trials, max(1, sizes.speedup_trials // 10), workers)
                 for workers in (1, 2))
@@ -139,11 +173,14 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
         **per_trial,
         "decentralized_over_centralized": per_trial["batch_10_s_per_trial"] / centralized,
         "faults_study_s": timed(lambda: faults_experiment(MOVING, cells, sizes.fault_trials, 0, sizes.moving_steps,
-                                                          settle=min(300, decentralized.max_steps - 1))),
+                                                          settle=min(300, decentralized.max_steps - 1),
+                                                          execution=every_core)),
         "stationary_sweep_s": timed(lambda: stationary_experiment(
-            STATIONARY, list(sizes.sweep), sizes.sweep_trials, 0, max_steps=sizes.stationary_steps)),
+            STATIONARY, list(sizes.sweep), sizes.sweep_trials, 0, execution=every_core,
+            max_steps=sizes.stationary_steps)),
         "workers_2_speedup": two / one,
         "speedup_trials": sizes.speedup_trials,
+        "robot_start_s": min(robot_start_s() for _ in range(3)),
     }
 
 

@@ -260,8 +260,10 @@ def studies_table(results: dict[str, Any]) -> Table:
     labels = {"alone_s_per_trial": "decentralized trial alone", "batch_10_s_per_trial": "... in a batch of 10",
               "batch_100_s_per_trial": "... in a batch of 100",
               "decentralized_over_centralized": "decentralized / centralized per trial (batch 10)",
-              "faults_study_s": "faults study (5 drops, moving)", "stationary_sweep_s": "stationary sweep",
-              "workers_2_speedup": f"2 workers vs 1, {results['speedup_trials']} trials"}
+              "faults_study_s": "faults study (5 drops, moving, every core)",
+              "stationary_sweep_s": "stationary sweep (every core)",
+              "workers_2_speedup": f"2 workers vs 1, {results['speedup_trials']} trials",
+              "robot_start_s": "a robot from its fork to its first estimate"}
     for name, (way, target) in TARGETS.items():
         unit = " s" if name.endswith("_s") or name.endswith("per_trial") else " x"
         table.add_row(labels[name], f"{results[name]:.3f}{unit}", f"{way} {target:g}{unit}",
