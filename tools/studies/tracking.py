@@ -262,7 +262,6 @@ def plot_tracking(result: TrackingStudy, path: Path) -> None:
     axis.plot([row.robot_messages_per_robot_step for row in central], [1.0] * len(central), "x", color="black")
     axis.set_xlabel("robot-to-robot messages per robot-step (constant: 4)")
     axis.set_ylabel("Terr / centralized Terr")
-    axis.set_yscale("log")
     axis.set_title(f"{len(central)} scenarios, {result.trials} trials each, means from step {result.settle} "
                    "(or below a shorter run)", fontsize=10)
     axis.legend(fontsize=8)
