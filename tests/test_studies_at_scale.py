@@ -29,6 +29,8 @@ STUDIES = {
     "faults": ["experiment", "faults", "--drop", "0,0.3", "--trials", "3", "--steps", "150", "--batch", "2"],
     "gates": ["experiment", "gates", "--gates", "1,2", "--trials", "3", "--steps", "100", "--settle", "20",
               "--batch", "2"],
+    "tracking": ["experiment", "tracking", "authors-moving", "--strategies", "self,belief", "--trials", "3", "--steps",
+                 "100", "--settle", "20", "--batch", "2"],
 }
 WALL = re.compile(rb'\n *"wall_s": [^\n]*')
 

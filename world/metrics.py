@@ -79,10 +79,13 @@ def convergence_step(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.int64]
     return np.where(below.any(axis=0), below.argmax(axis=0) + 1, 0)
 
 
-def target_error(centres: ArrayLike, target: ArrayLike) -> FloatArray:
+def target_error(centres: ArrayLike, target: ArrayLike, squared: bool = False) -> FloatArray:
     """``Terr`` (metres): the mean over robots (axis -2 of ``centres``, NaN rows unknown) of the
-    distance from each centre to ``target``; NaN where no robot's centre is known."""
+    distance from each centre to ``target``; NaN where no robot's centre is known. ``squared``: the
+    mean of the squared distances instead (m^2; its root over steps is the estimates' RMSE)."""
     distances = np.linalg.norm(np.asarray(centres, dtype=float) - np.asarray(target)[..., None, :], axis=-1)
+    if squared:
+        distances = distances**2
     known = ~np.isnan(distances)
     count = known.sum(axis=-1)
     total = np.where(known, distances, 0.0).sum(axis=-1)

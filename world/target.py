@@ -6,7 +6,8 @@ Where the target is at each step (metres; step k at time ``(k - 1) dt``):
 * ``circle``: centre ``c``, linear speed ``v`` (m/s), angular speed ``w`` (rad/s, CCW positive),
   radius ``v / |w|``, ``o(k) = c + r (cos(phi0 + w t), sin(phi0 + w t))``, ``phi0`` = ``phase_deg``;
 * ``random_walk``: ``o(k+1) = o(k) + N(0, (speed_std dt)^2 I)`` from a seeded stream; a step that
-  would leave the region is redrawn, so the walk stays inside by construction;
+  would leave the region is redrawn, so the walk stays inside by construction (and its steps near
+  the boundary are not exactly Gaussian: :meth:`RandomWalk.step_covariance` is the free walk's);
 * ``waypoints``: along the polyline at ``speed`` (m/s), back to the first waypoint if ``loop``.
 
 Paths are computed for the whole run at once, so the engine and the world process read the same
@@ -86,6 +87,12 @@ class RandomWalk(Spec, tag_field="motion", tag="random_walk", frozen=True):
 
     def check(self, region: ConvexRegion, margin: float) -> None:
         _require_inside(region, self.position, "target.position", margin)
+
+    def step_covariance(self, dt: float) -> float:
+        """The variance (m^2, per axis) of a step of ``dt`` seconds, ``(speed_std dt)^2``: ``Q = q I``.
+        Exact for the free walk; a step redrawn because it would leave the region is drawn from
+        the Gaussian truncated to the region, whose covariance is smaller (ignored)."""
+        return (self.speed_std * dt) ** 2
 
 
 class Waypoints(Spec, tag_field="motion", tag="waypoints", frozen=True):

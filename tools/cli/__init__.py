@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, ...]] = {
     "introspect": ("list", "echo", "hz"),
     "export": ("export",),
     "strategies": ("strategies",),
+    "scenarios": ("scenarios",),
 }
 
 # One-line errors of bad input: (module, class). A class whose module was never imported cannot

@@ -1,4 +1,4 @@
-"""``ringtrack experiment stationary|moving|faults|gates``: the paper's experiments and our sweeps, as
+"""``ringtrack experiment stationary|moving|faults|gates|tracking``: the paper's experiments and our sweeps, as
 tables, JSON, CSV and figures."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from rich import box
 from rich.table import Table
 
 from ringtrack.agents.strategy import StrategyError, strategy_for
-from ringtrack.tools.cli import experiment_faults, experiment_gates
+from ringtrack.tools.cli import experiment_faults, experiment_gates, experiment_tracking
 from ringtrack.tools.cli.options import (
     CSV_FILE,
     FIGURE_SUFFIXES,
@@ -94,6 +94,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.set_defaults(handler=run_moving)
     experiment_faults.register(kinds)
     experiment_gates.register(kinds)
+    experiment_tracking.register(kinds, strategy_list)
 
 
 def strategy_list(text: str) -> list[str]:

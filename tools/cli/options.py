@@ -46,6 +46,17 @@ def add_scenario_arguments(parser: argparse.ArgumentParser, steps_help: str) -> 
     parser.add_argument("--communication-range", type=float, metavar="M", help="r_c in metres")
 
 
+# --steps of the commands that run a scenario (simulate, spawn, the world role): the default's words.
+UNTIL_CONVERGED = ("a stationary target's run ends at convergence (at most control.max_steps), a moving target's "
+                   "runs control.max_steps steps")
+
+
+def stops_at_convergence(args: argparse.Namespace, scenario: Scenario) -> bool:
+    """Whether a run ends at convergence: without ``--steps`` and for a stationary target only (a
+    moving target is tracked for all of ``control.max_steps``: convergence says nothing of Terr)."""
+    return args.steps is None and not scenario.moving
+
+
 def add_from_step_argument(parser: argparse.ArgumentParser) -> None:
     """``--from-step S``: a moving target's Cerr and Terr means leave out the first S steps."""
     parser.add_argument("--from-step", type=at_least(0), default=300, metavar="S",

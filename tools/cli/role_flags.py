@@ -7,15 +7,15 @@ from pathlib import Path
 
 from ringtrack.bus.config import LEASE_S, LOOPBACK_ANY_PORT, BusConfig
 from ringtrack.bus.security import secure_config
-from ringtrack.tools.cli.options import add_scenario_arguments, positive
+from ringtrack.tools.cli.options import UNTIL_CONVERGED, add_scenario_arguments, positive
 from ringtrack.tools.output.console import err
 
 SECURE_HELP = "team folder made by ringtrack certs: mutual TLS on every link (tls/ endpoints), access control"
 
 
 def common_flags(parser: argparse.ArgumentParser) -> None:
-    add_scenario_arguments(parser, steps_help="run exactly this many steps (default: the world ends the run at "
-                           "convergence, at most control.max_steps)")
+    add_scenario_arguments(parser, steps_help=f"run exactly this many steps (default: {UNTIL_CONVERGED}; the "
+                           "world ends the run)")
     parser.add_argument("--run", type=run_id, default=0, metavar="HEX", help="run id shared by the team (hex)")
     parser.add_argument("--mode", choices=["peer", "router", "client"], default="peer", help="Zenoh mode")
     parser.add_argument("--listen", action="append", metavar="ENDPOINT",

@@ -12,9 +12,11 @@ from ringtrack.agents.summary import RunSummary, summarise
 from ringtrack.tools.cli.options import (
     JSON_FILE,
     LOG_FILE,
+    UNTIL_CONVERGED,
     add_from_step_argument,
     add_scenario_arguments,
     scenario_from_arguments,
+    stops_at_convergence,
 )
 from ringtrack.tools.monitor.state import messages_saved
 from ringtrack.tools.output.console import BUSIEST, SUMMARISED_ABOVE, show, warn_if_threshold_loose
@@ -26,10 +28,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "simulate",
         help="run a scenario in-process (no processes, no Zenoh) and summarise it",
-        description="Run a scenario in the in-process engine. Without --steps it stops at convergence "
-        "(at most control.max_steps steps); with --steps K it runs exactly K steps.",
+        description="Run a scenario in the in-process engine. Without --steps a stationary target's run stops "
+        "at convergence (at most control.max_steps steps) and a moving target's runs control.max_steps steps; "
+        "with --steps K it runs exactly K steps.",
     )
-    add_scenario_arguments(parser, steps_help="run exactly this many steps")
+    add_scenario_arguments(parser, steps_help=f"run exactly this many steps (default: {UNTIL_CONVERGED})")
     parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the summary as JSON")
     parser.add_argument("--log", type=LOG_FILE, metavar="PATH", help="write the run log (same format as spawn's)")
     add_from_step_argument(parser)
@@ -41,7 +44,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     scenario = scenario_from_arguments(args)
     warn_if_threshold_loose(scenario)
-    history = engine.run(scenario, until_converged=args.steps is None, record_positions=args.log is not None)
+    history = engine.run(scenario, until_converged=stops_at_convergence(args, scenario),
+                         record_positions=args.log is not None)
     result = summarise(history, settle=args.from_step)
     show(summary_table(result, args.all_robots))
     if args.json:

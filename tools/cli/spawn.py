@@ -9,11 +9,13 @@ from ringtrack.bus.config import LEASE_S
 from ringtrack.tools.cli.options import (
     JSON_FILE,
     LOG_FILE,
+    UNTIL_CONVERGED,
     add_from_step_argument,
     add_scenario_arguments,
     at_least,
     positive,
     scenario_from_arguments,
+    stops_at_convergence,
 )
 from ringtrack.tools.output.console import out
 from ringtrack.tools.output.files import write_json
@@ -28,8 +30,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         description="Start the world, one process per robot and the monitor over Zenoh (loopback, free "
         "ports), show progress, and stop everything on completion, Ctrl-C or SIGTERM.",
     )
-    add_scenario_arguments(parser, steps_help="run exactly this many steps (default: until converged, at "
-                           "most control.max_steps)")
+    add_scenario_arguments(parser, steps_help=f"run exactly this many steps (default: {UNTIL_CONVERGED})")
     parser.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep",
                         help="lockstep: each step waits for every robot (deterministic, equals the engine); "
                         "realtime: a step every dt / rate wall seconds (default lockstep)")
@@ -70,14 +71,15 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run_spawn(args: argparse.Namespace) -> int:
+    scenario = scenario_from_arguments(args)
     plan = TeamPlan(
-        scenario=scenario_from_arguments(args),
+        scenario=scenario,
         clock=args.clock,
         rate=args.rate,
         runs=args.runs,
         log_path=args.log,
         dashboard=True if args.dashboard else False if args.no_dashboard else None,
-        until_converged=args.steps is None,
+        until_converged=stops_at_convergence(args, scenario),
         topology=args.topology,
         robots_per_process=args.robots_per_process,
         secure=args.secure,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ringtrack.agents.strategy import check_strategy
 from ringtrack.bus.keys import WORLD
-from ringtrack.tools.cli.options import positive, scenario_from_arguments
+from ringtrack.tools.cli.options import positive, scenario_from_arguments, stops_at_convergence
 from ringtrack.tools.cli.role_flags import bus_config, common_flags, digests
 from ringtrack.tools.output.console import warn_if_threshold_loose
 from ringtrack.world.process import WorldOptions, run_world
@@ -37,7 +37,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         rate=args.rate,
         expect_monitor=args.monitor,
         announce=args.announce,
-        until_converged=args.steps is None,  # as spawn and simulate: --steps K runs exactly K steps
+        until_converged=stops_at_convergence(args, scenario),  # as spawn and simulate
         lockstep_wait=args.lockstep_wait,
         digest=args.monitor and digests(args),
         cerr=check_strategy(scenario).cerr,

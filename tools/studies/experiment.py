@@ -398,9 +398,14 @@ def step_totals(history: engine.History, trials: slice) -> StepTotals:
 
 def combined(parts: Sequence[StepTotals]) -> StepTotals:
     """The totals over the trials of all ``parts`` (exact sums, step by step)."""
-    sums = {name: functools.reduce(np.add, (np.asarray(getattr(part, name), dtype=np.int64) for part in parts)).tolist()
+    sums = {name: exact_sum([getattr(part, name) for part in parts])
             for name in ("cerr_deg", "terr", "polls", "messages", "payload")}
     return StepTotals(trials=sum(part.trials for part in parts), **sums)
+
+
+def exact_sum(series: Sequence[list[int]]) -> list[int]:
+    """The step-by-step sum of integer per-step ``series`` (fixed point: :func:`fixed_point_sums`)."""
+    return functools.reduce(np.add, (np.asarray(values, dtype=np.int64) for values in series)).tolist()
 
 
 def moving_figures(totals: StepTotals, robots: int, settle: int, mode: str) -> MovingFigures:

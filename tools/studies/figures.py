@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,11 @@ from ringtrack.tools.studies.robustness import METRICS, MOVING_METRICS, FaultStu
 # A study's strategies (or runs) take these colours in the order the study compares them.
 PALETTE = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive",
            "tab:cyan")
+
+
+def drawn(value: float | None) -> float:
+    """A figure as drawn: NaN (no point) where it is unknown."""
+    return math.nan if value is None else value
 
 
 def colour(position: int) -> str:

@@ -3,7 +3,6 @@ push gate g, against the centralized self-triggered team on the same random star
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +13,7 @@ import msgspec
 
 from ringtrack.agents import engine
 from ringtrack.tools.studies.experiment import StepTotals, combined, step_totals, strategy_labels
+from ringtrack.tools.studies.figures import drawn
 from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, load_scenario, resolve
@@ -110,13 +110,13 @@ def gates_experiment(base: str, gates: list[float], trials: int, settle: int, st
 def plot_gates(result: GatesStudy, path: Path) -> None:
     figure, axis = plt.subplots(figsize=(6, 4.2), layout="constrained")
     points = result.points
-    xs = [_drawn(entry.robot_messages_per_robot_step) for entry in points]
-    ys = [_drawn(entry.terr_mean) for entry in points]
+    xs = [drawn(entry.robot_messages_per_robot_step) for entry in points]
+    ys = [drawn(entry.terr_mean) for entry in points]
     axis.plot(xs, ys, "o-", color="tab:red", label=f"{result.labels[GATED]} (decentralized)")
     for entry, x, y in zip(points, xs, ys, strict=True):
         axis.annotate(f"g = {entry.gate:g}", (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
     reference, mode = REFERENCE
-    axis.axhline(_drawn(result.centralized.terr_mean), color="tab:orange", linestyle="--",
+    axis.axhline(drawn(result.centralized.terr_mean), color="tab:orange", linestyle="--",
                  label=f"{result.labels[reference]}, {mode} EKF")
     axis.set_xlabel("robot-to-robot messages per robot-step (constant: 4)")
     axis.set_ylabel("Terr (m)")
@@ -125,8 +125,3 @@ def plot_gates(result: GatesStudy, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)
     plt.close(figure)
-
-
-def _drawn(value: float | None) -> float:
-    """A figure as drawn: NaN (no point) where it is unknown."""
-    return math.nan if value is None else value

@@ -1,0 +1,94 @@
+"""``ringtrack experiment tracking``: decentralized tracking against the centralized filter and the
+posterior Cramér-Rao bound over many scenarios (:mod:`tools.studies.tracking`)."""
+
+from __future__ import annotations
+
+import argparse
+
+from rich import box
+from rich.table import Table
+
+from ringtrack.tools.cli.options import (
+    CSV_FILE,
+    FIGURE_SUFFIXES,
+    JSON_FILE,
+    add_study_arguments,
+    at_least,
+    execution_of,
+    output_path,
+)
+from ringtrack.tools.output.console import show
+from ringtrack.tools.output.files import write_csv, write_json
+from ringtrack.tools.studies.experiment import run_label
+from ringtrack.tools.studies.tracking import (
+    SETTLE,
+    TRACKING_COLUMNS,
+    TrackingStudy,
+    decentralized_strategies,
+    plot_tracking,
+    tracking_experiment,
+)
+
+
+def register(kinds: argparse._SubParsersAction, strategy_list: argparse._ActionType) -> None:
+    parser = kinds.add_parser(
+        "tracking",
+        help="decentralized tracking vs the centralized EKF (Terr ratio) and the PCRB over many scenarios",
+        description="On every scenario (shipped names, TOML files, folders of them such as ringtrack scenarios "
+        "generate writes), run each strategy with decentralized estimation and, as reference, the scenario's "
+        "own strategy (self where it needs decentralized estimation) with the centralized EKF, on the same "
+        "seeds (trial t: seed S + t; the same starts, target paths and noise). Reports settled Terr, its ratio "
+        "to the centralized Terr, Cerr, messages per robot-step and the RMSE of the robots' estimates; where "
+        "the target is a random walk, the posterior Cramér-Rao bound along each trial's path (docs/algorithms.md "
+        "section 19).",
+    )
+    parser.add_argument("scenarios", nargs="*", default=["authors-moving"], metavar="SCENARIO",
+                        help="shipped names, TOML files or folders of TOML files (default authors-moving)")
+    parser.add_argument("--strategies", type=strategy_list, metavar="A,B",
+                        help="strategies run with decentralized estimation, registered names or .py files (default: "
+                        f"every registered one that can, {','.join(decentralized_strategies())})")
+    parser.add_argument("--trials", type=at_least(1), default=5, help="random starts per run (default 5)")
+    parser.add_argument("--seed", type=at_least(0), default=0, help="seed of trial 0 (default 0)")
+    parser.add_argument("--steps", type=at_least(2), help="steps per run (default: each scenario's control.max_steps)")
+    parser.add_argument("--settle", type=at_least(0),
+                        help=f"means are taken from this step on (default {SETTLE}, or the last step of a shorter run)")
+    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the rows and the study's settings")
+    parser.add_argument("--csv", type=CSV_FILE, metavar="PATH", help="write the rows as CSV")
+    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
+                        help="draw Terr / centralized Terr against messages per robot-step")
+    add_study_arguments(parser)
+    parser.set_defaults(handler=run_tracking)
+
+
+def run_tracking(args: argparse.Namespace) -> int:
+    result = tracking_experiment(args.scenarios, args.trials, args.seed, args.strategies, args.steps, args.settle,
+                                 execution_of(args, args.json, args.csv))
+    show(tracking_table(result))
+    if args.json:
+        write_json(args.json, result)
+    if args.csv:
+        write_csv(args.csv, result.rows, TRACKING_COLUMNS)
+    if args.plot:
+        plot_tracking(result, args.plot)
+    return 0
+
+
+def _figure(value: float | None, spec: str) -> str:
+    return "-" if value is None else f"{value:{spec}}"
+
+
+def tracking_table(result: TrackingStudy) -> Table:
+    """A row per scenario and run: settled Terr, its ratio to the centralized, Cerr, messages per
+    robot-step, RMSE and (random walks) the bound."""
+    table = Table(title=f"tracking, {result.trials} trials (seeds {result.seed}..), means from step {result.settle} "
+                  "(or a shorter run's last); ÷ central: Terr over the centralized EKF's; CRB: posterior Cramér-Rao "
+                  "bound (RMSE, m)", title_justify="left", box=box.SIMPLE_HEAD)
+    for column in ("scenario", "target", "N", "strategy, EKF", "Terr m", "÷ central", "Cerr deg", "msg/rs",
+                   "RMSE m", "CRB m", "RMSE ÷ CRB"):
+        table.add_column(column, justify="right", no_wrap=True)
+    for row in result.rows:
+        table.add_row(row.scenario, row.motion, str(row.robots), run_label(row.strategy, row.estimation),
+                      _figure(row.terr_mean, ".3f"), _figure(row.terr_ratio, ".2f"), _figure(row.cerr_mean_deg, ".1f"),
+                      f"{row.robot_messages_per_robot_step:.3f}", _figure(row.rmse, ".3f"),
+                      _figure(row.crb_rmse, ".3f"), _figure(row.rmse_over_crb, ".2f"))
+    return table
