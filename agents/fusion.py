@@ -47,7 +47,7 @@ from ringtrack.world.params import Criterion
 TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
 FEASIBLE = -1e-12  # a face's stationary weights at least this are on the simplex (clipped to 0)
 DEGENERATE = 1e-12  # relative determinant below which a face's system is singular
-SHORT_SUM = 8  # terms a sum adds one by one; longer ones take a cumulative sum
+SHORT_SUM = 16  # terms a sum adds one by one; longer ones take a cumulative sum
 
 
 @dataclass(frozen=True)
