@@ -48,7 +48,8 @@ from ringtrack.tools.runlog.log import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
-FORCE_AFTER_S = 2.0  # an incomplete step record is written this long after its tick (lost messages)
+FORCE_AFTER_S = 5.0  # an incomplete step record is written this long after its tick (lost messages; a
+# loaded machine can hold a live link back for seconds: 2 s left 4 of a lockstep run's messages late)
 # Steps the monitor keeps open at once: a message claiming a step more than AHEAD_STEPS past the
 # latest tick, or a new step once PENDING_LIMIT are open, is dropped and counted (forged far-future
 # steps cannot grow the monitor's memory; a realtime team at 1000 steps/s keeps about 2000 open).
