@@ -130,17 +130,15 @@ def solve_small(matrices: FloatArray, right: FloatArray) -> tuple[FloatArray, Fl
         adjugate = [[m[1][1], -m[0][1]], [-m[1][0], m[0][0]]]
         determinant = m[0][0] * m[1][1] - m[0][1] * m[1][0]
     else:
-        def cofactor(row: int, column: int) -> FloatArray:
-            r0, r1 = [r for r in range(3) if r != row]
-            c0, c1 = [c for c in range(3) if c != column]
-            sign = -1.0 if (row + column) % 2 else 1.0
-            return sign * (m[r0][c0] * m[r1][c1] - m[r0][c1] * m[r1][c0])
-
-        adjugate = [[cofactor(column, row) for column in range(3)] for row in range(3)]  # transposed cofactors
-        determinant = m[0][0] * adjugate[0][0] + m[0][1] * adjugate[1][0] + m[0][2] * adjugate[2][0]
+        (a, b, c), (d, e, f), (g, h, i) = m
+        first = [e * i - f * h, f * g - d * i, d * h - e * g]  # the cofactors of the first row
+        adjugate = [[first[0], c * h - b * i, b * f - c * e],
+                    [first[1], a * i - c * g, c * d - a * f],
+                    [first[2], b * g - a * h, a * e - b * d]]
+        determinant = a * first[0] + b * first[1] + c * first[2]
+    stacked = np.stack([entry for row in adjugate for entry in row], axis=-1).reshape(matrices.shape)
     with np.errstate(divide="ignore", invalid="ignore"):
-        solution = np.stack([sum((adjugate[row][inner][..., None] * right[..., inner, :] for inner in range(1, size)),
-                                 adjugate[row][0][..., None] * right[..., 0, :]) for row in range(size)], axis=-2)
+        solution = sequential_sum(stacked[..., :, :, None] * right[..., None, :, :], axis=-2)  # adj(M) right
         return solution / determinant[..., None, None], determinant
 
 
