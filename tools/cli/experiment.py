@@ -21,9 +21,9 @@ from ringtrack.tools.cli.options import (
     output_path,
     strategy_argument,
     strategy_parameters,
+    write_study,
 )
 from ringtrack.tools.output.console import err, show
-from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.experiment import (
     MOVING_COLUMNS,
     STATIONARY_COLUMNS,
@@ -127,12 +127,7 @@ def run_stationary(args: argparse.Namespace) -> int:
     result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, args.strategies,
                                    execution_of(args, args.json, args.csv), **overrides)
     show(results_table(result))
-    if args.json:
-        write_json(args.json, result)
-    if args.csv:
-        write_csv(args.csv, result.rows, STATIONARY_COLUMNS)
-    if args.plot:
-        stationary_comparison(result, args.plot)
+    write_study(args, result, stationary_comparison, result.rows, STATIONARY_COLUMNS)
     failed = [entry for entry in result.summary if entry.converged < entry.trials]
     for entry in failed:
         err.print(
@@ -175,14 +170,9 @@ def run_moving(args: argparse.Namespace) -> int:
                                velocities=not args.no_velocities, fusion=args.fusion, strategies=args.strategies,
                                execution=execution_of(args, args.json, args.csv))
     show(moving_table(result))
-    if args.json:
-        write_json(args.json, result)
-    if args.csv:
-        write_csv(args.csv, result.rows, MOVING_COLUMNS)
-    if args.plot:
-        moving_comparison(result, args.plot)
-        if not args.no_velocities:
-            moving_velocities(result, args.plot.with_name(f"{args.plot.stem}-velocities{args.plot.suffix}"))
+    write_study(args, result, moving_comparison, result.rows, MOVING_COLUMNS)
+    if args.plot and not args.no_velocities:
+        moving_velocities(result, args.plot.with_name(f"{args.plot.stem}-velocities{args.plot.suffix}"))
     return 0
 
 

@@ -22,9 +22,9 @@ from ringtrack.tools.cli.options import (
     at_least,
     execution_of,
     output_path,
+    write_study,
 )
 from ringtrack.tools.output.console import UsageError, err, show
-from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.figures import robustness_curves
 from ringtrack.tools.studies.robustness import (
     OUTAGE_START,
@@ -143,12 +143,7 @@ def run_faults(args: argparse.Namespace) -> int:
                       + ("equal to the engine" if check.equal else f"DIFFERS {msgspec.to_builtins(check)}"),
                       highlight=False)
         code = 0 if verified.all_equal else 1
-    if args.json:
-        write_json(args.json, result)
-    if args.csv:
-        write_csv(args.csv, result.summary, summary_columns(result))
-    if args.plot:
-        robustness_curves(result, args.plot)
+    write_study(args, result, robustness_curves, result.summary, summary_columns(result))
     return code
 
 

@@ -11,9 +11,9 @@ from ringtrack.tools.cli.options import (
     at_least,
     execution_of,
     output_path,
+    write_study,
 )
 from ringtrack.tools.output.console import out
-from ringtrack.tools.output.files import write_json
 from ringtrack.tools.studies.gates import GATED, REFERENCE, gates_experiment, plot_gates
 
 
@@ -58,8 +58,5 @@ def run_gates(args: argparse.Namespace) -> int:
         out.print(f"{GATED} g = {entry.gate:g}: Terr {entry.terr_mean:.3f} m "
                   f"({ratio:.2f} x), Cerr {entry.cerr_mean_deg:.1f} deg, "
                   f"{entry.robot_messages_per_robot_step:.3f} msg/robot-step", highlight=False)
-    if args.json:
-        write_json(args.json, result)
-    if args.plot:
-        plot_gates(result, args.plot)
+    write_study(args, result, plot_gates)
     return 0

@@ -16,9 +16,9 @@ from ringtrack.tools.cli.options import (
     at_least,
     execution_of,
     output_path,
+    write_study,
 )
 from ringtrack.tools.output.console import show
-from ringtrack.tools.output.files import write_csv, write_json
 from ringtrack.tools.studies.experiment import run_label
 from ringtrack.tools.studies.tracking import (
     SETTLE,
@@ -64,12 +64,7 @@ def run_tracking(args: argparse.Namespace) -> int:
     result = tracking_experiment(args.scenarios, args.trials, args.seed, args.strategies, args.steps, args.settle,
                                  execution_of(args, args.json, args.csv))
     show(tracking_table(result))
-    if args.json:
-        write_json(args.json, result)
-    if args.csv:
-        write_csv(args.csv, result.rows, TRACKING_COLUMNS)
-    if args.plot:
-        plot_tracking(result, args.plot)
+    write_study(args, result, plot_tracking, result.rows, TRACKING_COLUMNS)
     return 0
 
 

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TypeVar
+
+import msgspec
 
 from ringtrack.agents.strategy import REGISTRY, StrategyError, StrategyParameter, check_strategy, strategy_class
-from ringtrack.tools.output.files import unwritable
+from ringtrack.tools.output.files import unwritable, write_csv, write_json
 from ringtrack.tools.studies.runner import BATCH, CLUSTER_EXTRA, Execution, available_cores, journal_path
 from ringtrack.world.params import StrategyValue
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
@@ -243,3 +246,18 @@ def execution_of(args: argparse.Namespace, *outputs: Path | None) -> Execution:
     """How the study the flags ask for runs; its journal lies beside the first of ``outputs`` given."""
     return Execution(workers=args.workers or available_cores(), cluster=args.cluster, batch=args.batch,
                      journal=journal_path(*outputs), resume=args.resume, quiet=args.quiet)
+
+
+StudyT = TypeVar("StudyT", bound=msgspec.Struct)
+
+
+def write_study(args: argparse.Namespace, result: StudyT, plot: Callable[[StudyT, Path], None],
+                rows: Sequence[msgspec.Struct] | None = None, columns: list[str] | None = None) -> None:
+    """Write what an experiment command's ``--json`` (the whole ``result``), ``--csv`` (``rows`` as
+    ``columns``; commands without the flag have no ``args.csv``) and ``--plot`` (drawn by ``plot``) ask for."""
+    if args.json:
+        write_json(args.json, result)
+    if getattr(args, "csv", None) and rows is not None and columns is not None:
+        write_csv(args.csv, rows, columns)
+    if args.plot:
+        plot(result, args.plot)
