@@ -283,10 +283,9 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
             " use 'truth' or [x, y]"
         )
     strategy = _strategy_choice(spec, label)
-    # Only an estimating team needs the inscribed radius: computing it loads scipy's LP solver, which
-    # would add about 42 MiB and 0.5 s of CPU (a busy 2-core machine) to every process of a known-target team.
-    # A margin below the vertices' mean's distance to the nearest edge (at most the inscribed radius)
-    # passes without it.
+    # Only an estimating team needs the inscribed radius (the Chebyshev centre: a solve for every triple
+    # of edges). A margin below the vertices' mean's distance to the nearest edge (at most the inscribed
+    # radius) passes without it.
     room = float(region.heights(region.vertices.mean(axis=0)).min())
     if (estimation.mode != "known" and estimation.margin >= room
             and estimation.margin >= (inscribed_radius := region.inner_diameter / 2.0)):
