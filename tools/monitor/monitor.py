@@ -48,8 +48,11 @@ from ringtrack.tools.runlog.log import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
-FORCE_AFTER_S = 5.0  # an incomplete step record is written this long after its tick (lost messages; a
-# loaded machine can hold a live link back for seconds: 2 s left 4 of a lockstep run's messages late)
+# How long after its tick an incomplete step record is written (a message was lost), by clock: a
+# realtime run's log keeps up with its world; a lockstep step lacks a message only when it was lost or
+# a loaded machine holds a live link back, for seconds (2 s left 4 of a lockstep run's messages late
+# beside a full test suite and two CPU burners).
+FORCE_AFTER_S = {"realtime": 2.0, "lockstep": 10.0}
 # Steps the monitor keeps open at once: a message claiming a step more than AHEAD_STEPS past the
 # latest tick, or a new step once PENDING_LIMIT are open, is dropped and counted (forged far-future
 # steps cannot grow the monitor's memory; a realtime team at 1000 steps/s keeps about 2000 open).
@@ -113,7 +116,8 @@ STEPPED = (Tick, Measurement, Command, Request, Reply, Push, RangeReport, Estima
 
 class Recorder:
     """Turns deliveries into step records, in step order, each written once it is complete, or
-    ``FORCE_AFTER_S`` after its tick when later steps exist (a message was lost), or at the end;
+    ``force_after_s`` seconds after its tick when later steps exist (a message was lost; see
+    :data:`FORCE_AFTER_S`), or at the end;
     fault notices and robots joining or leaving become event records. Every record written is also
     handed to ``on_record``.
 
@@ -121,9 +125,10 @@ class Recorder:
     reach the monitor after the world's tick for k + 5: completeness, not arrival order, decides.
     """
 
-    def __init__(self, writer: LogWriter, scenario: Scenario,
-                 on_record: Callable[[dict], None] | None = None) -> None:
+    def __init__(self, writer: LogWriter, scenario: Scenario, on_record: Callable[[dict], None] | None = None,
+                 force_after_s: float = FORCE_AFTER_S["realtime"]) -> None:
         self.writer = writer
+        self.force_after_s = force_after_s
         self.scenario = scenario
         self.robots = scenario.robots
         self.on_record = on_record
@@ -207,7 +212,7 @@ class Recorder:
         now = time.monotonic()
         while self.next_step in self.pending:
             entry = self.pending[self.next_step]
-            overdue = self.latest_tick > self.next_step and now - self.tick_seen_at[self.next_step] > FORCE_AFTER_S
+            overdue = self.latest_tick > self.next_step and now - self.tick_seen_at[self.next_step] > self.force_after_s
             final = through is not None and self.next_step <= through
             if entry.tick is None or not (entry.complete() or overdue or final):
                 return
@@ -311,7 +316,7 @@ async def run_monitor(
         nonlocal report
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
-            recorder = Recorder(writer, scenario, None if model is None else model.add)
+            recorder = Recorder(writer, scenario, None if model is None else model.add, FORCE_AFTER_S[clock])
             code, report = await _watch(participant, recorder, roster, held, refresh, digests)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
