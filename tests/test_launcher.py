@@ -87,3 +87,27 @@ time.sleep(600)
             parent.kill()
             parent.wait()
     assert processes_mentioning(str(tmp_path)) == []
+
+
+@pytest.mark.processes
+def test_an_estimating_robot_loads_neither_scipy_nor_filterpy() -> None:
+    """What the launcher preloads plus a decentralized robot's first estimate (its filter, the region's
+    inscribed circle, the fusion of two beliefs), in a fresh interpreter: no scipy, no filterpy, so a
+    forked robot starts estimating at once."""
+    script = (
+        "import importlib, sys\n"
+        "from ringtrack.tools.team.launcher import PRELOADED\n"
+        "for name in PRELOADED: importlib.import_module(name)\n"
+        "import numpy as np\n"
+        "from ringtrack.agents.estimation import Estimator\n"
+        "from ringtrack.world.scenario import load_scenario\n"
+        "scenario = load_scenario('authors-moving', estimation='decentralized')\n"
+        "estimator = Estimator(scenario.estimation, scenario.region, scenario.target)\n"
+        "estimator.measure(scenario.start_positions(0)[:1], [3.0])\n"
+        "estimator.fuse((np.array([4.0, 19.0]), np.eye(2)), (np.array([4.5, 20.0]), 2 * np.eye(2)))\n"
+        "scenario.region.chebyshev_centre\n"
+        "print(sorted({name.split('.')[0] for name in sys.modules} & {'scipy', 'filterpy'}))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
