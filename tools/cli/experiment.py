@@ -11,14 +11,11 @@ from rich.table import Table
 from ringtrack.agents.strategy import StrategyError, strategy_for
 from ringtrack.tools.cli import experiment_faults, experiment_gates, experiment_tracking
 from ringtrack.tools.cli.options import (
-    CSV_FILE,
-    FIGURE_SUFFIXES,
-    JSON_FILE,
+    add_output_arguments,
     add_strategy_parameter_arguments,
     add_study_arguments,
     at_least,
     execution_of,
-    output_path,
     strategy_argument,
     strategy_parameters,
     write_study,
@@ -58,11 +55,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--sigma-deg", type=float, help="trigger tolerance sigma in degrees")
     stationary.add_argument("--law", choices=["prop", "deadbeat"], help="fresh-information law")
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
-    stationary.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write per-trial rows and means")
-    stationary.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
-                            help="draw the comparison figure")
-    stationary.add_argument("--csv", type=CSV_FILE, metavar="PATH",
-                            help="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
+    add_output_arguments(stationary, json="write per-trial rows and means", plot="draw the comparison figure",
+                         csv="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
     add_study_arguments(stationary)
     stationary.set_defaults(handler=run_stationary)
 
@@ -85,11 +79,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.add_argument("--strategies", type=strategy_list, metavar="A,B",
                         help="strategies to compare, each with a centralized and a decentralized EKF (one that needs "
                         "a mode: that one), e.g. self,belief (default: the paper's three runs)")
-    moving.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the table and the Cerr/Terr series")
-    moving.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw Cerr and Terr over time")
-    moving.add_argument("--csv", type=CSV_FILE, metavar="PATH",
-                        help="write the per-trial rows as CSV (setting, strategy, estimation, trial, seed, Cerr and "
-                        "Terr means, polls, messages, ...)")
+    add_output_arguments(moving, json="write the table and the Cerr/Terr series", plot="draw Cerr and Terr over time",
+                         csv="write the per-trial rows as CSV (setting, strategy, estimation, trial, seed, Cerr and "
+                         "Terr means, polls, messages, ...)")
     add_study_arguments(moving)
     moving.set_defaults(handler=run_moving)
     experiment_faults.register(kinds)

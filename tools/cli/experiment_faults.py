@@ -15,13 +15,10 @@ from rich import box
 from rich.table import Table
 
 from ringtrack.tools.cli.options import (
-    CSV_FILE,
-    FIGURE_SUFFIXES,
-    JSON_FILE,
+    add_output_arguments,
     add_study_arguments,
     at_least,
     execution_of,
-    output_path,
     write_study,
 )
 from ringtrack.tools.output.console import UsageError, err, show
@@ -66,10 +63,9 @@ def register(kinds: argparse._SubParsersAction) -> None:
                         help="moving target: Cerr and Terr are averaged from this step on (default 300)")
     parser.add_argument("--verify", type=at_least(0), default=0, metavar="K",
                         help="re-run K runs as lockstep teams over Zenoh and check they equal the engine")
-    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the summary, per-trial rows, checks")
-    parser.add_argument("--csv", type=CSV_FILE, metavar="PATH", help="write the summary rows as CSV")
-    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
-                        help="draw every quantity against the swept one (error bars: +-1 sd)")
+    add_output_arguments(parser, json="write the summary, per-trial rows, checks",
+                         csv="write the summary rows as CSV",
+                         plot="draw every quantity against the swept one (error bars: +-1 sd)")
     add_study_arguments(parser)
     parser.set_defaults(handler=run_faults)
 

@@ -5,12 +5,10 @@ from __future__ import annotations
 import argparse
 
 from ringtrack.tools.cli.options import (
-    FIGURE_SUFFIXES,
-    JSON_FILE,
+    add_output_arguments,
     add_study_arguments,
     at_least,
     execution_of,
-    output_path,
     write_study,
 )
 from ringtrack.tools.output.console import out
@@ -30,8 +28,7 @@ def register(kinds: argparse._SubParsersAction) -> None:
     parser.add_argument("--trials", type=at_least(1), default=5, help="random starts (default 5)")
     parser.add_argument("--steps", type=at_least(1), help="steps per run (default: control.max_steps)")
     parser.add_argument("--settle", type=at_least(0), default=300, help="means leave out the first steps (300)")
-    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the points")
-    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help="draw the trade-off")
+    add_output_arguments(parser, json="write the points", plot="draw the trade-off")
     add_study_arguments(parser)
     parser.set_defaults(handler=run_gates)
 

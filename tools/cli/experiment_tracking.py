@@ -9,13 +9,10 @@ from rich import box
 from rich.table import Table
 
 from ringtrack.tools.cli.options import (
-    CSV_FILE,
-    FIGURE_SUFFIXES,
-    JSON_FILE,
+    add_output_arguments,
     add_study_arguments,
     at_least,
     execution_of,
-    output_path,
     write_study,
 )
 from ringtrack.tools.output.console import show
@@ -52,10 +49,8 @@ def register(kinds: argparse._SubParsersAction, strategy_list: argparse._ActionT
     parser.add_argument("--steps", type=at_least(2), help="steps per run (default: each scenario's control.max_steps)")
     parser.add_argument("--settle", type=at_least(0),
                         help=f"means are taken from this step on (default {SETTLE}, or the last step of a shorter run)")
-    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="write the rows and the study's settings")
-    parser.add_argument("--csv", type=CSV_FILE, metavar="PATH", help="write the rows as CSV")
-    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG",
-                        help="draw Terr / centralized Terr against messages per robot-step")
+    add_output_arguments(parser, json="write the rows and the study's settings", csv="write the rows as CSV",
+                         plot="draw Terr / centralized Terr against messages per robot-step")
     add_study_arguments(parser)
     parser.set_defaults(handler=run_tracking)
 

@@ -248,6 +248,15 @@ def execution_of(args: argparse.Namespace, *outputs: Path | None) -> Execution:
                      journal=journal_path(*outputs), resume=args.resume, quiet=args.quiet)
 
 
+def add_output_arguments(parser: argparse.ArgumentParser, json: str, plot: str, csv: str | None = None) -> None:
+    """An experiment command's ``--json PATH``, ``--csv PATH`` (when it has one) and ``--plot PNG``,
+    each with its help; :func:`write_study` writes what they ask for."""
+    parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help=json)
+    if csv is not None:
+        parser.add_argument("--csv", type=CSV_FILE, metavar="PATH", help=csv)
+    parser.add_argument("--plot", type=output_path(FIGURE_SUFFIXES), metavar="PNG", help=plot)
+
+
 StudyT = TypeVar("StudyT", bound=msgspec.Struct)
 
 
