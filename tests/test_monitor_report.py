@@ -166,3 +166,26 @@ def test_a_digest_counts_robot_to_robot_traffic_by_the_commanding_robots_own_cou
     kinds = {key.rsplit("/", 1)[-1] for key in monitored_keys(keys, digests=True)}
     assert not kinds & {"measurement", "command", "request", "reply", "push"} and {"tick", "digest", "stats"} <= kinds
     assert monitored_keys(keys, digests=False) == (keys.everything,)
+
+
+def test_a_step_is_written_only_once_the_measurements_behind_its_commands_are_in() -> None:
+    """A command travels on its robot's link, the measurement it answers on the world's: on a loaded
+    machine the command can reach the monitor first. The step waits for both, so nothing is late."""
+    from ringtrack.bus.messages import Command, Measurement, Tick
+
+    scenario = load_scenario("paper-stationary", robots=3)
+    written = Written()
+    recorder = Recorder(written, scenario)  # type: ignore[arg-type]
+
+    def deliver(message, source: str, kind: str) -> None:
+        recorder.on_delivery(Delivery(message, Route(source, "monitor", kind), 50))
+        recorder.flush()
+
+    deliver(Tick(SCHEMA, 1, 1, 0.0, [(0.0, 0.0)] * 3, (1.0, 1.0), [0, 1, 2]), "world", "tick")
+    for robot in range(3):
+        deliver(Command(SCHEMA, 1, 1, robot, (0.0, 0.0), 0, 0.0, (3, 3), (1.0, 1.0)), f"r{robot}", "command")
+    for robot in range(3):
+        assert written == []  # r{robot}'s measurement is still on its way
+        deliver(Measurement(SCHEMA, 1, 1, 0.0, robot, (0.0, 0.0), 1.0), "world", "measurement")
+    (record,) = written
+    assert record["traffic"]["world"] == [6, 6 * 50] and recorder.late == 0

@@ -50,8 +50,7 @@ from ringtrack.world.scenario import Scenario
 FINAL_STATS_GRACE_S = 3.0  # how long to wait for senders' final statistics after the End
 # How long after its tick an incomplete step record is written (a message was lost), by clock: a
 # realtime run's log keeps up with its world; a lockstep step lacks a message only when it was lost or
-# a loaded machine holds a live link back, for seconds (2 s left 4 of a lockstep run's messages late
-# beside a full test suite and two CPU burners).
+# a loaded machine holds a live link back, for seconds.
 FORCE_AFTER_S = {"realtime": 2.0, "lockstep": 10.0}
 # Steps the monitor keeps open at once: a message claiming a step more than AHEAD_STEPS past the
 # latest tick, or a new step once PENDING_LIMIT are open, is dropped and counted (forged far-future
@@ -70,6 +69,7 @@ class PendingStep:
 
     tick: Tick | None = None
     commands: dict[int, Command] = field(default_factory=dict)
+    measured: set[int] = field(default_factory=set)  # the robots whose measurement of the step was seen
     sent_messages: Counter[int] = field(default_factory=Counter)
     sent_bytes: Counter[int] = field(default_factory=Counter)
     received_messages: Counter[int] = field(default_factory=Counter)
@@ -86,10 +86,12 @@ class PendingStep:
         self.received_bytes[receiver] += size
 
     def complete(self) -> bool:
-        """Tick and every live robot's command are in, and every robot-to-robot message its polls
-        published: :func:`bus.faults.request_traffic` of each poll request, whose fate the fault
-        notices tell (none: delivered once), and each push its command names (published once)."""
-        if self.tick is None or not set(self.tick.live) <= set(self.commands):
+        """Tick and every live robot's command are in, the world's measurement of every robot that
+        commanded (it travels on another link than the command it led to, and may arrive after it),
+        and every robot-to-robot message its polls published: :func:`bus.faults.request_traffic` of
+        each poll request, whose fate the fault notices tell (none: delivered once), and each push its
+        command names (published once)."""
+        if self.tick is None or not set(self.tick.live) <= set(self.commands) <= self.measured:
             return False
         polling = {robot for robot, command in self.commands.items() if command.trigger}
         fates: dict[tuple[int, int], Fate] = {}
@@ -156,6 +158,8 @@ class Recorder:
             self._tick(entry, message)
         elif isinstance(message, Command):
             entry.commands[message.robot] = message
+        elif isinstance(message, Measurement):
+            entry.measured.add(message.robot)
         elif isinstance(message, (Request, Reply, Push)):
             entry.count_robot_message(message.sender, message.receiver, delivery.size)
         elif isinstance(message, FaultNotice):
@@ -174,12 +178,16 @@ class Recorder:
         self.tick_seen_at[tick.step] = time.monotonic()
         self.latest_tick = max(self.latest_tick, tick.step)
 
-    def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None) -> None:
+    def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None,
+                       measured: int | None = None) -> None:
         """Count a message of ``step`` (``size`` payload bytes) the monitor did not receive itself but
-        a :class:`~bus.messages.Digest` reports: a world message, or with ``robots`` (sender,
-        receiver) a robot-to-robot message a command's ``robot_traffic`` names."""
+        a :class:`~bus.messages.Digest` reports: a world message (with ``measured``, the measurement
+        of that robot), or with ``robots`` (sender, receiver) a robot-to-robot message a command's
+        ``robot_traffic`` names."""
         if step >= self.next_step and self._opens(step):
             entry = self._pending(step)
+            if measured is not None:
+                entry.measured.add(measured)
             category = "world" if robots is None else "robot"
             entry.traffic_messages[category] += 1
             entry.traffic_bytes[category] += size
@@ -452,7 +460,7 @@ def digested(participant: Participant, recorder: Recorder, digest: Digest) -> No
 def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestEntry) -> None:
     for robot, size in entry.measurements:
         participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
-        recorder.count_reported(entry.step, size)
+        recorder.count_reported(entry.step, size, measured=robot)
     for command, size in entry.commands:
         source = robot_name(command.robot)
         participant.counter.count_received(("command", source, WORLD), size)
