@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.estimation import Estimators, Told
+from ringtrack.agents.relay import VELOCITY_WINDOW_S, RangeRelay
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes, uint_bytes
@@ -127,6 +128,9 @@ class History:
 StepObserver = Callable[[int], None]
 
 
+WINDOW = 100
+
+
 class TeamEstimate:
     """The estimators of a batch of teams, exactly as the processes hold them: none ("known": the
     robots steer about the true stationary target), one per trial (the fusion centre), or one per
@@ -140,6 +144,10 @@ class TeamEstimate:
         self.sensors = RangeSensors(sensing.range_sigma, sensing.range, seeds)
         count = {"known": 0, "centralized": 1, "decentralized": scenario.robots}[self.mode]
         self.estimators = Estimators(scenario.estimation, scenario.region, np.repeat(paths[:, 0], count, axis=0))
+        relays = self.mode == "decentralized" and strategy_for(scenario.strategy).relays
+        window = round(VELOCITY_WINDOW_S / scenario.control.dt)
+        self.relay = RangeRelay(self.trials, self.robots, paths.shape[1], window) if relays else None
+        self.step = 0
 
     def measure(self, positions: FloatArray, targets: FloatArray, strategy: Strategy | None = None,
                 told: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
@@ -151,6 +159,7 @@ class TeamEstimate:
         if self.mode == "known":
             return np.repeat(targets[:, None, :], self.robots, axis=1)
         ranges = self.sensors.measure(positions, targets)  # (T, N)
+        self.step += 1
         if self.mode == "centralized":
             self.estimators.measure(positions, ranges)
             return np.repeat(self.estimators.centre[:, None, :], self.robots, axis=1)
@@ -158,6 +167,11 @@ class TeamEstimate:
         here = positions.reshape(robots, 1, 2), ranges.reshape(robots, 1)
         if strategy is not None and told is not None and told_beliefs is not None:
             strategy.hear(self.estimators, *here, self._told(told, told_beliefs))
+        elif self.relay is not None:
+            params = self.estimators.params
+            late = self.relay.take(self.step, self.estimators.centre, params.range_sigma, params.process_noise)
+            self.relay.record(self.step, positions, ranges)
+            self.estimators.measure(*here, late=late)
         else:
             self.estimators.measure(*here)
         return self.estimators.centre.reshape(positions.shape)
@@ -181,7 +195,7 @@ class TeamEstimate:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
         as they were before anyone fused this step) and steer by the result; ``centres`` is updated
         in place."""
-        if self.mode != "decentralized":
+        if self.mode != "decentralized" or self.relay is not None:
             return
         self.estimators.fuse(self._told((fresh_minus, fresh_plus), self.beliefs()))
         centres[...] = self.estimators.centre.reshape(centres.shape)
@@ -488,9 +502,12 @@ def run(
                          np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
         outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens,
                            content)
-        if strategy.listens:  # told by the predecessor's message to its successor, and the other way
+        if strategy.listens or team.relay is not None:
+            # told by the predecessor's message to its successor, and the other way
             reached = (outcome.requests > 0) | outcome.push_delivered
             told = predecessor_values(reached[..., 1], axis=1), successor_values(reached[..., 0], axis=1)
+        if team.relay is not None:  # requests and replies carry ranges
+            team.relay.hand_over(told[0] | outcome.fresh_minus, told[1] | outcome.fresh_plus)
         pushes[row] = outcome.pushes
         strategy.receive(controller, *replies(neighbours, outcome, content))
         if team.mode == "decentralized":

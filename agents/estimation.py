@@ -129,6 +129,43 @@ class RangeFilters:
         self.adopt(mean, covariance, usable.any(axis=1))
 
 
+    def absorb(self, positions: FloatArray, ranges: FloatArray, variances: FloatArray) -> None:
+        """Update with ranges (B, m) taken from ``positions`` (B, m, 2), metres, each with its own
+        variance (B, m), m^2, in information form linearised at the current mean ``x``: with
+        ``h = (x - p) / ||x - p||``,
+
+            P+ = (P^-1 + sum h h^T / v)^-1,   x+ = x + P+ sum h (z - ||x - p||) / v,
+
+        the stacked EKF update with a diagonal ``R`` (used for the late ranges of
+        :mod:`agents.relay`). NaN ranges and robots within ``SINGULAR_DISTANCE`` of ``x`` are
+        skipped; a filter with none left is unchanged."""
+        dx, dy = self.mean[:, 0, None] - positions[..., 0], self.mean[:, 1, None] - positions[..., 1]
+        distances = np.hypot(dx, dy)
+        usable = np.isfinite(ranges) & (distances > SINGULAR_DISTANCE)
+        if not usable.any():
+            return
+        # h h^T / v = (dx, dy)^T (dx, dy) / (d^2 v); h (z - d) / v = (dx, dy) (z - d) d / (d^2 v)
+        weight = np.where(usable, 1.0 / np.where(usable, distances**2 * variances, 1.0), 0.0)
+        pull = weight * np.where(usable, (ranges - distances) * distances, 0.0)
+        gained_xx, gained_xy, gained_yy = (sequential_sum(weight * dx * dx, axis=1),
+                                           sequential_sum(weight * dx * dy, axis=1),
+                                           sequential_sum(weight * dy * dy, axis=1))
+        information_x, information_y = sequential_sum(pull * dx, axis=1), sequential_sum(pull * dy, axis=1)
+        prior = self.covariance
+        determinant = prior[:, 0, 0] * prior[:, 1, 1] - prior[:, 0, 1] * prior[:, 0, 1]
+        xx = prior[:, 1, 1] / determinant + gained_xx  # P+^-1, entry by entry
+        xy = -prior[:, 0, 1] / determinant + gained_xy
+        yy = prior[:, 0, 0] / determinant + gained_yy
+        posterior = xx * yy - xy * xy
+        covariance = np.empty_like(prior)
+        covariance[:, 0, 0], covariance[:, 1, 1] = yy / posterior, xx / posterior
+        covariance[:, 0, 1] = covariance[:, 1, 0] = -xy / posterior
+        mean = self.mean + np.stack([covariance[:, 0, 0] * information_x + covariance[:, 0, 1] * information_y,
+                                     covariance[:, 1, 0] * information_x + covariance[:, 1, 1] * information_y],
+                                    axis=1)
+        self.adopt(mean, covariance, np.asarray(usable.any(axis=1)))
+
+
 def _products(left: FloatArray, right: FloatArray) -> FloatArray:
     """The matrix products ``L R`` of ``left`` (B, 2, 2) and ``right`` (B, 2, n),
     ``sum_c L[a, c] R[c, j]`` term by term (elementwise along the batch: no BLAS kernel chosen by shape)."""
@@ -241,7 +278,8 @@ class Estimators:
         if outside.any():
             self.filters.mean = np.where(outside[:, None], self.region.clamp_interior(mean, self.params.margin), mean)
 
-    def measure(self, positions: ArrayLike, ranges: ArrayLike, told: Told | None = None) -> None:
+    def measure(self, positions: ArrayLike, ranges: ArrayLike, told: Told | None = None,
+                late: tuple[FloatArray, FloatArray, FloatArray] | None = None) -> None:
         """Fold in one step's ranges (B, m) from robots at ``positions`` (B, m, 2) (NaN: no range).
         With the "trilateration" prior, the first step's ranges become the prior instead where they
         fix the target (see the class). Beliefs ``told`` by neighbours are fused by :meth:`fuse`
@@ -254,6 +292,8 @@ class Estimators:
         self.filters.predict()
         if told is not None:
             self.fuse(told)
+        if late is not None:
+            self.filters.absorb(*late)
         self.filters.update(points, measured)
         if fixes is not None:
             self.filters.adopt(*fixes)  # a fix is the first step's estimate

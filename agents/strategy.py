@@ -226,6 +226,10 @@ class Strategy:
     listens: ClassVar[bool] = False
     # Robots that do not poll push their belief to both neighbours when :meth:`wants_push`.
     pushes: ClassVar[bool] = False
+    # Requests and replies carry the ranges their sender holds (:mod:`agents.relay`).
+    relays: ClassVar[bool] = False
+    # Whether a team of processes can run it (else only the engine: simulate and the experiments).
+    in_processes: ClassVar[bool] = True
     # Floats a reply carries beyond position and belief (:meth:`reply_content`).
     reply_fields: ClassVar[int] = 0
 
@@ -352,6 +356,7 @@ REGISTRY: dict[str, str] = {
     "self": "ringtrack.agents.strategy:SelfTriggered",
     "belief": "ringtrack.agents.belief:SharedBelief",
     "plan": "ringtrack.agents.plan:PlanStrategy",
+    "relay": "ringtrack.agents.relay_strategy:RelayedRanges",
 }
 
 

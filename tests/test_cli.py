@@ -85,7 +85,7 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path, capsys: pytest.Ca
         (["spawn", "--rate", "nan"], "ringtrack: error: argument --rate: 'nan' is not a positive number"),
         (["spawn", "--robots", "100000"], "ringtrack: error: --robots 100000: 100000 robot processes of about 80 MiB"),
         (["spawn", "--strategy", "often"], "ringtrack: error: --strategy often: 'often' is not a registered strategy nor a "
-         "Python file; give one of belief, constant, plan, self or the path of a .py file that defines a Strategy"),
+         "Python file; give one of belief, constant, plan, relay, self or the path of a .py file that defines a Strategy"),
         (["plot", "log.jsonl", "-o", "figure.xyz"], "ringtrack: error: argument -o/--output: 'figure.xyz': give a file"),
         (["experiment", "moving", "--seed", "-1"], "ringtrack: error: argument --seed: -1 is below 0; give an integer"),
         (["experiment", "stationary", "--json", "/dev/null/y.json"], "ringtrack: error: argument --json: '/dev/null/y.json'"),

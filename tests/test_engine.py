@@ -209,6 +209,7 @@ def test_authors_quadrilateral_speed_cap():
 @pytest.mark.parametrize(("name", "strategy", "estimation"), [
     ("authors-moving", "self", "decentralized"),
     ("authors-moving", "belief", "decentralized"),
+    ("authors-moving", "relay", "decentralized"),
     ("authors-moving", "constant", "centralized"),
     ("paper-stationary", "self", None),
 ])

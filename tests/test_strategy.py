@@ -61,12 +61,12 @@ def test_documented_example_lockstep_team_equals_the_engine(tmp_path: Path) -> N
 
 
 @pytest.mark.parametrize(("content", "problem"), [
-    (None, "'lazy' is not a registered strategy nor a Python file; give one of belief, constant, plan, self or the path "
+    (None, "'lazy' is not a registered strategy nor a Python file; give one of belief, constant, plan, relay, self or the path "
            "of a .py file that defines a Strategy"),
     ("import numpy\n", "defines 0 subclasses of ringtrack.agents.strategy.Strategy; define exactly one"),
     ("raise RuntimeError('boom')\n", "the strategy file failed to load (RuntimeError: boom); fix the file"),
     ("from ringtrack.agents.strategy import Strategy\nclass Mine(Strategy):\n    name = 'self'\n",
-     "Mine.name is 'self'; give it a name of its own (not one of belief, constant, plan, self)"),
+     "Mine.name is 'self'; give it a name of its own (not one of belief, constant, plan, relay, self)"),
 ], ids=["unknown", "empty", "broken", "taken-name"])
 def test_bad_strategies_are_refused_in_one_line(tmp_path: Path, content: str | None, problem: str) -> None:
     value = "lazy"

@@ -25,7 +25,7 @@ from ringtrack.world.ring import ring_gaps
 from ringtrack.world.scenario_errors import ScenarioError, explain_validation
 from ringtrack.world.scenario_files import parse_scenario, read_scenario_text, shipped_scenarios
 from ringtrack.world.scenario_schema import LinkFaultSpec, ScenarioSpec
-from ringtrack.world.target import Stationary
+from ringtrack.world.target import Stationary, matched_process_noise
 
 __all__ = [
     "OverrideError",
@@ -306,7 +306,8 @@ def resolve(spec: ScenarioSpec, label: str = "scenario") -> Scenario:
         estimation=EstimationParams(
             mode=estimation.mode,
             range_sigma=estimation.range_sigma,
-            process_noise=estimation.process_noise,
+            process_noise=(matched_process_noise(spec.target, control.dt, team.robots, estimation.range_sigma)
+                           if estimation.process_noise == "auto" else estimation.process_noise),
             prior=estimation.prior if isinstance(estimation.prior, str) else (estimation.prior[0], estimation.prior[1]),
             prior_variance=estimation.prior_variance,
             fusion=estimation.fusion,

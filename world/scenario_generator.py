@@ -25,8 +25,10 @@ is the same whatever else is generated beside it (``--count 3`` writes the first
     it, looped.
 
 The rest is as the shipped moving scenarios: dt = 0.1 s, omega_max = 1 deg/s, sigma = 0.1 deg,
-ranges with sigma_z = 0.2 m, the self-triggered strategy with decentralized EKFs (Q = 0.2 I per
-step, prior at the truth, P0 = I, covariance intersection), 1500 steps.
+ranges with sigma_z = 0.2 m, the self-triggered strategy with decentralized EKFs (prior at the
+truth, P0 = I, covariance intersection), 1500 steps; but the filters' process noise is fitted to
+the target's motion (``process_noise = "auto"``, :func:`world.target.matched_process_noise`), not
+the authors' 0.2 m^2 a step.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ PLACE = 50.0  # m: the ellipse's centre lies within this of the origin, on each 
 SPEED_SHARE = (0.3, 1.0)  # f: the target's speed over omega_max times its least distance to the boundary
 CONTROL = ControlSpec(dt=0.1, omega_max_deg=1.0, sigma_deg=0.1, max_steps=1500)
 SENSING = SensingSpec(range_sigma=0.2)
-ESTIMATION = EstimationSpec(mode="decentralized", range_sigma=0.2, process_noise=0.2, prior="truth",
+ESTIMATION = EstimationSpec(mode="decentralized", range_sigma=0.2, process_noise="auto", prior="truth",
                             prior_variance=1.0, fusion="ci")
 DECIMALS = 3  # coordinates and speeds rounded to millimetres (per second)
 

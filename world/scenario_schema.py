@@ -29,7 +29,7 @@ A scenario file looks like::
     [estimation]
     mode = "known"             # "known" (robots know the stationary target) | "centralized" | "decentralized"
     range_sigma = 0.2          # m, the filters' model of the range noise
-    process_noise = 0.2        # m^2 per step, Q = q I
+    process_noise = 0.2        # m^2 per step, Q = q I; "auto": fitted to the target's motion
     prior = "truth"            # "truth" | "trilateration" (centralized) | [x, y]
     prior_variance = 1.0       # m^2, P0 = p I
     fusion = "ci"              # decentralized: joint CI of own + both neighbours | "sequential" pairwise
@@ -117,7 +117,7 @@ class SensingSpec(Spec, frozen=True):
 class EstimationSpec(Spec, frozen=True):
     mode: Literal["known", "centralized", "decentralized"] = "known"
     range_sigma: Positive = 0.2
-    process_noise: NonNegative = 0.2
+    process_noise: NonNegative | Literal["auto"] = 0.2
     prior: Literal["truth", "trilateration"] | Point = "truth"
     prior_variance: Positive = 1.0
     fusion: Literal["ci", "sequential"] = "ci"

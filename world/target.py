@@ -117,6 +117,26 @@ class Waypoints(Spec, tag_field="motion", tag="waypoints", frozen=True):
 TargetSpec = Stationary | Circle | RandomWalk | Waypoints
 
 
+def matched_process_noise(target: TargetSpec, dt: float, robots: int, range_sigma: float) -> float:
+    """The random-walk filters' ``q`` (m^2 per step, ``Q = q I``) that fits ``target``'s motion,
+    from the scenario's own models (``process_noise = "auto"``).
+
+    * a random walk: its own step variance, ``(speed_std dt)^2`` (the model is then exact);
+    * a target moving at ``speed`` ``v`` along a circle or waypoints: a walk tracking a drift of
+      ``d = v dt`` metres a step with ``J = N / (2 sigma_z^2)`` per axis of information a step (N
+      ranges, m^-2) settles at ``P ~ sqrt(q / J)`` per axis with a lag ``d / sqrt(q J)``; the total
+      squared error ``2 sqrt(q / J) + d^2 / (q J)`` is least at ``q = d^(4/3) J^(-1/3)``;
+    * a stationary target: 0.
+    """
+    if isinstance(target, RandomWalk):
+        return target.step_covariance(dt)
+    if isinstance(target, Stationary):
+        return 0.0
+    drift = target.speed * dt
+    information = robots / (2.0 * range_sigma**2)
+    return float(drift ** (4.0 / 3.0) * information ** (-1.0 / 3.0))
+
+
 def _require_inside(region: ConvexRegion, point: Point, field: str, margin: float) -> None:
     if not bool(region.is_interior(point, margin)):
         raise RegionError(f"{field} {list(point)} is not inside the region; move it inside the polygon")

@@ -1,0 +1,148 @@
+"""Ranges relayed around the ring (agents/relay.py, the ``relay`` strategy), the information-form
+update they use (agents/estimation.py RangeFilters.absorb) and the process noise fitted to a target's
+motion (world/target.py matched_process_noise)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ringtrack.agents import engine
+from ringtrack.agents.estimation import RangeFilters
+from ringtrack.agents.relay import RangeRelay, late_variance
+from ringtrack.tools.cli import main
+from ringtrack.world.scenario import load_scenario
+from ringtrack.world.scenario_generator import scenario_text
+from ringtrack.world.target import Circle, RandomWalk, Stationary, matched_process_noise
+
+SIGMA = 0.2
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), batch=st.integers(1, 4), ranges=st.integers(1, 6))
+def test_absorbing_ranges_of_one_variance_is_the_stacked_ekf_update(seed: int, batch: int, ranges: int) -> None:
+    """With every variance sigma_z^2, the information-form update equals the Joseph-form stacked EKF
+    update (the same linearisation point, another algebra)."""
+    rng = np.random.default_rng(seed)
+    mean = rng.uniform(-5, 5, (batch, 2))
+    root = rng.normal(size=(batch, 2, 2))
+    covariance = root @ root.transpose(0, 2, 1) + 0.05 * np.eye(2)
+    positions = mean[:, None, :] + rng.uniform(1, 10, (batch, ranges, 1)) * np.stack(
+        [np.cos(angle := rng.uniform(0, 2 * math.pi, (batch, ranges))), np.sin(angle)], axis=-1)
+    measured = np.linalg.norm(positions - mean[:, None, :], axis=-1) + rng.normal(0, SIGMA, (batch, ranges))
+    measured[rng.random((batch, ranges)) < 0.2] = np.nan  # missing ranges are skipped by both
+    stacked, informed = (RangeFilters(mean, covariance, 0.0, SIGMA) for _ in range(2))
+    stacked.update(positions, measured)
+    informed.absorb(positions, measured, np.full(measured.shape, SIGMA**2))
+    np.testing.assert_allclose(informed.mean, stacked.mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(informed.covariance, stacked.covariance, rtol=1e-8, atol=1e-12)
+
+
+def test_a_late_range_is_widened_by_the_walk_since() -> None:
+    assert late_variance(0.2, 0.01, np.array([0, 3]))[1] == pytest.approx(0.04 + 0.03)
+    assert late_variance(0.2, 0.01, np.array([0]))[0] == pytest.approx(0.04)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), robots=st.integers(3, 7), steps=st.integers(1, 30))
+def test_every_range_reaches_a_filter_once_one_hop_per_message(seed: int, robots: int, steps: int) -> None:
+    """Whatever messages reach whom, each filter takes each range at most once, only ranges some chain
+    of messages carried to it, each with its age and widened variance; a range travels one hop per
+    message, so a ring whose every link delivers every step hands every range to everyone within
+    N / 2 steps."""
+    rng = np.random.default_rng(seed)
+    relay = RangeRelay(1, robots, steps + robots, window=1)
+    still = np.zeros((robots, 2))  # means that do not move: no displacement to compensate
+    positions = rng.uniform(-5, 5, (steps + robots + 1, 1, robots, 2))
+    values = rng.uniform(1, 9, (steps + robots + 1, 1, robots))
+    held = [{(robot, 0)} for robot in range(robots)]  # (source, step) pairs each robot could know: by hand
+    taken: list[set[tuple[int, int]]] = [set() for _ in range(robots)]
+    for step in range(1, steps + robots + 1):
+        origins, ranges, variances = relay.take(step, still, SIGMA, 0.01)
+        for robot in range(robots):
+            for origin, value, variance in zip(origins[robot], ranges[robot], variances[robot], strict=True):
+                if np.isnan(value):
+                    continue
+                (at,) = np.argwhere(values[:, 0] == value)  # which (step, source) it is
+                pair = (int(at[1]), int(at[0]))
+                assert pair in held[robot] and pair not in taken[robot] and pair[0] != robot
+                np.testing.assert_array_equal(origin, positions[pair[1], 0, pair[0]])
+                assert variance == pytest.approx(late_variance(SIGMA, 0.01, np.array([step - pair[1]]))[0])
+                taken[robot].add(pair)
+        relay.record(step, positions[step], values[step])
+        for robot in range(robots):
+            held[robot].add((robot, step))
+        everyone = step > steps  # the last N steps: every link delivers
+        from_predecessor = everyone | (rng.random((1, robots)) < 0.3)
+        from_successor = everyone | (rng.random((1, robots)) < 0.3)
+        before = [set(known) for known in held]
+        for robot in range(robots):
+            if from_predecessor[0, robot]:
+                held[robot] |= before[(robot - 1) % robots]
+            if from_successor[0, robot]:
+                held[robot] |= before[(robot + 1) % robots]
+        relay.hand_over(from_predecessor, from_successor)
+    for robot in range(robots):  # everything up to the step a full half-ring ago has arrived and been taken
+        expected = {(source, step) for source in range(robots) if source != robot
+                    for step in range(1, steps + 1)}
+        assert expected <= taken[robot]
+
+
+def test_late_ranges_are_moved_by_the_drift_of_the_mean() -> None:
+    """A robot whose mean drifted 0.1 m a step over the window moves a range taken 3 steps ago by
+    0.3 m: the target has moved that far since, by its own estimate."""
+    relay = RangeRelay(1, 2, 10, window=2)
+    relay.record(1, np.array([[[0.0, 0.0], [5.0, 0.0]]]), np.array([[1.0, 2.0]]))
+    relay.hand_over(np.array([[True, True]]), np.array([[False, False]]))
+    for step, x in ((2, 0.0), (3, 0.1)):
+        relay.take(step, np.array([[x, 0.0], [0.0, 0.0]]), SIGMA, 0.0)
+        relay.applied[:] = 0  # keep robot 0 waiting for robot 1's range
+        relay.applied[0, 1, 1] = relay.applied[0, 0, 0] = 1
+    origins, ranges, _ = relay.take(4, np.array([[0.2, 0.0], [0.0, 0.0]]), SIGMA, 0.0)
+    assert ranges[0, 1] == 2.0
+    np.testing.assert_allclose(origins[0, 1], [5.0 + 3 * 0.1, 0.0])
+
+
+def test_the_process_noise_fitted_to_the_motion() -> None:
+    walk = RandomWalk(position=(0.0, 0.0), speed_std=0.3)
+    assert matched_process_noise(walk, 0.1, 6, SIGMA) == pytest.approx(0.03**2)
+    circle = Circle(centre=(0.0, 0.0), speed=0.1, angular_speed=0.1)
+    drift, information = 0.01, 6 / (2 * SIGMA**2)  # m a step; m^-2 a step per axis
+    assert matched_process_noise(circle, 0.1, 6, SIGMA) == pytest.approx(drift ** (4 / 3) / information ** (1 / 3))
+    assert matched_process_noise(Stationary(position=(0.0, 0.0)), 0.1, 6, SIGMA) == 0.0
+
+
+def test_auto_process_noise_is_derived_when_a_scenario_loads(tmp_path: Path) -> None:
+    (tmp_path / "walk.toml").write_bytes(scenario_text(0, 1))  # generated scenario 1: a random walk
+    scenario = load_scenario(str(tmp_path / "walk.toml"))
+    spec = scenario.spec
+    assert spec.estimation.process_noise == "auto" and isinstance(spec.target, RandomWalk)
+    assert scenario.estimation.process_noise == pytest.approx((spec.target.speed_std * spec.control.dt) ** 2)
+
+
+def test_relayed_ranges_track_as_well_as_the_centralized_filter(tmp_path: Path) -> None:
+    """On a generated scenario (a random walk, process noise fitted to it), decentralized robots that
+    relay ranges on the self-triggered polls track within 1.2x of the centralized filter on the same
+    runs, where robots that share beliefs by covariance intersection do not."""
+    (tmp_path / "walk.toml").write_bytes(scenario_text(0, 1))  # generated scenario 1: a random walk
+    path = str(tmp_path / "walk.toml")
+    settled = slice(300, None)
+
+    def terr(strategy: str, estimation: str) -> float:
+        scenario = load_scenario(path, strategy=strategy, estimation=estimation, max_steps=900)
+        return float(engine.run(scenario, [0, 1], record_positions=False).terr[settled].mean())
+
+    central = terr("self", "centralized")
+    assert terr("relay", "decentralized") <= 1.2 * central < terr("belief", "decentralized")
+
+
+def test_a_team_of_processes_refuses_the_relay_strategy(capsys) -> None:
+    assert main(["spawn", "authors-moving", "--strategy", "relay", "--steps", "5"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "ringtrack: error: --strategy relay: the relay strategy runs in the engine only (ringtrack simulate and "
+        "the experiments), not in a team of processes; choose another")
