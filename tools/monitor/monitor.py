@@ -77,9 +77,12 @@ class PendingStep:
     traffic_messages: Counter[str] = field(default_factory=Counter)
     traffic_bytes: Counter[str] = field(default_factory=Counter)
     notices: list[FaultNotice] = field(default_factory=list)
+    links: Counter[tuple[str, int, int]] = field(default_factory=Counter)  # (kind, sender, receiver) -> messages
 
-    def count_robot_message(self, sender: int, receiver: int, size: int) -> None:
-        """One robot-to-robot message of ``size`` payload bytes, ``sender -> receiver`` (robot ids)."""
+    def count_robot_message(self, kind: str, sender: int, receiver: int, size: int) -> None:
+        """One robot-to-robot message of ``kind`` (request, reply, push) and ``size`` payload bytes,
+        ``sender -> receiver`` (robot ids)."""
+        self.links[kind, sender, receiver] += 1
         self.sent_messages[sender] += 1
         self.sent_bytes[sender] += size
         self.received_messages[receiver] += 1
@@ -161,7 +164,7 @@ class Recorder:
         elif isinstance(message, Measurement):
             entry.measured.add(message.robot)
         elif isinstance(message, (Request, Reply, Push)):
-            entry.count_robot_message(message.sender, message.receiver, delivery.size)
+            entry.count_robot_message(message.kind, message.sender, message.receiver, delivery.size)
         elif isinstance(message, FaultNotice):
             entry.notices.append(message)
             self.record({"type": "event", "event": message.what, "step": message.step,
@@ -178,12 +181,12 @@ class Recorder:
         self.tick_seen_at[tick.step] = time.monotonic()
         self.latest_tick = max(self.latest_tick, tick.step)
 
-    def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None,
+    def count_reported(self, step: int, size: int, robots: tuple[str, int, int] | None = None,
                        measured: int | None = None) -> None:
         """Count a message of ``step`` (``size`` payload bytes) the monitor did not receive itself but
         a :class:`~bus.messages.Digest` reports: a world message (with ``measured``, the measurement
-        of that robot), or with ``robots`` (sender, receiver) a robot-to-robot message a command's
-        ``robot_traffic`` names."""
+        of that robot), or with ``robots`` (kind, sender, receiver) a robot-to-robot message a
+        command's ``robot_traffic`` names."""
         if step >= self.next_step and self._opens(step):
             entry = self._pending(step)
             if measured is not None:
@@ -248,8 +251,15 @@ class Recorder:
             received=([entry.received_messages[r] for r in robots], [entry.received_bytes[r] for r in robots]),
             traffic={category: [entry.traffic_messages[category], entry.traffic_bytes[category]]
                      for category in ("robot", "world", "estimation")},
+            covariance=[_covariance(commands.get(r)) for r in robots],
+            links=[[kind, sender, receiver, count] for (kind, sender, receiver), count in entry.links.items()],
         )
         self.record(record)
+
+
+def _covariance(command: Command | None) -> list[float] | None:
+    """The covariance (``[xx, xy, yy]`` m^2) of the estimate a command's robot steered by, if any."""
+    return None if command is None or command.covariance is None else list(command.covariance)
 
 
 def senders(scenario: Scenario) -> set[str]:
@@ -470,7 +480,7 @@ def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestE
             for _ in range(copies):
                 participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
                                                     robot_name(receiver)), each)
-                recorder.count_reported(command.step, each, (sender, receiver))
+                recorder.count_reported(command.step, each, (ROBOT_TRAFFIC_KINDS[kind], sender, receiver))
 
 
 def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:
