@@ -257,6 +257,18 @@ class Recorder:
         self.record(record)
 
 
+def _each(handlers: list[Callable[[dict], None]]) -> Callable[[dict], None] | None:
+    """One callback calling every handler in turn (None: no handler; one: that handler itself)."""
+    if len(handlers) <= 1:
+        return handlers[0] if handlers else None
+
+    def each(record: dict) -> None:
+        for handler in handlers:
+            handler(record)
+
+    return each
+
+
 def _covariance(command: Command | None) -> list[float] | None:
     """The covariance (``[xx, xy, yy]`` m^2) of the estimate a command's robot steered by, if any."""
     return None if command is None or command.covariance is None else list(command.covariance)
@@ -313,12 +325,14 @@ async def run_monitor(
     refresh: Refresh | None = None,
     exit_with_parent: bool = False,
     digests: bool = False,
+    on_record: Callable[[dict], None] | None = None,
 ) -> tuple[int, MonitorReport | None]:
     """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
     times per second, and once more with True when the log is complete; returns the exit code and
     the report (None when stopped before the start). With ``digests`` the monitor receives no copy of
     the measurements, commands and robot-to-robot messages: it counts them from the world's digests
-    (:func:`digested`)."""
+    (:func:`digested`). ``on_record`` is handed every step, event and end record too, as written
+    (the live Foxglove view and ``--record``)."""
     keys = Keys(run)
     report: MonitorReport | None = None
     if model is not None:
@@ -334,7 +348,8 @@ async def run_monitor(
         nonlocal report
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
-            recorder = Recorder(writer, scenario, None if model is None else model.add, FORCE_AFTER_S[clock])
+            handlers = [handler for handler in (None if model is None else model.add, on_record) if handler is not None]
+            recorder = Recorder(writer, scenario, _each(handlers), FORCE_AFTER_S[clock])
             code, report = await _watch(participant, recorder, roster, held, refresh, digests)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
@@ -356,6 +371,8 @@ async def run_monitor(
                 "energy_j": report.energy_j,
             }
             writer.write(end)
+        if on_record is not None:
+            on_record(end)
         if model is not None:
             model.add(end)
             model.status = (report.end.reason.text(report.end.step) if report.end
