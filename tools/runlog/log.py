@@ -358,7 +358,8 @@ def read_log(path: Path) -> RunLog:
     records = _decoded_lines(path)
     first = records[0][1] if records else None
     if not isinstance(first, dict) or first.get("type") != "header":
-        raise LogError(f"{path}: no header record; this is not a ringtrack run log")
+        where = f"line {records[0][0]}" if records else "line 1"
+        raise LogError(f"{path}: {where}: no header record; this is not a ringtrack run log")
     if first.get("format") != FORMAT:
         raise LogError(f"{path}: log format {first.get('format')}, this ringtrack reads {FORMAT}")
     log = RunLog(header=first, label=str(path))
