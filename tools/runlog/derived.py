@@ -70,16 +70,24 @@ def _kind(kind: str, sender: int, trigger: list[int | None]) -> str:
     return "probe" if kind == "request" and not trigger[sender] else kind
 
 
+def ellipse_axes(covariance: Any, sigmas: float = ELLIPSE_SIGMAS) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Semi-axes (metres, shape (..., 2), the minor first) of the ``sigmas``-sigma ellipses of
+    covariances packed ``(..., 3)`` as ``xx, xy, yy`` (m^2), and the direction of each major axis
+    (radians CCW from +x, shape (...))."""
+    packed = np.asarray(covariance, dtype=float)
+    matrix = np.stack([packed[..., 0], packed[..., 1], packed[..., 1], packed[..., 2]], axis=-1)
+    variances, axes = np.linalg.eigh(matrix.reshape(*packed.shape[:-1], 2, 2))
+    radii = sigmas * np.sqrt(np.clip(variances, 0.0, None))
+    return radii, np.arctan2(axes[..., 1, 1], axes[..., 0, 1])
+
+
 def covariance_ellipse(mean: Any, covariance: Any, points: int = 48,
                        sigmas: float = ELLIPSE_SIGMAS) -> NDArray[np.float64]:
     """``points`` points (metres, shape (points, 2), counter-clockwise, the first not repeated) on
     the ``sigmas``-sigma ellipse of a Gaussian belief: ``mean`` (x, y) metres and ``covariance``
-    packed ``(xx, xy, yy)`` m^2 or as a 2x2 matrix."""
-    matrix = np.asarray(covariance, dtype=float)
-    if matrix.shape == (3,):
-        matrix = np.array([[matrix[0], matrix[1]], [matrix[1], matrix[2]]])
-    variances, axes = np.linalg.eigh(matrix)
-    radii = sigmas * np.sqrt(np.clip(variances, 0.0, None))
-    angles = np.linspace(0.0, 2.0 * np.pi, points, endpoint=False)
-    unit = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
-    return np.asarray(mean, dtype=float) + (unit * radii) @ axes.T
+    packed ``(xx, xy, yy)`` m^2 (:func:`ellipse_axes`)."""
+    (minor, major), angle = ellipse_axes(covariance, sigmas)
+    turns = np.linspace(0.0, 2.0 * np.pi, points, endpoint=False)
+    local = np.stack([major * np.cos(turns), minor * np.sin(turns)], axis=-1)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    return np.asarray(mean, dtype=float) + local @ rotation.T

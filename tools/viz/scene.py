@@ -8,7 +8,7 @@ WebSocket view and ``spawn --record`` all log what it returns, so they show one 
 Everything is drawn in the frame ``world`` (x, y in metres, z = 0 on the ground); a robot's frame
 ``r<i>`` sits at its position, its x axis towards the centre it steers about (the direction it
 watches). Per step record: the region, every robot (sphere, label ``r<i>``, grey once it left), its
-frame, the true target, every robot's estimate with its 2-sigma covariance ellipse (one estimate,
+frame, the true target, every robot's estimate with its 2-sigma covariance ellipse (a flat ellipsoid) (one estimate,
 ``fusion``, under centralized estimation), the ring links its messages crossed coloured by kind
 (:data:`LINK_COLOURS`; red, with a cross at the midpoint, where the fault layer dropped one), and the
 step's scalars on ``/metrics`` (JSON: Cerr in degrees, Terr in metres, messages and bytes). Every
@@ -25,7 +25,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from ringtrack.tools.runlog.derived import FiredLink, covariance_ellipse, fired_links, step_errors
+from ringtrack.tools.runlog.derived import FiredLink, ellipse_axes, fired_links, step_errors
 from ringtrack.world.scenario import Scenario
 
 try:  # the viz extra; without it the commands say what to install (tools.viz.extra) before they get here
@@ -236,29 +236,32 @@ class Translator:
                             metadata={"x_m": target[0], "y_m": target[1]})
 
     def _estimates(self, when: fm.Timestamp, record: dict[str, Any]) -> list[fm.SceneEntity]:
-        """Each robot's estimate (a small sphere) and its 2-sigma ellipse; under centralized
-        estimation every robot steers by the fusion centre's, drawn once as ``fusion``; none where
-        the robots know the target."""
+        """Each robot's estimate (a small sphere) and its 2-sigma ellipse (a flat translucent
+        ellipsoid, :func:`tools.runlog.derived.ellipse_axes`); under centralized estimation every
+        robot steers by the fusion centre's, drawn once as ``fusion``; none where the robots know the
+        target."""
         if self.known:
             return []
-        beliefs = [(f"estimate/r{robot}", centre, (record.get("covariance") or [None] * len(record["centre"]))[robot],
-                    ROBOT_COLOURS[robot % len(ROBOT_COLOURS)])
+        covariances = record.get("covariance") or [None] * len(record["centre"])
+        beliefs = [(f"estimate/r{robot}", centre, covariances[robot], ROBOT_COLOURS[robot % len(ROBOT_COLOURS)])
                    for robot, centre in enumerate(record["centre"]) if centre is not None]
         if self.centralized and beliefs:
             beliefs = [("estimate/fusion", beliefs[0][1], beliefs[0][2], (0.85, 0.65, 0.13, 1.0))]
-        entities = []
+        known = [covariance for _, _, covariance, _ in beliefs if covariance is not None]
+        radii, angles = ellipse_axes(known) if known else (None, None)
+        entities, index = [], 0
+        dot = fm.Vector3(x=self.marker * 0.5, y=self.marker * 0.5, z=self.marker * 0.5)
         for name, mean, covariance, rgba in beliefs:
-            size = fm.Vector3(x=self.marker * 0.5, y=self.marker * 0.5, z=self.marker * 0.5)
-            primitives: dict[str, Any] = {"spheres": [fm.SpherePrimitive(pose=_pose(mean), size=size,
-                                                                         color=_colour(rgba))]}
+            spheres = [fm.SpherePrimitive(pose=_pose(mean), size=dot, color=_colour(rgba))]
             metadata: dict[str, Any] = {"x_m": mean[0], "y_m": mean[1]}
-            if covariance is not None:
-                ring = covariance_ellipse(mean, covariance)
-                primitives["lines"] = [fm.LinePrimitive(
-                    type=fm.LinePrimitiveLineType.LineLoop, pose=_pose((0.0, 0.0)), thickness=1.5,
-                    scale_invariant=True, points=[_point(xy) for xy in ring], color=_colour(rgba))]
+            if covariance is not None and radii is not None and angles is not None:
+                (minor, major), angle = radii[index], float(angles[index])
+                index += 1
+                size = fm.Vector3(x=2 * float(major), y=2 * float(minor), z=self.marker * 0.05)
+                spheres.append(fm.SpherePrimitive(pose=_pose(mean, angle), size=size,
+                                                  color=_colour((rgba[0], rgba[1], rgba[2], 0.25))))
                 metadata["covariance_m2"] = list(covariance)
-            entities.append(self._entity(when, name, metadata=metadata, **primitives))
+            entities.append(self._entity(when, name, spheres=spheres, metadata=metadata))
         return entities
 
     def _link(self, when: fm.Timestamp, record: dict[str, Any], link: FiredLink, index: int) -> fm.SceneEntity:
