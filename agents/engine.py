@@ -52,10 +52,11 @@ class History:
     predecessor and successor) at that moment; ``cerr_true`` degrees (see
     :mod:`world.metrics`); ``targets`` the true target; ``terr`` the target error (metres, the mean
     over robots of the distance from the estimate each steered by to the target); ``estimates`` those
-    estimates (or ``None`` when not recorded); the request copies each robot published to its
-    predecessor and successor (``requests``, None when read from a log) and the beliefs it pushed them
-    (``pushes``), the robot-to-robot traffic that follows per robot (``sent``, ``received``:
-    :func:`ring_traffic` and the pushes), the fault
+    estimates (or ``None`` when not recorded) and ``covariances`` the covariance of each (m^2, packed
+    ``xx, xy, yy`` as commands carry it; NaN where the robots know the target); the request copies
+    each robot published to its predecessor and successor (``requests``, None when read from a log)
+    and the beliefs it pushed them (``pushes``), the robot-to-robot traffic that follows per robot
+    (``sent``, ``received``: :func:`ring_traffic` and the pushes), the fault
     layer's counts (``faults``), ``probes`` of unreachable neighbours, the bytes of the
     robot-to-robot messages each robot published and the radio energy of each robot's traffic
     (see :func:`exchange`).
@@ -81,6 +82,7 @@ class History:
     sent_bytes: NDArray[np.int64] | None = None  # (K, T, N) bytes of the robot-to-robot messages each published
     energy: FloatArray | None = None  # (K, T, N, 2) radio energy, J: transmit, receive (None: not known)
     pushes: NDArray[np.int64] | None = None  # (K, T, N, 2) beliefs pushed to predecessor, successor (None: a log)
+    covariances: FloatArray | None = None  # (K, T, N, 3) xx, xy, yy of each estimate, m^2 (None: not recorded)
 
     @property
     def steps(self) -> int:
@@ -190,6 +192,16 @@ class TeamEstimate:
         """Every decentralized robot's belief now: means (T, N, 2) metres, covariances (T, N, 2, 2) m^2."""
         mean, covariance = self.estimators.belief
         return mean.reshape(self.trials, -1, 2), covariance.reshape(self.trials, -1, 2, 2)
+
+    def covariances(self) -> FloatArray:
+        """The covariance of the estimate every robot steers by, (T, N, 3) packed ``xx, xy, yy``
+        (m^2) as its command carries it: its own belief (decentralized), the fusion centre's
+        (centralized), NaN (known)."""
+        if self.mode == "known":
+            return np.full((self.trials, self.robots, 3), np.nan)
+        covariance = self.estimators.belief[1].reshape(self.trials, -1, 2, 2)
+        packed = np.stack([covariance[..., 0, 0], covariance[..., 0, 1], covariance[..., 1, 1]], axis=-1)
+        return np.broadcast_to(packed, (self.trials, self.robots, 3))
 
     def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> None:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
@@ -468,6 +480,7 @@ def run(
     limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
+    covariances = np.empty((steps, trials, robots, 3)) if record_positions else None
     done = np.zeros(trials, dtype=bool)
 
     for k in range(1, steps + 1):
@@ -518,8 +531,8 @@ def run(
         sent_bytes[row], energy[row] = outcome.sent_bytes, outcome.energy
         offsets[row] = np.where(controller.offset_known, controller.guaranteed_offset, np.nan)
         terr[row] = target_error(centres, targets)
-        if estimates is not None:
-            estimates[row] = centres
+        if estimates is not None and covariances is not None:
+            estimates[row], covariances[row] = centres, team.covariances()
         positions = motion_step(scenario, positions, goal)
         if on_step is not None:
             on_step(k)
@@ -549,6 +562,7 @@ def run(
         sent_bytes=sent_bytes[:steps],
         energy=energy[:steps],
         pushes=pushes[:steps],
+        covariances=None if covariances is None else covariances[:steps],
     )
 
 

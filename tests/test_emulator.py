@@ -255,12 +255,14 @@ def test_moving_target_lockstep_equals_the_engine(tmp_path: Path, estimation: st
 
 
 def assert_tracks_like_the_engine(log: RunLog) -> History:
-    """Angles and estimates to 1e-9, triggers exactly, and Terr to 1e-9 of the engine's run."""
+    """Angles, estimates and their covariances to 1e-9, triggers exactly, and Terr to 1e-9 of the
+    engine's run."""
     logged, twin = history_from_log(log), engine_twin(log)
     assert logged.steps == twin.steps
     assert np.max(np.abs(logged.angles - twin.angles)) < 1e-9
     assert np.array_equal(logged.triggers, twin.triggers)
     assert np.max(np.abs(logged.estimates - twin.estimates)) < 1e-9
+    assert np.allclose(logged.covariances, twin.covariances, rtol=0.0, atol=1e-9, equal_nan=True)
     assert np.max(np.abs(logged.terr - twin.terr)) < 1e-9
     return logged
 

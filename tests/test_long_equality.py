@@ -47,6 +47,7 @@ def lockstep_equals_engine_exactly(tmp_path: Path, steps: int, name: str, estima
     assert np.array_equal(logged.positions, twin.positions)  # bit for bit, every robot, every step
     assert np.array_equal(logged.triggers, twin.triggers)
     assert np.array_equal(logged.estimates, twin.estimates)
+    assert np.array_equal(logged.covariances, twin.covariances, equal_nan=True)
 
 
 @pytest.mark.parametrize(("name", "estimation"), [("paper-stationary", "known"), ("authors-moving", "centralized"),

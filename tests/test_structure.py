@@ -45,7 +45,7 @@ def test_tools_holds_rooms_only() -> None:
     loose = [path.name for path in (ROOT / "tools").glob("*.py") if path.name != "__init__.py"]
     assert loose == []
     rooms = sorted(path.name for path in (ROOT / "tools").iterdir() if (path / "__init__.py").is_file())
-    assert rooms == ["bench", "cli", "dashboard", "introspect", "monitor", "output", "runlog", "studies", "team"]
+    assert rooms == ["bench", "cli", "dashboard", "introspect", "monitor", "output", "runlog", "studies", "team", "viz"]
 
 
 def test_no_function_level_imports_of_project_modules() -> None:

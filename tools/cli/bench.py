@@ -20,11 +20,13 @@ from ringtrack.tools.bench.bench import (
     neighbour_round_trip,
     suite_ratios,
 )
+from ringtrack.tools.bench.record import record_cost
 from ringtrack.tools.bench.studies import FULL, QUICK, TARGETS, THROUGHPUT, studies_results, targets_met
 from ringtrack.tools.cli.experiment import robot_list
 from ringtrack.tools.cli.options import JSON_FILE, at_least
 from ringtrack.tools.output.console import UsageError, err, show
 from ringtrack.tools.output.files import write_json
+from ringtrack.tools.viz.extra import require_sdk
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -88,6 +90,14 @@ def register(commands: argparse._SubParsersAction) -> None:
     studies_parser.add_argument("--quick", action="store_true", help="small counts and few steps (a smoke test)")
     studies_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
     studies_parser.set_defaults(handler=run_studies_bench)
+
+    record_parser = kinds.add_parser(
+        "record", help="what spawn --record FILE.mcap costs a lockstep team: runs without and with it, alternating")
+    record_parser.add_argument("--robots", type=at_least(2), default=6, help="team size (default 6)")
+    record_parser.add_argument("--steps", type=at_least(1), default=1000, help="steps per run (default 1000)")
+    record_parser.add_argument("--repeat", type=at_least(1), default=3, help="runs of each kind; medians (default 3)")
+    record_parser.add_argument("--json", type=JSON_FILE, metavar="PATH", help="also write the results as JSON")
+    record_parser.set_defaults(handler=run_record_bench)
 
     suite_parser = kinds.add_parser(
         "suite",
@@ -276,4 +286,19 @@ def run_studies_bench(args: argparse.Namespace) -> int:
     show(studies_table(results))
     if args.json:
         write_json(args.json, results)
+    return 0
+
+
+def run_record_bench(args: argparse.Namespace) -> int:
+    require_sdk("bench record")
+    result = {"machine": machine(), **record_cost(args.robots, args.steps, args.repeat)}
+    table = Table(title=f"lockstep team with and without --record ({result['machine']['cores']} cores)")
+    for column in ("robots", "steps", "steps/s", "steps/s --record", "cost", "budget", "MCAP B/step"):
+        table.add_column(column, justify="right")
+    table.add_row(str(result["robots"]), str(result["steps"]), f"{result['steps_per_s']:.0f}",
+                  f"{result['steps_per_s_with_record']:.0f}", f"{result['record_cost']:+.1%}",
+                  f"{result['budget']:.0%}", f"{result['mcap_bytes_per_step'] or 0:.0f}")
+    show(table)
+    if args.json:
+        write_json(args.json, result)
     return 0

@@ -16,7 +16,7 @@ from rich.console import Console
 from ringtrack.agents.summary import RunSummary, summarise
 from ringtrack.bus.config import announced_endpoints
 from ringtrack.bus.keys import MONITOR
-from ringtrack.tools.cli.options import LOG_FILE, scenario_from_arguments
+from ringtrack.tools.cli.options import LOG_FILE, MCAP_FILE, foxglove_address, scenario_from_arguments
 from ringtrack.tools.cli.role_flags import bus_config, common_flags, digests, finished
 from ringtrack.tools.dashboard.startup import started_at
 from ringtrack.tools.dashboard.views import LiveView, print_outcome, print_report
@@ -24,6 +24,9 @@ from ringtrack.tools.monitor.monitor import run_monitor
 from ringtrack.tools.monitor.state import TeamModel, startup_names
 from ringtrack.tools.output.console import UsageError, err, out
 from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
+from ringtrack.tools.viz.extra import VIZ_EXTRA, require_sdk
+from ringtrack.tools.viz.sink import FoxgloveSink
+from ringtrack.world.scenario import Scenario
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -44,11 +47,40 @@ def register(commands: argparse._SubParsersAction) -> None:
     monitor.add_argument("--all-robots", action="store_true",
                          help="list every robot and link in the end-of-run report (default: above 20, "
                          "min/median/max and the 5 busiest)")
+    add_foxglove_arguments(monitor)
     monitor.set_defaults(handler=run_monitor_role)
 
 
+def add_foxglove_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--foxglove [HOST:]PORT`` and ``--record FILE.mcap`` (the monitor's, and spawn's for it)."""
+    parser.add_argument("--foxglove", type=foxglove_address, metavar="[HOST:]PORT",
+                        help="serve the run live to Foxglove over its WebSocket protocol (ws://HOST:PORT; HOST "
+                        f"defaults to 127.0.0.1, this machine only; PORT 0: a free one) ({VIZ_EXTRA})")
+    parser.add_argument("--record", type=MCAP_FILE, metavar="FILE.mcap",
+                        help=f"record the run as MCAP while it runs, as export --mcap writes it ({VIZ_EXTRA})")
+
+
+def check_foxglove_arguments(args: argparse.Namespace) -> None:
+    """Without the viz extra, ``--foxglove`` and ``--record`` are one line naming it (exit code 2)."""
+    for flag in ("foxglove", "record"):
+        if getattr(args, flag) is not None:
+            require_sdk(f"--{flag}")
+
+
+def foxglove_sink(args: argparse.Namespace, scenario: Scenario) -> FoxgloveSink | None:
+    """The sink ``--foxglove`` and ``--record`` ask for (None: neither); says where the live view is."""
+    if args.foxglove is None and args.record is None:
+        return None
+    sink = FoxgloveSink(scenario, record=args.record, serve=args.foxglove)
+    if sink.port is not None:
+        err.print(f"monitor: Foxglove live view on ws://{args.foxglove[0]}:{sink.port}", highlight=False)
+    return sink
+
+
 def run_monitor_role(args: argparse.Namespace) -> int:
+    check_foxglove_arguments(args)
     scenario = scenario_from_arguments(args)
+    sink = foxglove_sink(args, scenario)
     model = TeamModel(scenario, args.clock)
     model.expected, model.up = startup_names(scenario), {MONITOR}
     if args.display_handover is not None:
@@ -62,10 +94,13 @@ def run_monitor_role(args: argparse.Namespace) -> int:
             code, report = asyncio.run(
                 run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots),
                             args.log, scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent,
-                            digests(args))
+                            digests(args), sink)
             )
     except LogWriteError as error:
         log_write_failed(error)
+    finally:
+        if sink is not None:
+            sink.close()
     if report is not None:
         # The log is complete: a second signal (the supervisor's, halfway through its grace) must not
         # cut the report short.

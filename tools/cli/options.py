@@ -235,9 +235,23 @@ def output_path(suffixes: tuple[str, ...]) -> Callable[[str], Path]:
     return parse
 
 
+def foxglove_address(text: str) -> tuple[str, int]:
+    """An argparse type: ``[HOST:]PORT`` of a live Foxglove WebSocket server; HOST defaults to
+    127.0.0.1 (this machine only: name a host, e.g. 0.0.0.0, to serve others), PORT 0 takes a free one."""
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not 0 <= number <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: give [HOST:]PORT with a port 0-65535, e.g. 8765 or 0.0.0.0:8765")
+    return host.strip("[]") or "127.0.0.1", number
+
+
 JSON_FILE = output_path((".json",))  # summaries and results
 LOG_FILE = output_path((".jsonl",))  # run logs (JSON lines)
 CSV_FILE = output_path((".csv",))  # tables of trials and summaries
+MCAP_FILE = output_path((".mcap",))  # recordings for Foxglove
 
 
 def add_study_arguments(parser: argparse.ArgumentParser) -> None:

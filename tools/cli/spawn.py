@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ringtrack.bus.config import LEASE_S
+from ringtrack.tools.cli.monitor import add_foxglove_arguments, check_foxglove_arguments
 from ringtrack.tools.cli.options import (
     JSON_FILE,
     LOG_FILE,
@@ -67,10 +68,12 @@ def register(commands: argparse._SubParsersAction) -> None:
                         "tally); by default, in lockstep, it takes measurements and commands by the world's own "
                         "counts and robot-to-robot messages by the robots' own, from the world's digests, and "
                         "observes the rest")
+    add_foxglove_arguments(parser)
     parser.set_defaults(handler=run_spawn)
 
 
 def run_spawn(args: argparse.Namespace) -> int:
+    check_foxglove_arguments(args)
     scenario = scenario_from_arguments(args)
     plan = TeamPlan(
         scenario=scenario,
@@ -89,6 +92,8 @@ def run_spawn(args: argparse.Namespace) -> int:
         audit=args.audit,
         settle=args.from_step,
         start=args.start,
+        foxglove=args.foxglove,
+        record=args.record,
     )
     result = spawn_team(plan)
     if args.json:

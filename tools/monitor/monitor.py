@@ -77,9 +77,12 @@ class PendingStep:
     traffic_messages: Counter[str] = field(default_factory=Counter)
     traffic_bytes: Counter[str] = field(default_factory=Counter)
     notices: list[FaultNotice] = field(default_factory=list)
+    links: Counter[tuple[str, int, int]] = field(default_factory=Counter)  # (kind, sender, receiver) -> messages
 
-    def count_robot_message(self, sender: int, receiver: int, size: int) -> None:
-        """One robot-to-robot message of ``size`` payload bytes, ``sender -> receiver`` (robot ids)."""
+    def count_robot_message(self, kind: str, sender: int, receiver: int, size: int) -> None:
+        """One robot-to-robot message of ``kind`` (request, reply, push) and ``size`` payload bytes,
+        ``sender -> receiver`` (robot ids)."""
+        self.links[kind, sender, receiver] += 1
         self.sent_messages[sender] += 1
         self.sent_bytes[sender] += size
         self.received_messages[receiver] += 1
@@ -161,7 +164,7 @@ class Recorder:
         elif isinstance(message, Measurement):
             entry.measured.add(message.robot)
         elif isinstance(message, (Request, Reply, Push)):
-            entry.count_robot_message(message.sender, message.receiver, delivery.size)
+            entry.count_robot_message(message.kind, message.sender, message.receiver, delivery.size)
         elif isinstance(message, FaultNotice):
             entry.notices.append(message)
             self.record({"type": "event", "event": message.what, "step": message.step,
@@ -178,12 +181,12 @@ class Recorder:
         self.tick_seen_at[tick.step] = time.monotonic()
         self.latest_tick = max(self.latest_tick, tick.step)
 
-    def count_reported(self, step: int, size: int, robots: tuple[int, int] | None = None,
+    def count_reported(self, step: int, size: int, robots: tuple[str, int, int] | None = None,
                        measured: int | None = None) -> None:
         """Count a message of ``step`` (``size`` payload bytes) the monitor did not receive itself but
         a :class:`~bus.messages.Digest` reports: a world message (with ``measured``, the measurement
-        of that robot), or with ``robots`` (sender, receiver) a robot-to-robot message a command's
-        ``robot_traffic`` names."""
+        of that robot), or with ``robots`` (kind, sender, receiver) a robot-to-robot message a
+        command's ``robot_traffic`` names."""
         if step >= self.next_step and self._opens(step):
             entry = self._pending(step)
             if measured is not None:
@@ -248,8 +251,27 @@ class Recorder:
             received=([entry.received_messages[r] for r in robots], [entry.received_bytes[r] for r in robots]),
             traffic={category: [entry.traffic_messages[category], entry.traffic_bytes[category]]
                      for category in ("robot", "world", "estimation")},
+            covariance=[_covariance(commands.get(r)) for r in robots],
+            links=[[kind, sender, receiver, count] for (kind, sender, receiver), count in entry.links.items()],
         )
         self.record(record)
+
+
+def _each(handlers: list[Callable[[dict], None]]) -> Callable[[dict], None] | None:
+    """One callback calling every handler in turn (None: no handler; one: that handler itself)."""
+    if len(handlers) <= 1:
+        return handlers[0] if handlers else None
+
+    def each(record: dict) -> None:
+        for handler in handlers:
+            handler(record)
+
+    return each
+
+
+def _covariance(command: Command | None) -> list[float] | None:
+    """The covariance (``[xx, xy, yy]`` m^2) of the estimate a command's robot steered by, if any."""
+    return None if command is None or command.covariance is None else list(command.covariance)
 
 
 def senders(scenario: Scenario) -> set[str]:
@@ -303,12 +325,14 @@ async def run_monitor(
     refresh: Refresh | None = None,
     exit_with_parent: bool = False,
     digests: bool = False,
+    on_record: Callable[[dict], None] | None = None,
 ) -> tuple[int, MonitorReport | None]:
     """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
     times per second, and once more with True when the log is complete; returns the exit code and
     the report (None when stopped before the start). With ``digests`` the monitor receives no copy of
     the measurements, commands and robot-to-robot messages: it counts them from the world's digests
-    (:func:`digested`)."""
+    (:func:`digested`). ``on_record`` is handed every step, event and end record too, as written
+    (the live Foxglove view and ``--record``)."""
     keys = Keys(run)
     report: MonitorReport | None = None
     if model is not None:
@@ -324,7 +348,8 @@ async def run_monitor(
         nonlocal report
         with LogWriter(log_path) as writer:
             writer.header(scenario, "emulator", run, seed, clock, steps)
-            recorder = Recorder(writer, scenario, None if model is None else model.add, FORCE_AFTER_S[clock])
+            handlers = [handler for handler in (None if model is None else model.add, on_record) if handler is not None]
+            recorder = Recorder(writer, scenario, _each(handlers), FORCE_AFTER_S[clock])
             code, report = await _watch(participant, recorder, roster, held, refresh, digests)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
@@ -346,6 +371,8 @@ async def run_monitor(
                 "energy_j": report.energy_j,
             }
             writer.write(end)
+        if on_record is not None:
+            on_record(end)
         if model is not None:
             model.add(end)
             model.status = (report.end.reason.text(report.end.step) if report.end
@@ -470,7 +497,7 @@ def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestE
             for _ in range(copies):
                 participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
                                                     robot_name(receiver)), each)
-                recorder.count_reported(command.step, each, (sender, receiver))
+                recorder.count_reported(command.step, each, (ROBOT_TRAFFIC_KINDS[kind], sender, receiver))
 
 
 def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:

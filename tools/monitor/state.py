@@ -18,8 +18,8 @@ import numpy as np
 from ringtrack.agents.laws import uncertainty_bound
 from ringtrack.bus.faults import FAULTS, POLL_MESSAGES
 from ringtrack.bus.keys import FUSION, MONITOR, WORLD, robot_index
+from ringtrack.tools.runlog.derived import step_errors
 from ringtrack.world.geometry import angle_of
-from ringtrack.world.metrics import target_error, true_cerr
 from ringtrack.world.scenario import Scenario
 
 HISTORY = 600  # steps of Cerr/Terr kept for the sparklines
@@ -149,9 +149,9 @@ class TeamModel:
         for category, (messages, size) in record["traffic"].items():
             self.totals[category][0] += messages
             self.totals[category][1] += size or 0
-        self.cerr.append(float(true_cerr(self.positions, self.target)))
-        centres = np.array([(math.nan, math.nan) if centre is None else centre for centre in record["centre"]])
-        self.terr.append(float(target_error(centres, self.target)))
+        cerr, terr = step_errors(record)
+        self.cerr.append(cerr)
+        self.terr.append(terr)
 
     def snapshot(self) -> TeamModel:
         """A copy to draw while this model goes on changing (the scenario, never changed, is shared)."""

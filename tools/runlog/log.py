@@ -6,10 +6,14 @@ Records, one per line:
   team size, clock, step limit, library versions, start time (UTC);
 * ``step``: the true state at the start of step k (``positions``, ``target``, ``live``), what each
   robot decided (``trigger`` mask, ``offset`` = gV - theta in radians and ``ages`` of its memory in
-  steps, both before polling, ``centre`` it steered about), the robot-to-robot traffic each robot
+  steps, both before polling, ``centre`` it steered about and the ``covariance`` of that estimate,
+  ``[xx, xy, yy]`` m^2, null where it knows the target), the robot-to-robot traffic each robot
   sent and received for that step (``sent_messages``, ``sent_bytes``, ``received_messages``,
   ``received_bytes``) and ``traffic`` [messages, bytes] per category of everything stamped with the
-  step (bytes are null for the engine, which sends nothing: its counts follow from the protocol);
+  step (bytes are null for the engine, which sends nothing: its counts follow from the protocol) and
+  ``links``, the robot-to-robot messages of the step that were put on the bus, ``[kind, sender,
+  receiver, messages]`` sorted (kind: request, reply, push; what the fault layer dropped is not
+  there: see the ``dropped`` events);
 * ``event``: something that happened between steps (faults, crashes);
 * ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
   says it sent, rejected payloads, late messages and each robot's radio energy (``energy_j``:
@@ -30,7 +34,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import metadata
 from pathlib import Path
-from typing import IO, Annotated, Any
+from typing import IO, Annotated, Any, Literal
 
 import msgspec
 import numpy as np
@@ -147,10 +151,13 @@ def step_record(
     sent: tuple[list[int], list[int] | None],
     received: tuple[list[int], list[int] | None],
     traffic: dict[str, list[int | None]],
+    covariance: list[Any],
+    links: list[list[Any]],
 ) -> dict[str, Any]:
     """A ``step`` record (see the module docstring for the fields); ``sent`` and ``received`` are
     (messages, bytes) per robot of robot-to-robot traffic, ``traffic`` [messages, bytes] per category
-    of every message stamped with this step."""
+    of every message stamped with this step, ``links`` ``[kind, sender, receiver, messages]`` (sorted
+    here)."""
     return {
         "type": "step",
         "step": step,
@@ -167,6 +174,8 @@ def step_record(
         "received_messages": received[0],
         "received_bytes": received[1],
         "traffic": traffic,
+        "covariance": covariance,
+        "links": sorted(links),
     }
 
 
@@ -178,6 +187,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     robots = scenario.robots
     sent, received = history.sent[:, trial], history.received[:, trial]
     estimation_messages = robots + 1 if scenario.centralized else 0
+    covariances = history.covariances
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
         assert history.estimates is not None
@@ -197,11 +207,34 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                     received=(received[row].tolist(), None),
                     traffic={"robot": [int(sent[row].sum()), None], "world": [2 * robots + 1, None],
                              "estimation": [estimation_messages, None]},
+                    covariance=[None if np.isnan(packed).any() else packed.tolist()
+                                for packed in (np.full((robots, 3), np.nan) if covariances is None
+                                               else covariances[row, trial])],
+                    links=engine_links(history, row, trial),
                 )
             )
         writer.write({"type": "end", "steps": history.steps, "reason": EndReason.DONE, "wall_s": None,
                       "traffic": [list(row) for row in link_traffic(history, trial)], "senders": {}, "rejected": {},
                       "late": 0, "faults": fault_totals(history, trial), "energy_j": _engine_energy(history, trial)})
+
+
+def engine_links(history: History, row: int, trial: int) -> list[list[Any]]:
+    """The ``links`` of step ``row + 1`` of an engine trial: the request copies each robot published
+    to its predecessor and successor, a reply to each, and the beliefs it pushed (as
+    :func:`agents.engine.ring_traffic` counts them)."""
+    assert history.requests is not None, "the links of a step are known of engine runs only"
+    requests = history.requests[row, trial]
+    pushes = np.zeros_like(requests) if history.pushes is None else history.pushes[row, trial]
+    robots = len(requests)
+    links: list[list[Any]] = []
+    for robot in range(robots):
+        for side, neighbour in ((0, (robot - 1) % robots), (1, (robot + 1) % robots)):
+            if requests[robot, side]:
+                links.append(["request", robot, neighbour, int(requests[robot, side])])
+                links.append(["reply", neighbour, robot, int(requests[robot, side])])
+            if pushes[robot, side]:
+                links.append(["push", robot, neighbour, int(pushes[robot, side])])
+    return links
 
 
 def _engine_energy(history: History, trial: int) -> dict[str, list[float]]:
@@ -215,6 +248,8 @@ def _engine_energy(history: History, trial: int) -> dict[str, list[float]]:
 # ---------------------------------------------------------------------------- reading
 Count = Annotated[int, msgspec.Meta(ge=0)]
 Point = tuple[float, float]  # metres
+Covariance = tuple[float, float, float]  # xx, xy, yy, m^2
+LinkRow = tuple[Literal["request", "reply", "push"], int, int, Annotated[int, msgspec.Meta(ge=1)]]
 TrafficRow = tuple[str, str, str, Count, Count | None]  # kind, source, destination, messages, bytes (None: engine)
 
 
@@ -251,10 +286,12 @@ class StepRecord(Record, tag="step"):
     received_messages: list[Count]
     received_bytes: list[Count] | None
     traffic: dict[str, tuple[Count, Count | None]]
+    covariance: list[Covariance | None] | None = None  # m^2; None: a log written before it was logged
+    links: list[LinkRow] | None = None  # None: a log written before they were logged
 
 
 PER_ROBOT = ("positions", "trigger", "offset", "ages", "centre", "sent_messages", "sent_bytes",
-             "received_messages", "received_bytes")  # step fields with one entry per robot
+             "received_messages", "received_bytes", "covariance")  # step fields with one entry per robot
 
 
 class EventRecord(Record, tag="event"):
@@ -321,7 +358,8 @@ def read_log(path: Path) -> RunLog:
     records = _decoded_lines(path)
     first = records[0][1] if records else None
     if not isinstance(first, dict) or first.get("type") != "header":
-        raise LogError(f"{path}: no header record; this is not a ringtrack run log")
+        where = f"line {records[0][0]}" if records else "line 1"
+        raise LogError(f"{path}: {where}: no header record; this is not a ringtrack run log")
     if first.get("format") != FORMAT:
         raise LogError(f"{path}: log format {first.get('format')}, this ringtrack reads {FORMAT}")
     log = RunLog(header=first, label=str(path))
@@ -350,10 +388,14 @@ def read_log(path: Path) -> RunLog:
 def _check_team_size(path: Path, number: int, step: dict[str, Any], robots: int) -> None:
     """Every per-robot list of a step record has one entry per robot."""
     for name in PER_ROBOT:
-        values = step[name]
+        values = step.get(name)
         if values is not None and len(values) != robots:
             raise _damaged(path, number,
                            f"step record: `{name}` has {len(values)} entries for a team of {robots} robots")
+    for _kind, sender, receiver, _messages in step.get("links") or ():
+        if not (0 <= sender < robots and 0 <= receiver < robots):
+            raise _damaged(path, number, f"step record: `links` names robots {sender} and {receiver}; a team of "
+                           f"{robots} has robots 0..{robots - 1}")
 
 
 def _check_link_event(path: Path, number: int, event: EventRecord, robots: int) -> None:
@@ -405,6 +447,9 @@ def history_from_log(log: RunLog) -> History:
     missing = [np.nan, np.nan]
     estimates = np.array([[centre or missing for centre in record["centre"]] for record in log.steps])[:, None]
     angles = angle_of(positions, targets[..., None, :])
+    unknown = [np.nan] * 3
+    covariances = np.array([[packed or unknown for packed in record.get("covariance") or [None] * scenario.robots]
+                            for record in log.steps], dtype=float).reshape(len(log.steps), 1, scenario.robots, 3)
     return History(
         scenario=scenario,
         seeds=[log.header["seed"]],
@@ -423,4 +468,5 @@ def history_from_log(log: RunLog) -> History:
         requests=None,
         faults=np.zeros((len(log.steps), 1, len(FAULT_COLUMNS)), dtype=np.int64),  # per run only: see the end record
         probes=np.zeros((len(log.steps), 1), dtype=np.int64),
+        covariances=covariances,
     )

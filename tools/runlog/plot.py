@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib import colormaps  # imported here: every ringtrack command builds this parser
 from matplotlib.figure import Figure
 
 from ringtrack.bus.counting import robot_link_totals
+from ringtrack.tools.runlog.derived import ELLIPSE_SIGMAS, covariance_ellipse
 from ringtrack.tools.runlog.log import RunLog, history_from_log
 
 if TYPE_CHECKING:
@@ -21,7 +22,8 @@ PANELS = ("(a) trajectories (open: start, filled: end)", "(b) convergence and ta
 
 def plot_run(log: RunLog) -> Figure:
     """Four panels titled ``PANELS``: (a) trajectories on the region (a line labelled ``r<i>`` per
-    robot), (b) Cerr and Terr over time (one point per step), (c) polls per robot over time, (d)
+    robot; for a moving target also each robot's last estimate with its 2-sigma ellipse), (b) Cerr
+    and Terr over time (one point per step), (c) polls per robot over time, (d)
     robot-to-robot messages (and bytes, when counted) per link, as the end record counts them."""
     history = history_from_log(log)
     scenario = history.scenario
@@ -43,6 +45,8 @@ def plot_run(log: RunLog) -> Figure:
         mean_estimate = np.nanmean(history.estimates[:, 0], axis=1)
         trajectories.plot(mean_estimate[:, 0], mean_estimate[:, 1], color="goldenrod", linewidth=0.8, alpha=0.8,
                           label="estimate (mean of robots)", zorder=3)
+    if scenario.moving and scenario.estimation.mode != "known":
+        _final_beliefs(trajectories, log, colours)
     targets = history.targets[:, 0]  # drawn last and on top: the truth the estimates are judged by
     trajectories.plot(targets[:, 0], targets[:, 1], color="black", linestyle="--", linewidth=1.6,
                       label="true target", zorder=5)
@@ -103,3 +107,18 @@ def plot_run(log: RunLog) -> Figure:
                     f"{scenario.estimation.mode} target, {history.steps} steps ({log.header['source']})"
                     + (f"; team radio energy {1e3 * sum(map(sum, energy.values())):.2f} mJ" if energy else ""))
     return figure
+
+
+def _final_beliefs(axes: Any, log: RunLog, colours: Any) -> None:
+    """Each robot's estimate at the last step (a cross in its colour) and its 2-sigma ellipse."""
+    last = log.steps[-1]
+    covariances = last.get("covariance") or [None] * len(last["centre"])
+    for robot, (centre, covariance) in enumerate(zip(last["centre"], covariances, strict=True)):
+        if centre is None:
+            continue
+        axes.plot(*centre, "+", color=colours[robot], markersize=9, zorder=4)
+        if covariance is not None:
+            ring = covariance_ellipse(centre, covariance)
+            ring = np.vstack([ring, ring[:1]])
+            axes.plot(ring[:, 0], ring[:, 1], color=colours[robot], linewidth=0.8, zorder=4,
+                      label=f"{ELLIPSE_SIGMAS:g}-sigma ellipses, last step" if robot == 0 else None)

@@ -43,7 +43,9 @@ class TeamPlan(msgspec.Struct, kw_only=True, frozen=True):
     ``audit`` the monitor receives a copy of every message (else, in lockstep, the world's digests
     account for measurements and commands). A moving target's summary means leave out the first
     ``settle`` steps. ``start`` "fork" forks the robot processes from one launcher that has imported
-    their code, "exec" starts each as a fresh interpreter (None: fork where it works, Linux)."""
+    their code, "exec" starts each as a fresh interpreter (None: fork where it works, Linux).
+    ``foxglove`` ``(host, port)`` has the monitor serve the run live to Foxglove, ``record`` has it
+    record the run as MCAP (:mod:`tools.viz.sink`); both off by default."""
 
     scenario: Scenario
     clock: Clock = "lockstep"
@@ -62,6 +64,8 @@ class TeamPlan(msgspec.Struct, kw_only=True, frozen=True):
     audit: bool = False
     settle: int = SETTLE_STEPS
     start: Literal["fork", "exec"] | None = None
+    foxglove: tuple[str, int] | None = None
+    record: Path | None = None
 
 
 class Stop(enum.Enum):

@@ -166,6 +166,8 @@ def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> No
     monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[plan.dashboard]
     monitor_flags += ["--all-robots"] if plan.all_robots else []
     monitor_flags += [] if view is None else ["--display-handover", str(handover)]
+    monitor_flags += [] if plan.foxglove is None else ["--foxglove", f"[{plan.foxglove[0]}]:{plan.foxglove[1]}"]
+    monitor_flags += [] if plan.record is None else ["--record", str(plan.record.resolve())]
     say(view, "starting the world and the monitor")
     with (folder / "monitor.stdout").open("wb") if plan.quiet else contextlib.nullcontext() as display:
         # Started at once: it comes up (and takes the start-up frame over) while the world does.
