@@ -1,8 +1,10 @@
-"""``ringtrack bench record``: what ``spawn --record FILE.mcap`` costs a lockstep team.
+"""``ringtrack bench record``: what ``spawn --record FILE.mcap`` and ``spawn --foxglove PORT`` cost a
+lockstep team.
 
-Runs the same lockstep team alternately without and with the monitor recording MCAP (the budget: a
-step costs at most :data:`BUDGET` more), and reports the median steps per second of each, the cost
-and whether it is within the budget. A measurement to read, never a test's assertion.
+Runs the same lockstep team in turn without either, with ``--record`` and with ``--foxglove`` (a live
+server on a free loopback port, no viewer connected), repeatedly, and reports the median steps per
+second of each (the world's own count: stepping only), each one's cost and whether it is within the
+budget (:data:`BUDGET`). A measurement to read, never a test's assertion.
 """
 
 from __future__ import annotations
@@ -17,32 +19,34 @@ from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import load_scenario
 
-BUDGET = 0.05  # a lockstep step with --record may cost this share more
+BUDGET = 0.05  # a lockstep step with --record or --foxglove may cost this share more
+VARIANTS = ("off", "record", "foxglove")
 
 
 def record_cost(robots: int = 6, steps: int = 1000, repeat: int = 3, scenario: str = "authors-moving",
                 runs: Path | None = None) -> dict[str, Any]:
-    """Median lockstep steps per second of ``repeat`` runs without and ``repeat`` with ``--record``
-    (alternating, so a machine's drift hits both), the cost ``1 - with / without`` and the MCAP size."""
+    """Median lockstep steps per second of ``repeat`` runs of each of :data:`VARIANTS` (in turn, so
+    a machine's drift hits them all), each variant's cost ``1 - variant / off`` and the MCAP's size."""
     team = load_scenario(scenario, robots=robots, max_steps=steps)
-    speeds: dict[bool, list[float]] = {False: [], True: []}
+    speeds: dict[str, list[float]] = {variant: [] for variant in VARIANTS}
     sizes = []
     with tempfile.TemporaryDirectory(prefix="ringtrack-bench-record-") as scratch:
         folder = runs or Path(scratch)
         for attempt in range(repeat):
-            for recording in (False, True):
-                mcap = Path(scratch) / f"run-{attempt}.mcap" if recording else None
-                err.print(f"{robots} robots, {steps} lockstep steps, --record {'on' if recording else 'off'} "
-                          f"({attempt + 1}/{repeat})", highlight=False)
+            for variant in VARIANTS:
+                mcap = Path(scratch) / f"run-{attempt}.mcap" if variant == "record" else None
+                live = ("127.0.0.1", 0) if variant == "foxglove" else None
+                err.print(f"{robots} robots, {steps} lockstep steps, {variant} ({attempt + 1}/{repeat})",
+                          highlight=False)
                 result = spawn_team(TeamPlan(scenario=team, clock="lockstep", runs=folder, dashboard=False,
-                                             quiet=True, record=mcap))
-                speeds[recording].append(result.steps_per_s or 0.0)
+                                             quiet=True, record=mcap, foxglove=live))
+                speeds[variant].append(result.steps_per_s or 0.0)
                 if mcap is not None and mcap.exists():
                     sizes.append(mcap.stat().st_size)
-    without, with_record = statistics.median(speeds[False]), statistics.median(speeds[True])
-    cost = 1.0 - with_record / without if without else float("nan")
+    median = {variant: statistics.median(values) for variant, values in speeds.items()}
+    cost = {variant: 1.0 - median[variant] / median["off"] if median["off"] else float("nan")
+            for variant in VARIANTS[1:]}
     return {"benchmark": "record", "scenario": scenario, "robots": robots, "steps": steps, "repeat": repeat,
-            "steps_per_s": without, "steps_per_s_with_record": with_record,
-            "runs_steps_per_s": speeds[False], "runs_steps_per_s_with_record": speeds[True],
-            "record_cost": cost, "budget": BUDGET, "within_budget": cost <= BUDGET,
+            "steps_per_s": median, "runs_steps_per_s": speeds, "cost": cost, "budget": BUDGET,
+            "within_budget": {variant: value <= BUDGET for variant, value in cost.items()},
             "mcap_bytes_per_step": statistics.median(sizes) / steps if sizes else None}

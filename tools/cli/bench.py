@@ -24,7 +24,7 @@ from ringtrack.tools.bench.record import record_cost
 from ringtrack.tools.bench.studies import FULL, QUICK, TARGETS, THROUGHPUT, studies_results, targets_met
 from ringtrack.tools.cli.experiment import robot_list
 from ringtrack.tools.cli.options import JSON_FILE, at_least
-from ringtrack.tools.output.console import UsageError, err, show
+from ringtrack.tools.output.console import UsageError, err, out, show
 from ringtrack.tools.output.files import write_json
 from ringtrack.tools.viz.extra import require_sdk
 
@@ -92,7 +92,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     studies_parser.set_defaults(handler=run_studies_bench)
 
     record_parser = kinds.add_parser(
-        "record", help="what spawn --record FILE.mcap costs a lockstep team: runs without and with it, alternating")
+        "record", help="what spawn --record FILE.mcap and --foxglove PORT cost a lockstep team: runs without and "
+        "with each, in turn")
     record_parser.add_argument("--robots", type=at_least(2), default=6, help="team size (default 6)")
     record_parser.add_argument("--steps", type=at_least(1), default=1000, help="steps per run (default 1000)")
     record_parser.add_argument("--repeat", type=at_least(1), default=3, help="runs of each kind; medians (default 3)")
@@ -292,13 +293,16 @@ def run_studies_bench(args: argparse.Namespace) -> int:
 def run_record_bench(args: argparse.Namespace) -> int:
     require_sdk("bench record")
     result = {"machine": machine(), **record_cost(args.robots, args.steps, args.repeat)}
-    table = Table(title=f"lockstep team with and without --record ({result['machine']['cores']} cores)")
-    for column in ("robots", "steps", "steps/s", "steps/s --record", "cost", "budget", "MCAP B/step"):
+    table = Table(title=f"lockstep team of {result['robots']}, {result['steps']} steps, off / --record / "
+                        f"--foxglove ({result['machine']['cores']} cores)")
+    for column in ("", "steps/s", "cost", "budget"):
         table.add_column(column, justify="right")
-    table.add_row(str(result["robots"]), str(result["steps"]), f"{result['steps_per_s']:.0f}",
-                  f"{result['steps_per_s_with_record']:.0f}", f"{result['record_cost']:+.1%}",
-                  f"{result['budget']:.0%}", f"{result['mcap_bytes_per_step'] or 0:.0f}")
+    for variant, speed in result["steps_per_s"].items():
+        cost = result["cost"].get(variant)
+        table.add_row(variant, f"{speed:.0f}", "" if cost is None else f"{cost:+.1%}",
+                      "" if cost is None else f"{result['budget']:.0%}")
     show(table)
+    out.print(f"MCAP: {result['mcap_bytes_per_step'] or 0:.0f} B a step", highlight=False)
     if args.json:
         write_json(args.json, result)
     return 0

@@ -41,7 +41,7 @@ def run_export(args: argparse.Namespace) -> int:
         out.print(f"wrote {args.csv / 'steps.csv'} ({steps} rows) and {args.csv / 'links.csv'} ({links} rows)",
                   highlight=False, soft_wrap=True)
     if args.mcap is not None:
-        write_mcap(log.scenario, [*log.records, *([log.end] if log.end else [])], args.mcap)
+        write_mcap(log, args.mcap)
         out.print(f"wrote {args.mcap} ({len(log.steps)} steps, {len(log.events)} events)", highlight=False,
                   soft_wrap=True)
     return 0

@@ -23,9 +23,9 @@ from ringtrack.tools.dashboard.views import LiveView, print_outcome, print_repor
 from ringtrack.tools.monitor.monitor import run_monitor
 from ringtrack.tools.monitor.state import TeamModel, startup_names
 from ringtrack.tools.output.console import UsageError, err, out
-from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
+from ringtrack.tools.runlog.log import LogError, LogWriteError, history_from_log, read_log
 from ringtrack.tools.viz.extra import VIZ_EXTRA, require_sdk
-from ringtrack.tools.viz.sink import FoxgloveSink
+from ringtrack.tools.viz.sink import LiveServer, write_mcap
 from ringtrack.world.scenario import Scenario
 
 
@@ -57,7 +57,7 @@ def add_foxglove_arguments(parser: argparse.ArgumentParser) -> None:
                         help="serve the run live to Foxglove over its WebSocket protocol (ws://HOST:PORT; HOST "
                         f"defaults to 127.0.0.1, this machine only; PORT 0: a free one) ({VIZ_EXTRA})")
     parser.add_argument("--record", type=MCAP_FILE, metavar="FILE.mcap",
-                        help=f"record the run as MCAP while it runs, as export --mcap writes it ({VIZ_EXTRA})")
+                        help=f"write the run as MCAP as it ends, what export --mcap writes from its log ({VIZ_EXTRA})")
 
 
 def check_foxglove_arguments(args: argparse.Namespace) -> None:
@@ -67,20 +67,19 @@ def check_foxglove_arguments(args: argparse.Namespace) -> None:
             require_sdk(f"--{flag}")
 
 
-def foxglove_sink(args: argparse.Namespace, scenario: Scenario) -> FoxgloveSink | None:
-    """The sink ``--foxglove`` and ``--record`` ask for (None: neither); says where the live view is."""
-    if args.foxglove is None and args.record is None:
+def live_server(args: argparse.Namespace, scenario: Scenario) -> LiveServer | None:
+    """The live view ``--foxglove`` asks for (None: none); says where it listens."""
+    if args.foxglove is None:
         return None
-    sink = FoxgloveSink(scenario, record=args.record, serve=args.foxglove)
-    if sink.port is not None:
-        err.print(f"monitor: Foxglove live view on ws://{args.foxglove[0]}:{sink.port}", highlight=False)
-    return sink
+    view = LiveServer(scenario, serve=args.foxglove)
+    err.print(f"monitor: Foxglove live view on ws://{args.foxglove[0]}:{view.port}", highlight=False)
+    return view
 
 
 def run_monitor_role(args: argparse.Namespace) -> int:
     check_foxglove_arguments(args)
     scenario = scenario_from_arguments(args)
-    sink = foxglove_sink(args, scenario)
+    viewer = live_server(args, scenario)
     model = TeamModel(scenario, args.clock)
     model.expected, model.up = startup_names(scenario), {MONITOR}
     if args.display_handover is not None:
@@ -94,13 +93,19 @@ def run_monitor_role(args: argparse.Namespace) -> int:
             code, report = asyncio.run(
                 run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots),
                             args.log, scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent,
-                            digests(args), sink)
+                            digests(args), viewer)
             )
     except LogWriteError as error:
         log_write_failed(error)
     finally:
-        if sink is not None:
-            sink.close()
+        if viewer is not None:
+            viewer.close()
+    if args.record is not None and args.log.exists():  # from the log, as export --mcap: no step pays for it
+        try:
+            write_mcap(read_log(args.log), args.record)
+        except (LogError, OSError) as error:
+            err.print(f"monitor: --record {args.record}: not written ({error}); the run log stays", highlight=False)
+            code = code or 1
     if report is not None:
         # The log is complete: a second signal (the supervisor's, halfway through its grace) must not
         # cut the report short.

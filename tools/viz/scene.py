@@ -23,6 +23,7 @@ import math
 from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 from ringtrack.tools.runlog.derived import FiredLink, ellipse_axes, fired_links, step_errors
@@ -109,7 +110,9 @@ def stamp(seconds: float) -> fm.Timestamp:
     return fm.Timestamp(sec=int(whole), nsec=min(999_999_999, round((seconds - whole) * 1e9)))
 
 
+@lru_cache(maxsize=64)
 def _colour(rgba: Rgba) -> fm.Color:
+    """The Foxglove colour of ``rgba`` (one object per colour, shared by every message)."""
     return fm.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
 
 
@@ -136,6 +139,12 @@ class Translator:
         self.outline = [(float(x), float(y)) for x, y in vertices]
         extent = float((vertices.max(axis=0) - vertices.min(axis=0)).max())
         self.marker = max(extent, 1e-3) * 0.025  # metres: a robot's sphere
+        self.robot_size = fm.Vector3(x=self.marker, y=self.marker, z=self.marker)
+        self.target_size = fm.Vector3(x=self.marker * 1.2, y=self.marker * 1.2, z=self.marker * 1.2)
+        self.estimate_size = fm.Vector3(x=self.marker * 0.5, y=self.marker * 0.5, z=self.marker * 0.5)
+        self.outline_line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineLoop, pose=_pose((0.0, 0.0)),
+                                             thickness=2.0, scale_invariant=True,
+                                             points=[_point(vertex) for vertex in self.outline], color=_colour(BLACK))
         self.centralized = scenario.estimation.mode == "centralized"
         self.known = scenario.estimation.mode == "known"
         self.dropped: dict[int, list[dict[str, Any]]] = defaultdict(list)  # step -> its dropped events so far
@@ -188,10 +197,7 @@ class Translator:
                               **primitives)
 
     def _region(self, when: fm.Timestamp) -> fm.SceneEntity:
-        line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineLoop, pose=_pose((0.0, 0.0)),
-                                thickness=2.0, scale_invariant=True,
-                                points=[_point(vertex) for vertex in self.outline], color=_colour(BLACK))
-        return self._entity(when, "region", lines=[line], metadata={"vertices_m": self.outline})
+        return self._entity(when, "region", lines=[self.outline_line])
 
     def _yaw(self, record: dict[str, Any], robot: int) -> float:
         """Radians CCW from +x: from the robot towards the centre it steers about (or the target)."""
@@ -203,8 +209,7 @@ class Translator:
         position = record["positions"][robot]
         alive = robot in record["live"]
         colour = ROBOT_COLOURS[robot % len(ROBOT_COLOURS)] if alive else GONE
-        size = fm.Vector3(x=self.marker, y=self.marker, z=self.marker)
-        sphere = fm.SpherePrimitive(pose=_pose(position), size=size, color=_colour(colour))
+        sphere = fm.SpherePrimitive(pose=_pose(position), size=self.robot_size, color=_colour(colour))
         arrow = fm.ArrowPrimitive(pose=_pose(position, self._yaw(record, robot)), shaft_length=self.marker,
                                   shaft_diameter=self.marker / 5, head_length=self.marker / 2,
                                   head_diameter=self.marker / 2.5, color=_colour(colour))
@@ -213,8 +218,7 @@ class Translator:
                                  text=f"r{robot}" if alive else f"r{robot} (gone)")
         trigger = record["trigger"][robot]
         return self._entity(when, f"r{robot}", spheres=[sphere], arrows=[arrow], texts=[label],
-                            metadata={"robot": robot, "live": alive, "x_m": position[0], "y_m": position[1],
-                                      "trigger": trigger})
+                            metadata={"robot": robot, "live": alive, "trigger": trigger})
 
     def _frames(self, when: fm.Timestamp, record: dict[str, Any]) -> fm.FrameTransforms:
         transforms = []
@@ -228,12 +232,10 @@ class Translator:
 
     def _target(self, when: fm.Timestamp, record: dict[str, Any]) -> fm.SceneEntity:
         target = record["target"]
-        size = fm.Vector3(x=self.marker * 1.2, y=self.marker * 1.2, z=self.marker * 1.2)
-        sphere = fm.SpherePrimitive(pose=_pose(target), size=size, color=_colour(BLACK))
+        sphere = fm.SpherePrimitive(pose=_pose(target), size=self.target_size, color=_colour(BLACK))
         label = fm.TextPrimitive(pose=_pose(target, z=self.marker), billboard=True, font_size=14.0,
                                  scale_invariant=True, color=_colour(BLACK), text="target")
-        return self._entity(when, "target", spheres=[sphere], texts=[label],
-                            metadata={"x_m": target[0], "y_m": target[1]})
+        return self._entity(when, "target", spheres=[sphere], texts=[label])
 
     def _estimates(self, when: fm.Timestamp, record: dict[str, Any]) -> list[fm.SceneEntity]:
         """Each robot's estimate (a small sphere) and its 2-sigma ellipse (a flat translucent
@@ -250,10 +252,9 @@ class Translator:
         known = [covariance for _, _, covariance, _ in beliefs if covariance is not None]
         radii, angles = ellipse_axes(known) if known else (None, None)
         entities, index = [], 0
-        dot = fm.Vector3(x=self.marker * 0.5, y=self.marker * 0.5, z=self.marker * 0.5)
         for name, mean, covariance, rgba in beliefs:
-            spheres = [fm.SpherePrimitive(pose=_pose(mean), size=dot, color=_colour(rgba))]
-            metadata: dict[str, Any] = {"x_m": mean[0], "y_m": mean[1]}
+            spheres = [fm.SpherePrimitive(pose=_pose(mean), size=self.estimate_size, color=_colour(rgba))]
+            metadata: dict[str, Any] = {}
             if covariance is not None and radii is not None and angles is not None:
                 (minor, major), angle = radii[index], float(angles[index])
                 index += 1
@@ -289,12 +290,24 @@ class Translator:
                             metadata={"kind": link.kind, "sender": link.sender, "receiver": link.receiver,
                                       "messages": link.messages, "state": state})
 
-    def _metrics(self, record: dict[str, Any]) -> dict[str, Any]:
-        cerr, terr = step_errors(record)
-        robot_messages, robot_bytes = record["traffic"].get("robot", [0, None])
+    def skip(self, record: dict[str, Any]) -> None:
+        """Account for a step record that is not drawn (a live view shows only the latest step it
+        can keep up with): its messages and polls still count in the running totals."""
+        self._account(record)
+        self.dropped.pop(record["step"], None)
+
+    def _account(self, record: dict[str, Any]) -> tuple[int, int]:
+        """Add a step's robot-to-robot messages and polls to the running totals; returns them."""
+        robot_messages = record["traffic"].get("robot", [0, None])[0]
         polls = sum(1 for trigger in record["trigger"] if trigger)
         self.robot_messages_total += robot_messages
         self.polls_total += polls
+        return robot_messages, polls
+
+    def _metrics(self, record: dict[str, Any]) -> dict[str, Any]:
+        cerr, terr = step_errors(record)
+        robot_bytes = record["traffic"].get("robot", [0, None])[1]
+        robot_messages, polls = self._account(record)
         return {
             "step": record["step"], "time_s": record["time"],
             "cerr_deg": None if math.isnan(cerr) else cerr, "terr_m": None if math.isnan(terr) else terr,
