@@ -81,7 +81,9 @@ class Command(Message, tag=2, frozen=True):
     estimates. ``robot_traffic`` is the robot's own count of the robot-to-robot messages its step
     put on the bus (:data:`RobotTraffic`: its requests and pushes, and the replies to its requests
     that came before it commanded: in lockstep, all of them); the world's lockstep digest hands it
-    to the monitor, which then needs no copy of those messages.
+    to the monitor, which then needs no copy of those messages. ``energy_j`` is the radio energy of
+    the robot's robot-to-robot traffic so far (transmit, receive; joules, :mod:`bus.radio`), as its
+    link counted it when it commanded.
     """
 
     step: Step
@@ -93,6 +95,7 @@ class Command(Message, tag=2, frozen=True):
     centre: Point
     covariance: Covariance | None = None
     robot_traffic: Annotated[list[RobotTraffic], msgspec.Meta(max_length=8)] = []
+    energy_j: tuple[NonNegativeReal, NonNegativeReal] | None = None
     kind: ClassVar[str] = "command"
     category: ClassVar[str] = "world"
 

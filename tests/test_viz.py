@@ -24,7 +24,7 @@ from PIL import Image
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
-from ringtrack.tools.runlog.derived import fired_links
+from ringtrack.tools.runlog.derived import fired_links, team_energy
 from ringtrack.tools.runlog.log import RunLog, read_log, write_engine_log
 from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
@@ -58,6 +58,17 @@ def assert_mcap_holds_the_log(path: Path, log: RunLog) -> None:
         assert times[topic] == step_times, topic
     assert len(times["/log"]) == len(log.events) + 1
     assert len(times["/energy"]) == 1
+    # the team's radio energy so far, per step, as the step records hold it (rising, positive once polled)
+    energy = [metrics["energy_j"] for metrics in metrics_of(path)]
+    assert energy == [team_energy(record) for record in log.steps]
+    assert all(later >= earlier for earlier, later in zip(energy, energy[1:], strict=False)) and energy[-1] > 0
+
+
+def metrics_of(path: Path) -> list[dict[str, Any]]:
+    """The JSON messages of ``/metrics``, in log-time order."""
+    with path.open("rb") as file:
+        return [json.loads(message.data) for _, channel, message in make_reader(file).iter_messages()
+                if channel.topic == "/metrics"]
 
 
 def test_export_mcap_of_an_engine_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -125,6 +136,8 @@ def test_record_of_a_lockstep_team_holds_its_log_and_equals_the_engine_log(tmp_p
     assert_mcap_holds_the_log(recording, log)
     write_engine_log(tmp_path / "engine.jsonl", engine.run(scenario, seeds=scenario.seed, steps=steps))
     twin = read_log(tmp_path / "engine.jsonl")
+    # the robots' own energy counts: by the end, what the engine's radio model says of the same messages
+    assert sum(map(sum, log.end["energy_j"].values())) == pytest.approx(team_energy(twin.steps[-1]), rel=1e-9)
     for logged, computed in zip(log.steps, twin.steps, strict=True):
         assert logged["links"] == computed["links"]
         assert np.allclose(np.array(logged["covariance"], dtype=float), np.array(computed["covariance"], dtype=float),

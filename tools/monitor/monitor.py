@@ -253,6 +253,7 @@ class Recorder:
                      for category in ("robot", "world", "estimation")},
             covariance=[_covariance(commands.get(r)) for r in robots],
             links=[[kind, sender, receiver, count] for (kind, sender, receiver), count in entry.links.items()],
+            energy=[_energy(commands.get(r)) for r in robots],
         )
         self.record(record)
 
@@ -272,6 +273,11 @@ def _each(handlers: list[Callable[[dict], None]]) -> Callable[[dict], None] | No
 def _covariance(command: Command | None) -> list[float] | None:
     """The covariance (``[xx, xy, yy]`` m^2) of the estimate a command's robot steered by, if any."""
     return None if command is None or command.covariance is None else list(command.covariance)
+
+
+def _energy(command: Command | None) -> list[float] | None:
+    """A robot's radio energy so far as its command reported it, [transmit, receive] joules."""
+    return None if command is None or command.energy_j is None else list(command.energy_j)
 
 
 def senders(scenario: Scenario) -> set[str]:

@@ -30,6 +30,14 @@ def step_errors(record: dict[str, Any]) -> tuple[float, float]:
     return float(true_cerr(positions, target)), float(target_error(centres, target))
 
 
+def team_energy(record: dict[str, Any]) -> float | None:
+    """The team's radio energy so far (joules, transmit and receive, :mod:`bus.radio`) by a step
+    record's ``energy_j``, the robots' own counts as they commanded; None where no robot reported
+    (an older log, or a step no command reached)."""
+    reported = [sum(energy) for energy in record.get("energy_j") or [] if energy is not None]
+    return float(sum(reported)) if reported else None
+
+
 @dataclass(frozen=True)
 class FiredLink:
     """Messages ``sender -> receiver`` (robot ids) of one ``kind`` (:data:`LINK_KINDS`) in a step;

@@ -13,7 +13,9 @@ Records, one per line:
   step (bytes are null for the engine, which sends nothing: its counts follow from the protocol) and
   ``links``, the robot-to-robot messages of the step that were put on the bus, ``[kind, sender,
   receiver, messages]`` sorted (kind: request, reply, push; what the fault layer dropped is not
-  there: see the ``dropped`` events);
+  there: see the ``dropped`` events) and ``energy_j``, each robot's radio energy so far, [transmit,
+  receive] joules (:mod:`bus.radio`), as its link counted it when it commanded (null: no command;
+  in a team of processes a reply the robot sent that step may be counted then or at its next step);
 * ``event``: something that happened between steps (faults, crashes);
 * ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
   says it sent, rejected payloads, late messages and each robot's radio energy (``energy_j``:
@@ -153,6 +155,7 @@ def step_record(
     traffic: dict[str, list[int | None]],
     covariance: list[Any],
     links: list[list[Any]],
+    energy: list[Any],
 ) -> dict[str, Any]:
     """A ``step`` record (see the module docstring for the fields); ``sent`` and ``received`` are
     (messages, bytes) per robot of robot-to-robot traffic, ``traffic`` [messages, bytes] per category
@@ -176,6 +179,7 @@ def step_record(
         "traffic": traffic,
         "covariance": covariance,
         "links": sorted(links),
+        "energy_j": energy,
     }
 
 
@@ -188,6 +192,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     sent, received = history.sent[:, trial], history.received[:, trial]
     estimation_messages = robots + 1 if scenario.centralized else 0
     covariances = history.covariances
+    energy = None if history.energy is None else np.cumsum(history.energy[:, trial], axis=0)  # J so far
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
         assert history.estimates is not None
@@ -211,6 +216,7 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
                                 for packed in (np.full((robots, 3), np.nan) if covariances is None
                                                else covariances[row, trial])],
                     links=engine_links(history, row, trial),
+                    energy=[None] * robots if energy is None else energy[row].tolist(),
                 )
             )
         writer.write({"type": "end", "steps": history.steps, "reason": EndReason.DONE, "wall_s": None,
@@ -288,10 +294,11 @@ class StepRecord(Record, tag="step"):
     traffic: dict[str, tuple[Count, Count | None]]
     covariance: list[Covariance | None] | None = None  # m^2; None: a log written before it was logged
     links: list[LinkRow] | None = None  # None: a log written before they were logged
+    energy_j: list[tuple[float, float] | None] | None = None  # J so far; None: a log written before it was logged
 
 
 PER_ROBOT = ("positions", "trigger", "offset", "ages", "centre", "sent_messages", "sent_bytes",
-             "received_messages", "received_bytes", "covariance")  # step fields with one entry per robot
+             "received_messages", "received_bytes", "covariance", "energy_j")  # step fields with one entry per robot
 
 
 class EventRecord(Record, tag="event"):

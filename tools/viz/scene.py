@@ -11,10 +11,10 @@ watches). Per step record: the region, every robot (sphere, label ``r<i>``, grey
 frame, the true target, every robot's estimate with its 2-sigma covariance ellipse (a flat ellipsoid) (one estimate,
 ``fusion``, under centralized estimation), the ring links its messages crossed coloured by kind
 (:data:`LINK_COLOURS`; red, with a cross at the midpoint, where the fault layer dropped one), and the
-step's scalars on ``/metrics`` (JSON: Cerr in degrees, Terr in metres, messages and bytes). Every
-event record (faults on links, robots leaving and joining) and the end record become Log entries; the
-end record also gives the team's radio energy on ``/energy`` (joules; the robots report it once, at
-the end, so there is no per-step energy).
+step's scalars on ``/metrics`` (JSON: Cerr in degrees, Terr in metres, messages, bytes and the
+team's radio energy so far in joules). Every event record (faults on links, robots leaving and
+joining) and the end record become Log entries; the end record also gives each robot's final radio
+energy on ``/energy`` (joules).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
-from ringtrack.tools.runlog.derived import FiredLink, ellipse_axes, fired_links, step_errors
+from ringtrack.tools.runlog.derived import FiredLink, ellipse_axes, fired_links, step_errors, team_energy
 from ringtrack.world.scenario import Scenario
 
 try:  # the viz extra; without it the commands say what to install (tools.viz.extra) before they get here
@@ -67,6 +67,7 @@ METRICS_SCHEMA: dict[str, Any] = {
         "robot_messages_total": {"type": "integer"},
         "polls_total": {"type": "integer"},
         "live_robots": {"type": "integer"},
+        "energy_j": {**_NUMBER, "description": "the team's radio energy so far, joules (null: not reported)"},
     },
 }
 ENERGY_SCHEMA: dict[str, Any] = {
@@ -316,6 +317,7 @@ class Translator:
             "estimation_messages": record["traffic"].get("estimation", [0, None])[0],
             "polls": polls, "robot_messages_total": self.robot_messages_total, "polls_total": self.polls_total,
             "live_robots": len(record["live"]),
+            "energy_j": team_energy(record),
         }
 
     # ------------------------------------------------------------------ events and the end
