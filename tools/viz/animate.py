@@ -9,6 +9,7 @@ and the simulated time in seconds. GIFs are written with pillow, MP4 with ffmpeg
 
 from __future__ import annotations
 
+import logging
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -87,5 +88,6 @@ def animate_run(log: RunLog, path: Path, fps: int = 10, every: int = 1, dpi: int
 
     animation = FuncAnimation(figure, draw, frames=len(rows), repeat=False)
     writer = PillowWriter(fps=fps) if path.suffix.lower() == ".gif" else FFMpegWriter(fps=fps)
+    logging.getLogger("matplotlib.animation").setLevel(logging.WARNING)  # its INFO line says nothing to a user
     animation.save(str(path), writer=writer, dpi=dpi)
     return len(rows)
