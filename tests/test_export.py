@@ -103,3 +103,15 @@ def test_moving_experiment_table_has_a_row_per_trial(tmp_path: Path) -> None:
             assert sum(float(row[column]) for row in trials) / 2 == pytest.approx(run[column], rel=1e-12), column
     constant = [row for row in rows if row["strategy"] == "constant"]
     assert all(float(row["poll_rate"]) == 1.0 and int(row["estimation_messages_per_step"]) == 7 for row in constant)
+
+
+def test_export_checks_its_folder_before_reading_the_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A folder under a file (or on a pseudo file system) is refused in one line before any work:
+    the log is not even read (here it does not exist)."""
+    inside_a_file = tmp_path / "file"
+    inside_a_file.write_text("")
+    assert main(["export", str(tmp_path / "missing.jsonl"), "--csv", str(inside_a_file / "tables")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"ringtrack: error: --csv {inside_a_file / 'tables'}: cannot write steps.csv there (Not a directory); "
+        "give a writable folder")
+    assert list(tmp_path.iterdir()) == [inside_a_file]  # nothing written, no partial file

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ringtrack.tools.cli.options import MCAP_FILE
 from ringtrack.tools.output.console import UsageError, out
-from ringtrack.tools.output.files import write_csv
+from ringtrack.tools.output.files import unwritable, write_csv
 from ringtrack.tools.runlog.export import LINK_COLUMNS, STEP_COLUMNS, link_rows, step_rows
 from ringtrack.tools.runlog.log import read_log
 from ringtrack.tools.viz.extra import VIZ_EXTRA, require_sdk
@@ -32,8 +32,12 @@ def run_export(args: argparse.Namespace) -> int:
         raise UsageError("export: give --csv DIR, --mcap FILE or both")
     if args.mcap is not None:
         require_sdk("--mcap")
-    if args.csv is not None and args.csv.exists() and not args.csv.is_dir():
-        raise UsageError(f"--csv {args.csv}: is a file; give a folder")
+    if args.csv is not None:  # checked before any work, as every output
+        if args.csv.exists() and not args.csv.is_dir():
+            raise UsageError(f"--csv {args.csv}: is a file; give a folder")
+        for name in ("steps.csv", "links.csv"):
+            if (problem := unwritable(args.csv / name)) is not None:
+                raise UsageError(f"--csv {args.csv}: cannot write {name} there ({problem}); give a writable folder")
     log = read_log(args.log)
     if args.csv is not None:
         steps = write_csv(args.csv / "steps.csv", step_rows(log), STEP_COLUMNS)
