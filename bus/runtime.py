@@ -112,16 +112,20 @@ def write_final_counts(participant: Participant) -> None:
     """With ``RINGTRACK_COUNTS_FOLDER`` set, write what ``participant`` sent (its traffic rows) and
     its peak memory (KiB) to ``<folder>/<name>.sent.json`` as it leaves: the senders' own counts,
     which a supervisor reads when the monitor that collects them was lost. Best effort: a process
-    killed by SIGKILL writes nothing, and a file that cannot be written is skipped."""
+    killed by SIGKILL writes nothing, and a file that cannot be written is skipped (none is left
+    half-written)."""
     folder = os.environ.get(COUNTS_FOLDER_ENV)
     if not folder:
         return
     path = os.path.join(folder, f"{participant.name}.sent.json")
-    with contextlib.suppress(OSError):
+    try:
         with open(f"{path}.partial", "w") as file:
             json.dump({"name": participant.name, "sent": participant.counter.sent_table(),
                        "rss_kib": peak_rss_kib()}, file)
         os.replace(f"{path}.partial", path)
+    except OSError:  # a full disk: leave no partial file behind
+        with contextlib.suppress(OSError):
+            os.unlink(f"{path}.partial")
 
 
 # A token's withdrawal travels ahead of the data its owner sent before leaving (liveliness

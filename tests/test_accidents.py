@@ -112,6 +112,24 @@ def test_a_full_disk_cuts_the_log_back_to_its_last_complete_record(tmp_path: Pat
 
 
 @pytest.mark.processes
+def test_a_team_on_a_disk_that_fills_stops_and_says_what_it_does_not_know(tmp_path: Path) -> None:
+    """The run folder's disk fills during the run: spawn stops the team (exit code 1), leaves a log
+    of whole records and no partial file, and does not report a traffic total nobody counted."""
+    with mounted_tmpfs(tmp_path / "small", "size=150k") as small:
+        result = ringtrack("spawn", "--runs", str(small), "--no-dashboard")
+        (folder,) = small.iterdir()
+        leftovers = sorted(path.name for path in folder.iterdir() if path.name.endswith(".partial"))
+        log = read_log(folder / "log.jsonl")
+        assert processes_mentioning(str(folder)) == []
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert leftovers == []
+    assert log.steps and log.end is None
+    summary = result.stdout.strip().splitlines()[-2]
+    assert summary.startswith(f"spawn: {len(log.steps)} steps; did not converge; robot-to-robot messages unknown "
+                              "(the monitor was lost and ")
+
+
+@pytest.mark.processes
 def test_summary_json_is_written_whole_or_not_at_all(tmp_path: Path) -> None:
     with mounted_tmpfs(tmp_path / "small", "size=8k") as small:
         target = small / "summary.json"

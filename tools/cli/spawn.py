@@ -111,6 +111,10 @@ def summary_line(result: TeamResult) -> str:
     line = f"spawn: {outcome.steps} steps{speed}"
     if result.monitor_lost:  # no monitor's report above: say what the senders counted
         converged = f"converged at step {outcome.ctime}" if outcome.converged else "did not converge"
-        line += (f"; {converged}; robot-to-robot messages {result.messages.get('robot', 0)} (the senders' counts: "
-                 "the monitor was lost)")
+        if result.uncounted:  # a sender that left no counts (killed, or a full disk): the total is not known
+            line += (f"; {converged}; robot-to-robot messages unknown (the monitor was lost and "
+                     f"{', '.join(result.uncounted)} left no counts)")
+        else:
+            line += (f"; {converged}; robot-to-robot messages {result.messages.get('robot', 0)} (the senders' counts: "
+                     "the monitor was lost)")
     return f"{line}\nrun folder: {result.folder}"

@@ -99,6 +99,7 @@ class TeamResult(msgspec.Struct, kw_only=True):
     by_kind: dict[str, Totals] = msgspec.field(default_factory=dict)
     monitor_equals_senders: bool | None = None
     monitor_lost: bool = False
+    uncounted: list[str] = msgspec.field(default_factory=list)  # monitor lost: senders that left no counts
     faults: dict[str, int] = msgspec.field(default_factory=dict)
     rejected: dict[str, int] = msgspec.field(default_factory=dict)
     rss_kib: dict[str, int] = msgspec.field(default_factory=dict)

@@ -318,6 +318,7 @@ def _result(scenario: Scenario, folder: Path, log_path: Path, clock: Clock, run:
     if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it
         traffic = [tuple(row) for counts in senders.values() for row in counts["sent"]]
         result.monitor_lost = True
+        result.uncounted = sorted(scenario.participants(monitor=False) - senders.keys())
     else:
         traffic = [tuple(row) for row in end.get("traffic", [])]
     by_category = totals_by_category(traffic)
