@@ -163,7 +163,7 @@ class RobotLink:
             destination, message = pending.popleft()
             if isinstance(message, Command):  # with the robot's own count of what its step put on the bus
                 message = msgspec.structs.replace(message, robot_traffic=self.shim.take_traffic(message.step),
-                                                  energy_j=(self.shim.energy_j[0], self.shim.energy_j[1]))
+                                                  energy_j=self.shim.energy_through(message.step - 1))
             if not self.shim.send(destination, message) and (robot := robot_index(destination)) is not None:
                 pending += self.node.on_lost(robot)
         if self.reply_timeout is None:

@@ -82,8 +82,8 @@ class Command(Message, tag=2, frozen=True):
     put on the bus (:data:`RobotTraffic`: its requests and pushes, and the replies to its requests
     that came before it commanded: in lockstep, all of them); the world's lockstep digest hands it
     to the monitor, which then needs no copy of those messages. ``energy_j`` is the radio energy of
-    the robot's robot-to-robot traffic so far (transmit, receive; joules, :mod:`bus.radio`), as its
-    link counted it when it commanded.
+    the robot's robot-to-robot messages of the steps before this one (transmit, receive; joules,
+    :mod:`bus.radio`; :meth:`bus.shim.LinkShim.energy_through`).
     """
 
     step: Step

@@ -53,6 +53,10 @@ class LinkShim:
         self.realtime = realtime
         self.counter = FaultCounter()
         self.energy_j = [0.0, 0.0]
+        # The same energy by the step each message is stamped with, (transmit, receive) per copy,
+        # until energy_through folds it into the settled total.
+        self._step_energy: dict[int, tuple[list[float], list[float]]] = {}
+        self._settled_j = [0.0, 0.0]
         # What the robot's steps have put on the bus since it last commanded (take_traffic): its
         # requests by nonce, as [step, peer, copies published, bytes, bytes of the peer's reply once
         # one came], and its pushes as (step, row).
@@ -71,11 +75,27 @@ class LinkShim:
         (realtime with a disk or log-distance radio; else 0)."""
         radio = self.plan.radio
         bits = message_bits(radio, size)
-        self.energy_j[0] += copies * transmit_energy(radio, bits, self.distance(message.receiver, message.step))
+        spent = copies * transmit_energy(radio, bits, self.distance(message.receiver, message.step))
+        self.energy_j[0] += spent
+        self._step_energy.setdefault(message.step, ([], []))[0].append(spent)
         return airtime_s(radio, size) if self.realtime and radio.model != "ideal" else 0.0
 
-    def _receive(self, size: int, copies: int) -> None:
-        self.energy_j[1] += copies * receive_energy(self.plan.radio, message_bits(self.plan.radio, size))
+    def _receive(self, message: RobotMessage, size: int, copies: int) -> None:
+        spent = copies * receive_energy(self.plan.radio, message_bits(self.plan.radio, size))
+        self.energy_j[1] += spent
+        self._step_energy.setdefault(message.step, ([], []))[1].append(spent)
+
+    def energy_through(self, step: int) -> tuple[float, float]:
+        """The radio energy (transmit, receive; joules) of the robot's messages stamped with ``step``
+        or earlier, each step's added in sorted order: the same bits whatever order its messages
+        came in. In lockstep every message of a step before the robot's current one has been sent
+        and received by the time it commands (a copy that comes later still counts, at the next
+        call), so this is what a robot's command reports (:attr:`bus.messages.Command.energy_j`)."""
+        for done in sorted(key for key in self._step_energy if key <= step):
+            transmitted, received = self._step_energy.pop(done)
+            self._settled_j[0] += sum(sorted(transmitted))
+            self._settled_j[1] += sum(sorted(received))
+        return self._settled_j[0], self._settled_j[1]
 
     def send(self, destination: str, message: Message) -> bool:
         """Publish ``message``; for a request, its fate applies. Returns False if it was dropped."""
@@ -113,7 +133,7 @@ class LinkShim:
         if not isinstance(message, (Request, Reply, Push)) or delivery.released:
             if isinstance(message, (Request, Reply, Push)):
                 self.counter.count_delivered(1)
-                self._receive(delivery.size, 1)
+                self._receive(message, delivery.size, 1)
             return [delivery], False
         fate = self._fate(message) if isinstance(message, (Reply, Push)) else DELIVERED
         self._settle(message, fate)
@@ -126,7 +146,7 @@ class LinkShim:
                 loop.call_later(fate.delay_s, self.participant.inbox.push, copy)
             return [], False
         self.counter.count_delivered(len(copies))
-        self._receive(delivery.size, len(copies))
+        self._receive(message, delivery.size, len(copies))
         return copies, False
 
     def _note_reply(self, reply: Reply, size: int) -> None:

@@ -12,7 +12,7 @@ import math
 import msgspec
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import Phase, assume, given, settings
 from hypothesis import strategies as st
 
 from ringtrack.agents.estimation import (
@@ -164,18 +164,24 @@ def filterpy_step(ekf, positions, ranges, sigma):
     ekf.update(ranges[keep].reshape(-1, 1), jacobian, h, R=sigma**2 * np.eye(int(keep.sum())))
 
 
-@settings(max_examples=4, deadline=None)
+# Each example runs 1 300 steps: found failures are reported as found, not shrunk for minutes.
+@settings(max_examples=4, deadline=None, phases=[Phase.explicit, Phase.reuse, Phase.generate])
 @given(case=region_with_points(1), robots=st.integers(3, 8), seed=st.integers(0, 2**32 - 1),
-       q=st.sampled_from([1e-3, 0.04, 0.2]), sigma=st.sampled_from([0.05, 0.2, 1.0]))
-def test_the_batched_filter_agrees_with_filterpy_over_a_long_run(case, robots, seed, q, sigma):
+       q_share=st.sampled_from([1e-3, 1e-2, 3e-2]), sigma_share=st.sampled_from([2e-3, 1e-2, 5e-2]))
+def test_the_batched_filter_agrees_with_filterpy_over_a_long_run(case, robots, seed, q_share, sigma_share):
     """1 300 steps of a random-walk target inside a random region, robots on its boundary creeping
     round it, ranges noisy and some missing. A fusion centre's filter (every range) stays within 1e-9
     (relative to the region and to its covariance) of filterpy's EKF fed the same over the whole run;
     each robot's own filter (its one range: the target's tangential position is unobservable, so two
-    runs' rounding differences grow) matches filterpy's step from the same state, every step."""
+    runs' rounding differences grow) matches filterpy's step from the same state, every step.
+
+    The noises scale with the region (range sigma up to 5 % of its diameter, process noise up to 3 %
+    of it a step): a region a metre across ranged with a metre of noise and walked by half a metre a
+    step is no tracking problem, and there two implementations' rounding is amplified past 1e-9."""
     region, (start,) = case
     rng = np.random.default_rng(seed)
     scale = region.outer_diameter
+    q, sigma = (q_share * scale) ** 2, sigma_share * scale
     angles = np.sort(rng.uniform(0.0, 2.0 * math.pi, robots))
     prior = region.chebyshev_centre[0]
     covariance = (0.3 * scale) ** 2 * np.eye(2)

@@ -134,11 +134,15 @@ def test_record_of_a_lockstep_team_holds_its_log_and_equals_the_engine_log(tmp_p
     log = read_log(Path(result.log))
     assert len(log.steps) == steps
     assert_mcap_holds_the_log(recording, log)
-    write_engine_log(tmp_path / "engine.jsonl", engine.run(scenario, seeds=scenario.seed, steps=steps))
+    history = engine.run(scenario, seeds=scenario.seed, steps=steps)
+    write_engine_log(tmp_path / "engine.jsonl", history)
     twin = read_log(tmp_path / "engine.jsonl")
-    # the robots' own energy counts: by the end, what the engine's radio model says of the same messages
-    assert sum(map(sum, log.end["energy_j"].values())) == pytest.approx(team_energy(twin.steps[-1]), rel=1e-9)
+    # the robots' own energy counts: by the end, what the engine's radio model says of the same messages;
+    # step by step (the steps before each), the engine's sums of the same energies
+    assert history.energy is not None
+    assert sum(map(sum, log.end["energy_j"].values())) == pytest.approx(float(history.energy.sum()), rel=1e-9)
     for logged, computed in zip(log.steps, twin.steps, strict=True):
+        np.testing.assert_allclose(logged["energy_j"], computed["energy_j"], rtol=1e-9, atol=1e-15)
         assert logged["links"] == computed["links"]
         assert np.allclose(np.array(logged["covariance"], dtype=float), np.array(computed["covariance"], dtype=float),
                            rtol=0.0, atol=1e-9)

@@ -31,9 +31,9 @@ def step_errors(record: dict[str, Any]) -> tuple[float, float]:
 
 
 def team_energy(record: dict[str, Any]) -> float | None:
-    """The team's radio energy so far (joules, transmit and receive, :mod:`bus.radio`) by a step
-    record's ``energy_j``, the robots' own counts as they commanded; None where no robot reported
-    (an older log, or a step no command reached)."""
+    """The team's radio energy of the steps before a step record's (joules, transmit and receive,
+    :mod:`bus.radio`) by its ``energy_j``, the robots' own counts; None where no robot reported (an
+    older log, or a step no command reached)."""
     reported = [sum(energy) for energy in record.get("energy_j") or [] if energy is not None]
     return float(sum(reported)) if reported else None
 

@@ -13,9 +13,8 @@ Records, one per line:
   step (bytes are null for the engine, which sends nothing: its counts follow from the protocol) and
   ``links``, the robot-to-robot messages of the step that were put on the bus, ``[kind, sender,
   receiver, messages]`` sorted (kind: request, reply, push; what the fault layer dropped is not
-  there: see the ``dropped`` events) and ``energy_j``, each robot's radio energy so far, [transmit,
-  receive] joules (:mod:`bus.radio`), as its link counted it when it commanded (null: no command;
-  in a team of processes a reply the robot sent that step may be counted then or at its next step);
+  there: see the ``dropped`` events) and ``energy_j``, each robot's radio energy of the steps before
+  this one, [transmit, receive] joules (:mod:`bus.radio`; null: no command);
 * ``event``: something that happened between steps (faults, crashes);
 * ``end``: why and when the run ended, the traffic seen by the monitor per link, what every sender
   says it sent, rejected payloads, late messages and each robot's radio energy (``energy_j``:
@@ -192,7 +191,8 @@ def write_engine_log(path: Path, history: History, trial: int = 0) -> None:
     sent, received = history.sent[:, trial], history.received[:, trial]
     estimation_messages = robots + 1 if scenario.centralized else 0
     covariances = history.covariances
-    energy = None if history.energy is None else np.cumsum(history.energy[:, trial], axis=0)  # J so far
+    # J of the steps before each (what a robot's command reports): 0 at step 1
+    energy = None if history.energy is None else np.cumsum(history.energy[:, trial], axis=0) - history.energy[:, trial]
     with LogWriter(path) as writer:
         writer.header(scenario, "engine", 0, history.seeds[trial], "engine", history.steps)
         assert history.estimates is not None
