@@ -16,7 +16,10 @@ sends its :class:`~bus.messages.Command` at once; if it polls it sends a
 polls); a decentralized robot first fuses the neighbours' beliefs by covariance intersection.
 Replies describe the neighbour at the *start* of the requested step (its position, and its belief
 after that step's update, before any fusion), so lockstep results do not depend on message timing.
-A reply is accepted only from the neighbour asked, with the nonce of the open request.
+A reply is accepted only from the neighbour asked, with the nonce of the open request. With the
+``relay`` strategy requests and replies carry the ranges the robot holds
+(:class:`~bus.messages.RangeRequest`, :class:`~bus.messages.RangeReply`, :class:`agents.relay.RobotRanges`),
+which its filter takes at the start of the next step, and replies carry no belief.
 """
 
 from __future__ import annotations

@@ -14,7 +14,10 @@ the target now:
 * what that estimate misses widens the range's variance by the random walk's ``age q``
   (:func:`late_variance`).
 
-(docs/algorithms.md section 20.)
+:class:`RangeRelay` is the engine's state for a batch of rings (with the exact size of every message,
+:meth:`RangeRelay.message_bytes`); :class:`RobotRanges` is one robot process's, which sends and
+receives the ranges in :class:`bus.messages.RangeRequest` and :class:`bus.messages.RangeReply`
+(docs/algorithms.md section 20).
 """
 
 from __future__ import annotations

@@ -164,7 +164,8 @@ RANGE_ENTRY_MAX_BYTES = 38  # the most one relayed range takes: 1 + 5 + 5 + 3 * 
 # A relayed range: (source robot, step, x, y, range), the position (metres) the source robot took
 # its range from at that step and the range (metres; None: beyond the sensing range).
 RelayedRange = tuple[int, Step, Real, Real, NonNegativeReal | None]
-Known = Annotated[list[Count], msgspec.Meta(max_length=4096)]  # per robot: the last step of its ranges held
+# Per robot of the team (at most 100 000): the last step of its ranges the sender holds.
+Known = Annotated[list[Count], msgspec.Meta(max_length=100_000)]
 Relayed = Annotated[list[RelayedRange], msgspec.Meta(max_length=MAX_RELAYED)]
 
 
