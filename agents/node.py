@@ -285,10 +285,10 @@ class RobotNode:
         return sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS
 
     def _relayed(self, sender: int, step: int, known: list[int], ranges: list) -> None:
-        """Keep the ranges a ring neighbour's message of ``step`` carried (of a step this robot has not
-        passed by far or may reach soon only, so a flood cannot grow the memory)."""
+        """Keep the ranges a ring neighbour's message of ``step`` carried (of a step within
+        ``KEPT_STEPS`` of this robot's only, so a flood cannot grow the memory)."""
         if self.relay is not None and sender in (self.predecessor, self.successor) and \
-                step <= self.step + KEPT_STEPS:
+                self.step - KEPT_STEPS <= step <= self.step + KEPT_STEPS:
             self.relay.hear(sender, step, known, ranges)
 
     def on_push(self, push: Push) -> Outgoing:

@@ -215,7 +215,8 @@ class RobotRanges:
             self.means.pop(0)
         velocity = (means - self.means[0]) / max(1, len(self.means) - 1)
         entries = [(source, at) for source in range(self.robots)
-                   for at in range(self.applied[source] + 1, self.known[source] + 1) if at in self.held[source]]
+                   for at in range(max(self.applied[source], self.dropped) + 1, self.known[source] + 1)
+                   if at in self.held[source]]
         self.applied = list(self.known)
         positions = np.array([self.held[source][at][:2] for source, at in entries], dtype=float).reshape(-1, 2)
         values = [self.held[source][at][2] for source, at in entries]

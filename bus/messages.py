@@ -434,11 +434,12 @@ def _check_tick(tick: Tick, robots: int) -> None:
 
 
 def _check_relayed(message: RangeRequest | RangeReply, robots: int) -> None:
-    """What :func:`decode` checks of relayed ranges beyond their fields: a known step per robot, and
-    no range of a step after the message's nor beyond what the sender says it holds."""
+    """What :func:`decode` checks of relayed ranges beyond their fields: a known step per robot, none
+    after the message's step, and no range of a step after it nor beyond what the sender says it holds."""
     if len(message.known) != robots:
         raise Rejected("malformed", f"{message.kind} with {len(message.known)} known steps for a team of {robots}")
-    if any(step > message.step or step > message.known[source] for source, step, *_ in message.ranges):
+    if any(step > message.step for step in message.known) or \
+            any(step > message.step or step > message.known[source] for source, step, *_ in message.ranges):
         raise Rejected("value", f"{message.kind} of step {message.step} relaying a range it cannot hold")
 
 

@@ -49,7 +49,7 @@ nonces = st.integers(0, 2**32 - 1)
 
 
 def messages() -> st.SearchStrategy:
-    late = st.integers(10**6, 2 * 10**6)  # relay messages: of a step after every range they carry
+    late = st.just(2 * 10**6)  # relay messages: of a step after every range they carry and hold
     covariance = st.one_of(st.none(), st.tuples(finite, finite, finite))
     return st.one_of(
         st.builds(lambda s, t, r, p, z: Measurement(SCHEMA, RUN, s, t, r, p, z), steps, non_negative, robots, points,
@@ -62,12 +62,13 @@ def messages() -> st.SearchStrategy:
         st.builds(lambda s, a, b, n, p, m, v: Reply(SCHEMA, RUN, s, a, b, n, p, m, v), steps, robots, robots, nonces,
                   points, st.one_of(st.none(), points), covariance),
         st.builds(lambda s, a, b, n, known, ranges: RangeRequest(SCHEMA, RUN, s, a, b, n, known, ranges), late,
-                  robots, robots, nonces, st.lists(st.integers(10**6, 2 * 10**6), min_size=ROBOTS, max_size=ROBOTS),
+                  robots, robots, nonces, st.lists(st.integers(10**6, 2 * 10**6 - 1), min_size=ROBOTS,
+                                                   max_size=ROBOTS),
                   relayed()),
         st.builds(lambda s, a, b, n, p, known, ranges: RangeReply(SCHEMA, RUN, s, a, b, n, p, None, None, known,
                                                                   ranges),
                   late, robots, robots, nonces, points,
-                  st.lists(st.integers(10**6, 2 * 10**6), min_size=ROBOTS, max_size=ROBOTS), relayed()),
+                  st.lists(st.integers(10**6, 2 * 10**6 - 1), min_size=ROBOTS, max_size=ROBOTS), relayed()),
         st.builds(lambda s, t, ps, p, live: Tick(SCHEMA, RUN, s, t, ps, p, live), steps, non_negative,
                   st.lists(points, min_size=ROBOTS, max_size=ROBOTS), points,
                   st.lists(robots, max_size=ROBOTS, unique=True)),
@@ -155,6 +156,7 @@ BAD_VALUES = [
     (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 6, [(6, 2, 0.0, 0.0, 1.0)]), "sender"),
     (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 6, [(0, 4, 0.0, 0.0, 1.0)]), "value"),  # a step after the message's
     (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [1] * 6, [(0, 2, 0.0, 0.0, 1.0)]), "value"),  # beyond what it holds
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3, 3, 3, 3, 3, 4], []), "value"),  # holding ranges of a later step
     (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 6, [(0, 2, 0.0, 0.0, -1.0)]), "malformed"),
     (RangeReply(SCHEMA, RUN, 3, 2, 1, 42, (0.0, 0.0), None, None, [3] * 6, [(0, 0, 0.0, 0.0, 1.0)]), "malformed"),
     (RangeReply(SCHEMA, RUN, 3, 2, 1, 42, (0.0, 0.0), None, None, [3] * 6, [(0, 2, float("nan"), 0.0, 1.0)]),
