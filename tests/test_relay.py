@@ -24,6 +24,7 @@ from ringtrack.bus.messages import (
     relay_message_bytes,
     relayed_range_bytes,
 )
+from ringtrack.tools.cli import main
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
@@ -216,12 +217,21 @@ def test_a_process_relays_what_the_engine_relays() -> None:
 
 
 @pytest.mark.processes
+@pytest.mark.timeout(120)
+def test_ringtrack_spawn_runs_the_relay_strategy(tmp_path: Path, capsys) -> None:
+    """The command line no longer refuses the strategy: a team of processes runs it."""
+    assert main(["spawn", "authors-moving", "--strategy", "relay", "--steps", "5", "--runs", str(tmp_path),
+                 "--no-dashboard"]) == 0
+    assert "spawn: 5 steps at" in capsys.readouterr().out
+
+
+@pytest.mark.processes
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("drop", [0.0, 0.2])
 def test_a_lockstep_team_relays_ranges_like_the_engine(tmp_path: Path, drop: float) -> None:
     """Robots that relay ranges in their requests and replies (RangeRequest, RangeReply) equal the
-    engine trigger for trigger, estimate for estimate and byte for byte over 300 steps, with and
-    without lost messages."""
+    engine trigger for trigger, estimate for estimate, byte for byte and joule for joule over 300
+    steps, with and without lost messages."""
     steps = 300
     team = load_scenario("authors-moving", strategy="relay", estimation="decentralized", max_steps=steps, drop=drop)
     result, log = lockstep_run(team, tmp_path)
@@ -235,6 +245,9 @@ def test_a_lockstep_team_relays_ranges_like_the_engine(tmp_path: Path, drop: flo
     assert twin.sent_bytes is not None
     assert np.array_equal(np.array([record["sent_bytes"] for record in log.steps]), twin.sent_bytes[:, 0])
     assert result.bytes["robot"] == int(twin.sent_bytes.sum())
+    assert twin.energy is not None  # the radio energy of those bytes, per robot
+    wire = np.array([result.energy.transmit_j, result.energy.receive_j]).T
+    assert np.allclose(wire, twin.energy[:, 0].sum(axis=0), rtol=1e-9, atol=0.0)
     assert result.monitor_equals_senders is True
     kinds = result.by_kind
     polls = int((logged.triggers != 0).sum())
