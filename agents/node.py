@@ -32,7 +32,7 @@ from collections.abc import Set as AbstractSet
 import numpy as np
 
 from ringtrack.agents.estimation import Estimator, Told, prior_belief
-from ringtrack.agents.relay import VELOCITY_WINDOW_S, RobotRanges
+from ringtrack.agents.relay import SNAPSHOT_STEPS, VELOCITY_WINDOW_S, RobotRanges
 from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
@@ -64,7 +64,7 @@ from ringtrack.world.scenario import Scenario
 Outgoing = list[tuple[str, Message]]  # (destination participant, message)
 Belief = tuple[Point, Covariance]
 
-KEPT_STEPS = 16  # own step-start positions (and beliefs) remembered to answer late requests
+KEPT_STEPS = SNAPSHOT_STEPS  # own step-start positions (beliefs, ranges held) remembered to answer late requests
 # Requests for a step this robot has not reached are kept until it does, if that step is at most
 # KEPT_STEPS ahead (any step before the robot's first measurement: one that joins a running team
 # cannot know the step yet) and at most BUFFERED_LIMIT are waiting; others are ignored (a flood of

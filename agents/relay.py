@@ -157,6 +157,7 @@ def _step_bytes(steps: NDArray[np.int64]) -> NDArray[np.int64]:
 
 
 RELAY_KEPT_STEPS = 2000  # a robot process keeps the ranges of this many last steps (older ones are past use)
+SNAPSHOT_STEPS = 16  # ... and what it held as each of the last steps began (as agents.node.KEPT_STEPS)
 Relayed = tuple[int, int, float, float, float | None]  # (source, step, x, y, range): bus.messages.RelayedRange
 
 
@@ -231,7 +232,7 @@ class RobotRanges:
         self.held[self.robot][step] = (position[0], position[1], value)
         self.known[self.robot] = self.applied[self.robot] = step
         self.snapshots[step] = list(self.known)
-        self.snapshots.pop(step - 16, None)
+        self.snapshots.pop(step - SNAPSHOT_STEPS, None)
         cutoff = step - self.kept_steps
         while self.dropped < cutoff:
             self.dropped += 1
