@@ -289,7 +289,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
              reach_plus: NDArray[np.bool_], distance_minus: FloatArray | None = None,
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
              belief: bool = False, pushed: NDArray[np.bool_] | None = None,
-             request_belief: bool = False, content: FloatArray | None = None) -> Exchange:
+             request_belief: bool = False, content: FloatArray | None = None,
+             relayed: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
     :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
     robot of every trial at once: a polling robot requests both neighbours; a robot also probes
@@ -300,7 +301,9 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     trial t draws its fates with plan seed ``seeds[t]`` (default the plan's), replies carry a
     belief when ``belief`` and requests when ``request_belief``; replies carry the ``content`` of
     a strategy (the floats each robot's replies carry, ``(T, N, fields)``; see
-    :func:`bus.messages.robot_message_bytes`).
+    :func:`bus.messages.robot_message_bytes`); ``relayed`` gives instead the sizes (bytes, (T, N, 2))
+    of every robot's requests to its (predecessor, successor) and of their replies to it, for
+    messages that carry ranges (:meth:`agents.relay.RangeRelay.message_bytes`).
     ``pushed`` (per side) are the beliefs robots push unasked: each is published once and meets its
     fate on arrival, like a reply. ``plan`` may also give groups of trials their own plans (one
     radio for all). Energy, from the same fates: every copy put on the
@@ -338,6 +341,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     sides = None if content is None else np.stack(_to_sides(content), axis=2)  # what (predecessor, successor) carry
     reply_bytes = (_ring_message_bytes("reply", step, robots, belief) if sides is None
                    else robot_message_bytes("reply", step, neighbour, robot, belief, sides))
+    if relayed is not None:
+        request_bytes, reply_bytes = relayed
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
     on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
@@ -513,8 +518,9 @@ def run(
             telling = polled | pushing
             last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
                          np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
+        relayed = None if team.relay is None else team.relay.message_bytes(k)
         outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens,
-                           content)
+                           content, relayed)
         if strategy.listens or team.relay is not None:
             # told by the predecessor's message to its successor, and the other way
             reached = (outcome.requests > 0) | outcome.push_delivered

@@ -348,9 +348,13 @@ class Estimator:
         """The estimate (metres) the robot steers about (:attr:`Estimators.centre`)."""
         return self.batch.centre[0]
 
-    def measure(self, positions: ArrayLike, ranges: ArrayLike) -> None:
-        """One step's ranges (m,) from robots at ``positions`` (m, 2) (:meth:`Estimators.measure`)."""
-        self.batch.measure(np.asarray(positions, dtype=float)[None], np.asarray(ranges, dtype=float)[None])
+    def measure(self, positions: ArrayLike, ranges: ArrayLike,
+                late: tuple[FloatArray, FloatArray, FloatArray] | None = None) -> None:
+        """One step's ranges (m,) from robots at ``positions`` (m, 2), after the ``late`` ranges of
+        other robots (origins (1, M, 2) metres, ranges (1, M) metres, variances (1, M) m^2)
+        (:meth:`Estimators.measure`)."""
+        self.batch.measure(np.asarray(positions, dtype=float)[None], np.asarray(ranges, dtype=float)[None],
+                           late=late)
 
     def fuse(self, predecessor: Belief | None, successor: Belief | None) -> None:
         """Covariance-intersect the own belief with the ring neighbours' (either may be None) and adopt it."""

@@ -16,7 +16,10 @@ sends its :class:`~bus.messages.Command` at once; if it polls it sends a
 polls); a decentralized robot first fuses the neighbours' beliefs by covariance intersection.
 Replies describe the neighbour at the *start* of the requested step (its position, and its belief
 after that step's update, before any fusion), so lockstep results do not depend on message timing.
-A reply is accepted only from the neighbour asked, with the nonce of the open request.
+A reply is accepted only from the neighbour asked, with the nonce of the open request. With the
+``relay`` strategy requests and replies carry the ranges the robot holds
+(:class:`~bus.messages.RangeRequest`, :class:`~bus.messages.RangeReply`, :class:`agents.relay.RobotRanges`),
+which its filter takes at the start of the next step, and replies carry no belief.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from collections.abc import Set as AbstractSet
 import numpy as np
 
 from ringtrack.agents.estimation import Estimator, Told, prior_belief
+from ringtrack.agents.relay import SNAPSHOT_STEPS, VELOCITY_WINDOW_S, RobotRanges
 from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
 from ringtrack.bus.messages import (
@@ -45,7 +49,9 @@ from ringtrack.bus.messages import (
     Point,
     Push,
     PushCommand,
+    RangeReply,
     RangeReport,
+    RangeRequest,
     Reply,
     Request,
     carries_content,
@@ -58,7 +64,7 @@ from ringtrack.world.scenario import Scenario
 Outgoing = list[tuple[str, Message]]  # (destination participant, message)
 Belief = tuple[Point, Covariance]
 
-KEPT_STEPS = 16  # own step-start positions (and beliefs) remembered to answer late requests
+KEPT_STEPS = SNAPSHOT_STEPS  # own step-start positions (beliefs, ranges held) remembered to answer late requests
 # Requests for a step this robot has not reached are kept until it does, if that step is at most
 # KEPT_STEPS ahead (any step before the robot's first measurement: one that joins a running team
 # cannot know the step yet) and at most BUFFERED_LIMIT are waiting; others are ignored (a flood of
@@ -106,6 +112,9 @@ class RobotNode:
         self.estimator = (
             Estimator(scenario.estimation, scenario.region, scenario.target) if self.mode == "decentralized" else None
         )
+        # The relay strategy: the ranges this robot holds of every robot's (agents.relay).
+        self.relay = (RobotRanges(robot, scenario.robots, round(VELOCITY_WINDOW_S / scenario.control.dt))
+                      if self.estimator is not None and self.strategy.relays else None)
         self.centre: FloatArray = scenario.target.copy()
         if self.mode == "centralized":  # until the first estimate (late, in realtime): the centre's prior
             prior, _ = prior_belief(scenario.estimation, scenario.region, scenario.target)
@@ -182,7 +191,13 @@ class RobotNode:
         self.distances.pop(self.step - KEPT_STEPS, None)
         measured = np.nan if measurement.range is None else measurement.range
         listening = self.strategy.listens and self.estimator is not None
-        if self.estimator is not None and not listening:
+        if self.estimator is not None and self.relay is not None:  # late ranges first, as the engine
+            params = self.scenario.estimation
+            late = self.relay.take(self.step, self.estimator.centre, params.range_sigma, params.process_noise)
+            self.estimator.measure(self.position[None, :], [measured], late)
+            self.relay.record(self.step, measurement.position, measurement.range)
+            self._keep_belief()
+        elif self.estimator is not None and not listening:
             self.estimator.measure(self.position[None, :], [measured])
             self._keep_belief()
         # A reply that describes the step's decision (the strategy's carried content) waits for it.
@@ -269,6 +284,13 @@ class RobotNode:
         can still hear or may reach soon (so a flood cannot grow the memory)."""
         return sender in (self.predecessor, self.successor) and self.step - 1 <= step <= self.step + KEPT_STEPS
 
+    def _relayed(self, sender: int, step: int, known: list[int], ranges: list) -> None:
+        """Keep the ranges a ring neighbour's message of ``step`` carried (of a step within
+        ``KEPT_STEPS`` of this robot's only, so a flood cannot grow the memory)."""
+        if self.relay is not None and sender in (self.predecessor, self.successor) and \
+                self.step - KEPT_STEPS <= step <= self.step + KEPT_STEPS:
+            self.relay.hear(sender, step, known, ranges)
+
     def on_push(self, push: Push) -> Outgoing:
         """A neighbour's belief, told unasked: heard in the step after ``push.step``."""
         if push.receiver != self.robot or not self.strategy.listens:
@@ -299,6 +321,8 @@ class RobotNode:
         return self._hear()
 
     def on_request(self, request: Request) -> Outgoing:
+        if isinstance(request, RangeRequest):
+            self._relayed(request.sender, request.step, request.known, request.ranges)
         if isinstance(request, BeliefRequest) and self.strategy.listens:
             self._told(request.sender, request.step, (request.mean, request.covariance))
         if request.step > self.answerable:  # our state of that step is not known yet
@@ -316,6 +340,8 @@ class RobotNode:
             return []
         del self.awaiting[reply.sender]
         self.replies[reply.sender] = reply
+        if isinstance(reply, RangeReply):
+            self._relayed(reply.sender, reply.step, reply.known, reply.ranges)
         return self._settle()
 
     def on_lost(self, neighbour: int, nonce: int | None = None) -> Outgoing:
@@ -416,6 +442,10 @@ class RobotNode:
         return outgoing
 
     def _request(self, neighbour: int) -> tuple[str, Request]:
+        if self.relay is not None and self.relay.snapshots:
+            known, ranges = self.relay.carried(self.step, neighbour, self.relay.told.get(neighbour))
+            return robot_name(neighbour), RangeRequest(SCHEMA, self.run, self.step, self.robot, neighbour,
+                                                       self._nonce(), known, ranges)
         if self.strategy.listens and self.step in self.beliefs:
             mean, covariance = self.beliefs[self.step]
             return robot_name(neighbour), BeliefRequest(SCHEMA, self.run, self.step, self.robot, neighbour,
@@ -472,6 +502,12 @@ class RobotNode:
         mean, covariance = self.beliefs.get(step, (None, None))
         fields = (SCHEMA, self.run, step, self.robot, request.sender, request.nonce, self.positions[step], mean,
                   covariance)
+        if self.relay is not None and self.relay.snapshots:
+            told = self.relay.told.get(request.sender)
+            if isinstance(request, RangeRequest) and len(request.known) == self.scenario.robots:
+                told = [max(a, b) for a, b in zip(told or request.known, request.known, strict=True)]
+            known, ranges = self.relay.carried(step, request.sender, told)
+            return (robot_name(request.sender), RangeReply(*fields[:7], None, None, known, ranges))
         carried = self.carried.get(step)
         if carried is not None and carries_content(carried):
             return (robot_name(request.sender), CarryingReply(*fields, carried=compact(carried)))

@@ -168,10 +168,9 @@ class RobotLink:
                 pending += self.node.on_lost(robot)
         if self.reply_timeout is None:
             return  # every answer and push comes, or its loss is known at once
-        sent = {type(message) for _, message in outgoing}
-        if Request in sent and self.node.awaiting:  # this opened a poll
+        if any(isinstance(message, Request) for _, message in outgoing) and self.node.awaiting:  # opened a poll
             self.arm(self.reply_timeout, "replies")
-        if RangeReport in sent:
+        if any(isinstance(message, RangeReport) for _, message in outgoing):
             self.arm(ESTIMATE_SHARE * self.reply_timeout, "estimate")
 
     def arm(self, delay_s: float, what: Literal["replies", "estimate", "pushes"]) -> None:

@@ -14,7 +14,10 @@ the target now:
 * what that estimate misses widens the range's variance by the random walk's ``age q``
   (:func:`late_variance`).
 
-(docs/algorithms.md section 20.)
+:class:`RangeRelay` is the engine's state for a batch of rings (with the exact size of every message,
+:meth:`RangeRelay.message_bytes`); :class:`RobotRanges` is one robot process's, which sends and
+receives the ranges in :class:`bus.messages.RangeRequest` and :class:`bus.messages.RangeReply`
+(docs/algorithms.md section 20).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ringtrack.bus.messages import MAX_RELAYED, relay_message_bytes, uint_bytes
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.ring import predecessor_values, successor_values
 
@@ -53,6 +57,10 @@ class RangeRelay:
         self.window = max(1, window)
         self.means: list[FloatArray] = []  # the robots' means (T*N, 2) at the last window + 1 steps
         self._own = np.eye(robots, dtype=bool)[None]
+        # told[t, r, s, j]: the last step of robot j's ranges robot r heard its predecessor (s = 0) or
+        # successor (s = 1) hold, from their messages (what r's requests need not carry again)
+        self.told = np.zeros((trials, robots, 2, robots), dtype=np.int64)
+        self.measured = np.zeros((steps + 1, trials, robots), dtype=np.int64)  # ranges measured up to each step
 
     def velocities(self, means: FloatArray) -> FloatArray:
         """Each robot's estimate of the target's velocity (T*N, 2), metres per step: the drift of its
@@ -92,6 +100,7 @@ class RangeRelay:
         """Every robot's own range of ``step`` (T, N), metres, from ``positions`` (T, N, 2): it holds
         and takes it."""
         self.ranges[step], self.positions[step] = ranges, positions
+        self.measured[step] = self.measured[step - 1] + np.isfinite(ranges)
         self.known = np.where(self._own, step, self.known)
         self.applied = np.where(self._own, step, self.applied)
 
@@ -104,3 +113,154 @@ class RangeRelay:
             np.where(from_successor[..., None], successor_values(before, axis=1), 0),
         )
         self.known = np.maximum(before, heard)
+        for side, came, values in ((0, from_predecessor, predecessor_values), (1, from_successor, successor_values)):
+            self.told[:, :, side] = np.where(came[..., None], np.maximum(self.told[:, :, side], values(before, axis=1)),
+                                             self.told[:, :, side])
+
+    def message_bytes(self, step: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """The exact encoded sizes (bytes, (T, N, 2) each) of every robot's relay request of ``step``
+        to its (predecessor, successor) and of the reply each of them would send it
+        (:func:`bus.messages.relay_message_bytes`), as the robot processes build them (call after
+        :meth:`record`): a request carries the ranges ``(told, known]`` of each source (none of its
+        receiver's own), a reply those of ``(requester's known, replier's known]``."""
+        trials, robots, _ = self.known.shape
+        known = self.known
+        robot = np.arange(robots)
+        neighbours = ((robot - 1) % robots, (robot + 1) % robots)
+        requests, replies = [], []
+        for side, neighbour in enumerate(neighbours):
+            receiver_is = neighbour[None, :, None] == robot[None, None, :]  # (1, N, N): source j is the receiver
+            requests.append(self._bytes("request", step, robot, neighbour, known, self.told[:, :, side], receiver_is))
+            replier = known[:, neighbour]  # the neighbour's known, per robot it answers
+            replies.append(self._bytes("reply", step, neighbour, robot, replier, known, self._own))
+        return np.stack(requests, axis=-1), np.stack(replies, axis=-1)
+
+    def _bytes(self, kind: str, step: int, sender: NDArray[np.int64], receiver: NDArray[np.int64],
+               known: NDArray[np.int64], base: NDArray[np.int64], skipped: NDArray[np.bool_]) -> NDArray[np.int64]:
+        """Sizes (T, N) of ``kind`` messages from ``sender`` to ``receiver`` (N,) carrying the sender's
+        ``known`` (T, N, N) and the ranges ``(base, known]`` of each source not ``skipped``."""
+        trials, robots, _ = known.shape
+        low = np.minimum(base, known)
+        high = np.where(skipped, low, known)
+        count = high - low
+        trial = np.arange(trials)[:, None, None]
+        source = np.arange(robots)[None, None, :]
+        measured = self.measured[high, trial, source] - self.measured[low, trial, source]
+        entry = (count * (19 + uint_bytes(source)) + _step_bytes(high) - _step_bytes(low) + 9 * measured
+                 + (count - measured)).sum(axis=-1)
+        return relay_message_bytes(kind, step, sender[None], receiver[None], known, count.sum(axis=-1), entry)
+
+
+def _step_bytes(steps: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``sum over i in 1..steps of uint_bytes(i)``: the bytes msgpack takes for the steps 1 to ``steps``."""
+    return steps + np.maximum(0, steps - 127) + np.maximum(0, steps - 255) + 2 * np.maximum(0, steps - 65535)
+
+
+RELAY_KEPT_STEPS = 2000  # a robot process keeps the ranges of this many last steps (older ones are past use)
+SNAPSHOT_STEPS = 16  # ... and what it held as each of the last steps began (as agents.node.KEPT_STEPS)
+Relayed = tuple[int, int, float, float, float | None]  # (source, step, x, y, range): bus.messages.RelayedRange
+
+
+class RobotRanges:
+    """What one robot process holds of the team's ranges, the ``relay`` strategy's state of
+    :class:`RangeRelay` for a single robot (docs/algorithms.md section 20).
+
+    ``known[j]`` is the last step of robot j's ranges it holds, ``applied[j]`` the last its filter
+    took, ``held[j]`` those ranges (step -> position x, y metres, range metres or None), ``told[n]``
+    the ``known`` neighbour n last said it holds. What a message of step ``k`` brings counts from
+    the start of step ``k + 1`` (:meth:`take`), whenever it arrived, as in the engine. Memory is
+    bounded: ranges older than ``RELAY_KEPT_STEPS`` steps are dropped (never taken, never sent:
+    their variance is widened by thousands of ``q``), so a message carries at most what is kept,
+    and the newest ``MAX_RELAYED`` of them.
+    """
+
+    def __init__(self, robot: int, robots: int, window: int, kept_steps: int = RELAY_KEPT_STEPS) -> None:
+        self.robot, self.robots = robot, robots
+        self.known = [0] * robots
+        self.applied = [0] * robots
+        self.held: list[dict[int, tuple[float, float, float | None]]] = [{} for _ in range(robots)]
+        self.told: dict[int, list[int]] = {}
+        self.pending: dict[int, list[int]] = {}  # message step -> the known it brought
+        self.pending_told: dict[tuple[int, int], list[int]] = {}  # (neighbour, message step) -> its known
+        self.snapshots: dict[int, list[int]] = {}  # step -> known as the step began (its own range included)
+        self.window = max(1, window)
+        self.means: list[FloatArray] = []
+        self.kept_steps = kept_steps
+        self.dropped = 0  # steps up to this one are dropped from ``held``
+
+    def hear(self, sender: int, step: int, known: list[int], ranges: list[Relayed]) -> None:
+        """A message of ``step`` from ring neighbour ``sender`` saying it holds ``known`` and carrying
+        ``ranges``."""
+        if len(known) != self.robots:
+            return
+        for source, at, x, y, value in ranges:
+            if at > self.dropped and 0 <= source < self.robots:
+                self.held[source].setdefault(at, (x, y, value))
+        self.pending[step] = _merged(self.pending.get(step), known)
+        self.pending_told[sender, step] = _merged(self.pending_told.get((sender, step)), known)
+
+    def take(self, step: int, mean: FloatArray, range_sigma: float,
+             process_noise: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Fold in what the messages of steps before ``step`` brought, then return the ranges held and
+        not yet taken, now taken, as measurements of the target at ``step`` by a filter whose mean
+        (2,) is ``mean`` (metres): origins (1, M, 2) moved by the estimated displacement since each
+        was taken, ranges (1, M) metres (NaN: none) and variances (1, M) m^2, source by source,
+        steps ascending (:meth:`RangeRelay.take` for one robot)."""
+        for at in [at for at in self.pending if at < step]:
+            self.known = _merged(self.known, self.pending.pop(at))
+        for key in [key for key in self.pending_told if key[1] < step]:
+            self.told[key[0]] = _merged(self.told.get(key[0]), self.pending_told.pop(key))
+        means = np.asarray(mean, dtype=float)[None]
+        self.means.append(means)
+        if len(self.means) > self.window + 1:
+            self.means.pop(0)
+        velocity = (means - self.means[0]) / max(1, len(self.means) - 1)
+        entries = [(source, at) for source in range(self.robots)
+                   for at in range(max(self.applied[source], self.dropped) + 1, self.known[source] + 1)
+                   if at in self.held[source]]
+        self.applied = list(self.known)
+        positions = np.array([self.held[source][at][:2] for source, at in entries], dtype=float).reshape(-1, 2)
+        values = [self.held[source][at][2] for source, at in entries]
+        ranges = np.array([np.nan if value is None else value for value in values], dtype=float)
+        ages = np.array([step - at for _, at in entries], dtype=np.int64)
+        origins = positions + velocity * ages[:, None]
+        return origins[None], ranges[None], late_variance(range_sigma, process_noise, ages)[None]
+
+    def record(self, step: int, position: tuple[float, float], value: float | None) -> None:
+        """The robot's own range of ``step`` (metres, None: none) from ``position`` (metres): it holds
+        and takes it; what it holds now is what its messages of the step say."""
+        self.held[self.robot][step] = (position[0], position[1], value)
+        self.known[self.robot] = self.applied[self.robot] = step
+        self.snapshots[step] = list(self.known)
+        self.snapshots.pop(step - SNAPSHOT_STEPS, None)
+        cutoff = step - self.kept_steps
+        while self.dropped < cutoff:
+            self.dropped += 1
+            for held in self.held:
+                held.pop(self.dropped, None)
+
+    def carried(self, step: int, receiver: int, base: list[int] | None) -> tuple[list[int], list[Relayed]]:
+        """What a message of ``step`` to ``receiver`` carries: the known vector as ``step`` began (the
+        oldest kept if that step is forgotten) and the ranges ``(base, known]`` of every source but
+        the receiver (``base``: what the receiver is known to hold; None: nothing), the newest
+        ``MAX_RELAYED`` at most."""
+        known = self.snapshots.get(step) or self.snapshots[min(self.snapshots)]
+        low = base or [0] * self.robots
+        ranges: list[Relayed] = []
+        for source in range(self.robots):
+            if source == receiver:
+                continue
+            held = self.held[source]
+            for at in range(max(low[source], self.dropped) + 1, known[source] + 1):
+                if at in held:
+                    x, y, value = held[at]
+                    ranges.append((source, at, x, y, value))
+        if len(ranges) > MAX_RELAYED:
+            newest = sorted(ranges, key=lambda entry: entry[1])[-MAX_RELAYED:]
+            ranges = sorted(newest, key=lambda entry: (entry[0], entry[1]))
+        return list(known), ranges
+
+
+def _merged(before: list[int] | None, known: list[int]) -> list[int]:
+    """The elementwise maximum of two known vectors (``before`` None: ``known``)."""
+    return list(known) if before is None else [max(a, b) for a, b in zip(before, known, strict=True)]

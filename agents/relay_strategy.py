@@ -13,4 +13,3 @@ class RelayedRanges(SelfTriggered):
     label = "relayed ranges"
     estimation = "decentralized"
     relays = True
-    in_processes = False  # the bus's messages carry no ranges yet

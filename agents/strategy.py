@@ -228,8 +228,6 @@ class Strategy:
     pushes: ClassVar[bool] = False
     # Requests and replies carry the ranges their sender holds (:mod:`agents.relay`).
     relays: ClassVar[bool] = False
-    # Whether a team of processes can run it (else only the engine: simulate and the experiments).
-    in_processes: ClassVar[bool] = True
     # Floats a reply carries beyond position and belief (:meth:`reply_content`).
     reply_fields: ClassVar[int] = 0
 

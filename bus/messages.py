@@ -159,6 +159,34 @@ class CarryingReply(Reply, tag=13, frozen=True):
     carried: Annotated[tuple[Real, ...], msgspec.Meta(max_length=32)] = ()
 
 
+MAX_RELAYED = 2048  # ranges one RangeRequest or RangeReply carries at most (the sender keeps the newest)
+RANGE_ENTRY_MAX_BYTES = 38  # the most one relayed range takes: 1 + 5 + 5 + 3 * 9
+# A relayed range: (source robot, step, x, y, range), the position (metres) the source robot took
+# its range from at that step and the range (metres; None: beyond the sensing range).
+RelayedRange = tuple[int, Step, Real, Real, NonNegativeReal | None]
+# Per robot of the team (at most 100 000): the last step of its ranges the sender holds.
+Known = Annotated[list[Count], msgspec.Meta(max_length=100_000)]
+Relayed = Annotated[list[RelayedRange], msgspec.Meta(max_length=MAX_RELAYED)]
+
+
+class RangeRequest(Request, tag=18, frozen=True):
+    """A :class:`Request` of the ``relay`` strategy (:mod:`agents.relay`): ``known[j]`` is the last
+    step of robot j's ranges the requester held as the step began (it holds them all up to it, bar
+    those too old to keep), ``ranges`` those of them the receiver may lack, as
+    :data:`RelayedRange` entries (docs/algorithms.md section 20)."""
+
+    known: Known
+    ranges: Relayed
+
+
+class RangeReply(Reply, tag=19, frozen=True):
+    """A :class:`Reply` of the ``relay`` strategy: the replier's ``known`` and the ``ranges`` the
+    requester lacks (as its request said), as :class:`RangeRequest`; no belief (it is not fused)."""
+
+    known: Known = []
+    ranges: Relayed = []
+
+
 class Push(Message, tag=11, frozen=True):
     """Ring neighbour -> robot, unasked: the sender's belief (``mean`` metres, ``covariance`` m^2)
     at ``step`` (after its own update and what it was told, before its poll), sent when it moved
@@ -323,8 +351,8 @@ KINDS: dict[str, type[Message]] = {
     for cls in (Measurement, Command, Request, Reply, Push, Tick, End, Stats, RangeReport, Estimate, FaultNotice,
                 Digest)
 }
-AnyMessage = (Measurement | PushMeasurement | Command | PushCommand | Request | BeliefRequest | Reply | CarryingReply
-              | Push | Tick | End | Stats | RangeReport | Estimate | FaultNotice | Digest)
+AnyMessage = (Measurement | PushMeasurement | Command | PushCommand | Request | BeliefRequest | RangeRequest | Reply
+              | CarryingReply | RangeReply | Push | Tick | End | Stats | RangeReport | Estimate | FaultNotice | Digest)
 RobotMessage = Request | Reply | Push  # robot-to-robot: through the fault layer
 
 _encoder = msgspec.msgpack.Encoder()
@@ -352,7 +380,8 @@ def size_limit(kind: str, robots: int) -> int:
     if kind == "digest":  # a command (<= 128 bytes), a measurement row and a tick row per robot and entry
         return 1024 + 224 * robots * digest_entries(robots)
     per_robot = {"stats": 1024}.get(kind, 64)
-    return 1024 + per_robot * robots
+    relayed = MAX_RELAYED * RANGE_ENTRY_MAX_BYTES + 5 * robots if kind in ("request", "reply") else 0  # relay
+    return 1024 + per_robot * robots + relayed
 
 
 def encode(message: Message) -> bytes:
@@ -391,6 +420,8 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
         _check_digest(message, run, robots)
     if isinstance(message, Tick):
         _check_tick(message, robots)
+    if isinstance(message, (RangeRequest, RangeReply)):
+        _check_relayed(message, robots)
     source, destination = endpoints(message)
     if source != route.source or destination not in (route.destination, None):
         raise Rejected("sender", f"{message.kind} from {source} to {destination} on {route}")
@@ -400,6 +431,16 @@ def decode(payload: bytes, route: Route | None, run: int, robots: int) -> AnyMes
 def _check_tick(tick: Tick, robots: int) -> None:
     if len(tick.positions) != robots:
         raise Rejected("malformed", f"tick with {len(tick.positions)} positions for a team of {robots}")
+
+
+def _check_relayed(message: RangeRequest | RangeReply, robots: int) -> None:
+    """What :func:`decode` checks of relayed ranges beyond their fields: a known step per robot, none
+    after the message's step, and no range of a step after it nor beyond what the sender says it holds."""
+    if len(message.known) != robots:
+        raise Rejected("malformed", f"{message.kind} with {len(message.known)} known steps for a team of {robots}")
+    if any(step > message.step for step in message.known) or \
+            any(step > message.step or step > message.known[source] for source, step, *_ in message.ranges):
+        raise Rejected("value", f"{message.kind} of step {message.step} relaying a range it cannot hold")
 
 
 def _check_digest(digest: Digest, run: int, robots: int) -> None:
@@ -427,6 +468,8 @@ def peek(payload: bytes) -> AnyMessage:
 
 def robot_ids(message: Message) -> list[int]:
     """Every robot index a message names (all must belong to the team)."""
+    if isinstance(message, (RangeRequest, RangeReply)):
+        return [message.sender, message.receiver, *(entry[0] for entry in message.ranges)]
     if isinstance(message, (Request, Reply, Push, FaultNotice)):
         return [message.sender, message.receiver]
     if isinstance(message, Measurement):
@@ -550,3 +593,36 @@ def poll_bytes(with_belief: bool) -> int:
     request = int(robot_message_bytes("request", 1000, 1, 2))
     reply = int(robot_message_bytes("reply", 1000, 2, 1, with_belief))
     return POLL_MESSAGES // 2 * (request + reply)
+
+
+@cache
+def _relay_message_base(kind: str) -> int:
+    """Encoded bytes of a relay request or reply of step 1 from robot 0 to robot 0, known and ranges empty."""
+    if kind == "request":
+        return len(encode(RangeRequest(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, [], [])))
+    return len(encode(RangeReply(SCHEMA, NONCE_BASE, 1, 0, 0, NONCE_BASE, (0.0, 0.0))))
+
+
+def array_header_bytes(length: ArrayLike) -> NDArray[np.int64]:
+    """Bytes of msgpack's header of an array of ``length`` items (1 up to 15, 3 up to 65535, else 5)."""
+    length = np.asarray(length)
+    return np.where(length <= 15, 1, np.where(length <= 65535, 3, 5)).astype(np.int64)
+
+
+def relayed_range_bytes(source: ArrayLike, step: ArrayLike, measured: ArrayLike) -> NDArray[np.int64]:
+    """Encoded bytes of one :data:`RelayedRange`: robot ``source``'s range of ``step``, a float when
+    ``measured`` (9 bytes), else None (1 byte), the position's two floats (18 bytes)."""
+    return (1 + uint_bytes(source) + uint_bytes(step) + 18 + np.where(measured, 9, 1)).astype(np.int64)
+
+
+def relay_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike, known: ArrayLike,
+                        count: ArrayLike, entry_bytes: ArrayLike) -> NDArray[np.int64]:
+    """The exact encoded size of :class:`RangeRequest` (``kind`` "request") or :class:`RangeReply`
+    ("reply") messages of ``step`` from ``sender`` to ``receiver``, carrying the ``known`` steps (one
+    per robot, last axis) and ``count`` ranges of ``entry_bytes`` bytes in all
+    (:func:`relayed_range_bytes`), broadcast over arrays. Nonces and run ids take 5 bytes."""
+    known = np.asarray(known)
+    extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
+    known_bytes = array_header_bytes(known.shape[-1]) - 1 + uint_bytes(known).sum(axis=-1)
+    ranges_bytes = array_header_bytes(count) - 1 + np.asarray(entry_bytes, dtype=np.int64)
+    return (_relay_message_base(kind) + extra + known_bytes + ranges_bytes).astype(np.int64)

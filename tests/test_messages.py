@@ -21,6 +21,8 @@ from ringtrack.bus.messages import (
     End,
     EndReason,
     Measurement,
+    RangeReply,
+    RangeRequest,
     Rejected,
     Reply,
     Request,
@@ -47,6 +49,7 @@ nonces = st.integers(0, 2**32 - 1)
 
 
 def messages() -> st.SearchStrategy:
+    late = st.just(2 * 10**6)  # relay messages: of a step after every range they carry and hold
     covariance = st.one_of(st.none(), st.tuples(finite, finite, finite))
     return st.one_of(
         st.builds(lambda s, t, r, p, z: Measurement(SCHEMA, RUN, s, t, r, p, z), steps, non_negative, robots, points,
@@ -58,6 +61,14 @@ def messages() -> st.SearchStrategy:
         st.builds(lambda s, a, b, n: Request(SCHEMA, RUN, s, a, b, n), steps, robots, robots, nonces),
         st.builds(lambda s, a, b, n, p, m, v: Reply(SCHEMA, RUN, s, a, b, n, p, m, v), steps, robots, robots, nonces,
                   points, st.one_of(st.none(), points), covariance),
+        st.builds(lambda s, a, b, n, known, ranges: RangeRequest(SCHEMA, RUN, s, a, b, n, known, ranges), late,
+                  robots, robots, nonces, st.lists(st.integers(10**6, 2 * 10**6 - 1), min_size=ROBOTS,
+                                                   max_size=ROBOTS),
+                  relayed()),
+        st.builds(lambda s, a, b, n, p, known, ranges: RangeReply(SCHEMA, RUN, s, a, b, n, p, None, None, known,
+                                                                  ranges),
+                  late, robots, robots, nonces, points,
+                  st.lists(st.integers(10**6, 2 * 10**6 - 1), min_size=ROBOTS, max_size=ROBOTS), relayed()),
         st.builds(lambda s, t, ps, p, live: Tick(SCHEMA, RUN, s, t, ps, p, live), steps, non_negative,
                   st.lists(points, min_size=ROBOTS, max_size=ROBOTS), points,
                   st.lists(robots, max_size=ROBOTS, unique=True)),
@@ -65,6 +76,12 @@ def messages() -> st.SearchStrategy:
                   non_negative),
         st.builds(lambda entries: Digest(SCHEMA, RUN, entries), st.lists(digest_entries(), max_size=10)),
     )
+
+
+def relayed() -> st.SearchStrategy:
+    """Relayed ranges (source, step, x, y, range or None) of steps no later than any message's."""
+    return st.lists(st.tuples(robots, st.integers(1, 10**6), finite, finite, st.one_of(st.none(), non_negative)),
+                    max_size=20)
 
 
 def digest_entries() -> st.SearchStrategy:
@@ -134,6 +151,16 @@ BAD_VALUES = [
     (Digest(SCHEMA, RUN, [DigestEntry(3, Tick(SCHEMA, RUN, 3, 0.3, [(0.0, 0.0)] * 6, (0.0, 0.0), [0, 7]), [], [])]),
      "sender"),
     (Digest(SCHEMA, RUN, [DigestEntry(3, None, [(1, 70)], [])] * 11), "size"),  # 10 entries for a team of 6
+    # relayed ranges: a known step per robot of the team, sources in the team, no range the sender cannot hold
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 5, []), "malformed"),
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 6, [(6, 2, 0.0, 0.0, 1.0)]), "sender"),
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 6, [(0, 4, 0.0, 0.0, 1.0)]), "value"),  # a step after the message's
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [1] * 6, [(0, 2, 0.0, 0.0, 1.0)]), "value"),  # beyond what it holds
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3, 3, 3, 3, 3, 4], []), "value"),  # holding ranges of a later step
+    (RangeRequest(SCHEMA, RUN, 3, 1, 2, 42, [3] * 6, [(0, 2, 0.0, 0.0, -1.0)]), "malformed"),
+    (RangeReply(SCHEMA, RUN, 3, 2, 1, 42, (0.0, 0.0), None, None, [3] * 6, [(0, 0, 0.0, 0.0, 1.0)]), "malformed"),
+    (RangeReply(SCHEMA, RUN, 3, 2, 1, 42, (0.0, 0.0), None, None, [3] * 6, [(0, 2, float("nan"), 0.0, 1.0)]),
+     "malformed"),
 ]
 
 

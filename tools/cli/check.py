@@ -39,7 +39,7 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run_check(args: argparse.Namespace) -> int:
-    scenario = scenario_from_arguments(args, processes=False)
+    scenario = scenario_from_arguments(args)
     bounds = range_bounds(scenario.region, scenario.target, scenario.robots)
     safe_rc = safe_communication_range(scenario.region, scenario.target_path(scenario.seed, scenario.max_steps),
                                        scenario.robots)

@@ -16,7 +16,6 @@ from ringtrack.agents.strategy import (
     StrategyParameter,
     check_strategy,
     strategy_class,
-    strategy_for,
 )
 from ringtrack.tools.output.files import unwritable, write_csv, write_json
 from ringtrack.tools.studies.runner import BATCH, CLUSTER_EXTRA, Execution, available_cores, journal_path
@@ -74,10 +73,9 @@ def add_from_step_argument(parser: argparse.ArgumentParser) -> None:
                         "(default 300, as experiment moving --settle)")
 
 
-def scenario_from_arguments(args: argparse.Namespace, processes: bool = True) -> Scenario:
+def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
     """Load ``args.scenario`` with the flags applied (``--steps`` sets ``max_steps``); a bad flag
-    value is reported by its flag, e.g. ``--drop 1.5 (faults.drop): expected a probability ...``.
-    For a team of ``processes``, a strategy only the engine runs is refused in one line."""
+    value is reported by its flag, e.g. ``--drop 1.5 (faults.drop): expected a probability ...``."""
     try:
         scenario = load_scenario(
             args.scenario,
@@ -96,10 +94,6 @@ def scenario_from_arguments(args: argparse.Namespace, processes: bool = True) ->
     except OverrideError as error:
         raise ScenarioError(f"{flag(error.name)} {error.value} ({error.path}){error.problem}") from None
     checked_strategy(scenario, args.strategy, args.scenario)
-    if processes and not strategy_for(scenario.strategy).in_processes:
-        where = f"--strategy {args.strategy}" if args.strategy is not None else f"{args.scenario}: strategy.name"
-        raise ScenarioError(f"{where}: the {strategy_for(scenario.strategy).name} strategy runs in the engine only "
-                            "(ringtrack simulate and the experiments), not in a team of processes; choose another")
     return scenario
 
 

@@ -42,7 +42,7 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    scenario = scenario_from_arguments(args, processes=False)
+    scenario = scenario_from_arguments(args)
     warn_if_threshold_loose(scenario)
     history = engine.run(scenario, until_converged=stops_at_convergence(args, scenario),
                          record_positions=args.log is not None)
