@@ -27,7 +27,7 @@ from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.messages import Command, End, Measurement, Push, RangeReport, Reply, Request, Stats
-from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence, far_ahead
 from ringtrack.bus.reach import ReachTokens
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
 from ringtrack.bus.shim import LinkShim
@@ -132,6 +132,7 @@ class RobotLink:
         self.participant = participant
         self.node = node
         self.reply_timeout = reply_timeout
+        participant.window = lambda message: far_ahead(message, node.step)  # forged far-future steps
         self.shim = LinkShim(participant, node.scenario.faults, node.robot, node.reachable, node.distance,
                              realtime=reply_timeout is not None)
         self.outside = False  # told by the world that it is not in the ring

@@ -10,7 +10,7 @@ the target now:
 
 * the target has moved since the range was taken: the robot moves the range's origin by its own
   estimate of that displacement, ``age`` times the drift of its mean over the last
-  ``VELOCITY_WINDOW_S`` seconds (:meth:`RangeRelay.velocities`), and
+  ``VELOCITY_WINDOW_S`` seconds (:class:`Drift`), and
 * what that estimate misses widens the range's variance by the random walk's ``age q``
   (:func:`late_variance`).
 
@@ -40,13 +40,29 @@ def late_variance(range_sigma: float, process_noise: float, age: NDArray[np.int6
     return np.asarray(range_sigma**2 + process_noise * age, dtype=float)
 
 
+class Drift:
+    """Filters' estimates of the target's velocity (metres per step): the drift of their means over
+    the last ``window`` steps (fewer at the start; zero at the first)."""
+
+    def __init__(self, window: int) -> None:
+        self.window = max(1, window)
+        self.means: list[FloatArray] = []  # the means at the last window + 1 steps
+
+    def velocities(self, means: FloatArray) -> FloatArray:
+        """The velocities (B, 2) given this step's ``means`` (B, 2), metres, before their update."""
+        self.means.append(means)
+        if len(self.means) > self.window + 1:
+            self.means.pop(0)
+        return (means - self.means[0]) / max(1, len(self.means) - 1)
+
+
 class RangeRelay:
     """Which ranges each robot of a batch of rings holds, and the ranges themselves.
 
     ``known[t, r, j]`` is the last step of robot j's ranges that robot r of trial t holds (it holds
     all steps up to it; 0: none), ``applied[t, r, j]`` the last its filter took. Ranges (metres, NaN:
     none) and the positions they were taken from (metres) are kept for ``steps`` steps, and each
-    robot's mean (metres) for the last ``window`` steps (:meth:`velocities`).
+    robot's mean (metres) for the last ``window`` steps (:class:`Drift`).
     """
 
     def __init__(self, trials: int, robots: int, steps: int, window: int) -> None:
@@ -54,22 +70,12 @@ class RangeRelay:
         self.applied = np.zeros((trials, robots, robots), dtype=np.int64)
         self.ranges = np.full((steps + 1, trials, robots), np.nan)
         self.positions = np.zeros((steps + 1, trials, robots, 2))
-        self.window = max(1, window)
-        self.means: list[FloatArray] = []  # the robots' means (T*N, 2) at the last window + 1 steps
+        self.drift = Drift(window)  # of the robots' means (T*N, 2)
         self._own = np.eye(robots, dtype=bool)[None]
         # told[t, r, s, j]: the last step of robot j's ranges robot r heard its predecessor (s = 0) or
         # successor (s = 1) hold, from their messages (what r's requests need not carry again)
         self.told = np.zeros((trials, robots, 2, robots), dtype=np.int64)
         self.measured = np.zeros((steps + 1, trials, robots), dtype=np.int64)  # ranges measured up to each step
-
-    def velocities(self, means: FloatArray) -> FloatArray:
-        """Each robot's estimate of the target's velocity (T*N, 2), metres per step: the drift of its
-        ``means`` (T*N, 2, this step's, before its update) over the last ``window`` steps (fewer at
-        the start; zero at the first)."""
-        self.means.append(means)
-        if len(self.means) > self.window + 1:
-            self.means.pop(0)
-        return (means - self.means[0]) / max(1, len(self.means) - 1)
 
     def take(
         self, step: int, means: FloatArray, range_sigma: float, process_noise: float
@@ -79,7 +85,7 @@ class RangeRelay:
         moved by the estimated displacement since each was taken, ranges (T*N, M) (NaN pads rows to
         the longest, M) and variances (T*N, M) (:func:`late_variance`)."""
         trials, robots, _ = self.known.shape
-        velocity = self.velocities(means)
+        velocity = self.drift.velocities(means)
         waiting = self.known - self.applied
         longest = int(waiting.max(initial=0))
         rows = trials * robots
@@ -183,8 +189,7 @@ class RobotRanges:
         self.pending: dict[int, list[int]] = {}  # message step -> the known it brought
         self.pending_told: dict[tuple[int, int], list[int]] = {}  # (neighbour, message step) -> its known
         self.snapshots: dict[int, list[int]] = {}  # step -> known as the step began (its own range included)
-        self.window = max(1, window)
-        self.means: list[FloatArray] = []
+        self.drift = Drift(window)
         self.kept_steps = kept_steps
         self.dropped = 0  # steps up to this one are dropped from ``held``
 
@@ -210,11 +215,7 @@ class RobotRanges:
             self.known = _merged(self.known, self.pending.pop(at))
         for key in [key for key in self.pending_told if key[1] < step]:
             self.told[key[0]] = _merged(self.told.get(key[0]), self.pending_told.pop(key))
-        means = np.asarray(mean, dtype=float)[None]
-        self.means.append(means)
-        if len(self.means) > self.window + 1:
-            self.means.pop(0)
-        velocity = (means - self.means[0]) / max(1, len(self.means) - 1)
+        velocity = self.drift.velocities(np.asarray(mean, dtype=float)[None])
         entries = [(source, at) for source in range(self.robots)
                    for at in range(max(self.applied[source], self.dropped) + 1, self.known[source] + 1)
                    if at in self.held[source]]

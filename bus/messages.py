@@ -370,7 +370,9 @@ class Rejected(ValueError):
 # "value": well formed and from a team member, but impossible for this run (e.g. a goal off the
 # boundary); counted by the receiver that can tell.
 # "size": longer than its kind can be (trailing fields, padding): refused before or after decoding.
-REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size")
+# "window": stamped with a step too far ahead of the receiver's to be genuine (a forged step 2^64-1):
+# dropped at the door by the receiver's own check (:attr:`bus.participant.Participant.window`).
+REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size", "window")
 
 
 def size_limit(kind: str, robots: int) -> int:

@@ -28,6 +28,17 @@ from ringtrack.bus.outbox import Outbox
 log = logging.getLogger(__name__)
 
 PresenceKind = Literal["alive", "ready"]
+# A message stamped this many steps past its receiver's current step is no genuine one (a real
+# participant lags by seconds at most; a forger picks 2^64 - 1): dropped at the door (far_ahead).
+WINDOW_STEPS = 4096
+
+
+def far_ahead(message: Message, step: int) -> str | None:
+    """``"window"`` (a :data:`bus.messages.REJECT_REASONS` reason) when ``message`` is stamped more
+    than :data:`WINDOW_STEPS` steps past ``step``, the receiver's current step (0: it knows none
+    yet, and takes every step); else None. A role's :attr:`Participant.window`."""
+    stamped = getattr(message, "step", None)
+    return "window" if step > 0 and isinstance(stamped, int) and stamped > step + WINDOW_STEPS else None
 CONTROL_KINDS = frozenset({"measurement", "command", "tick", "end"})
 
 
@@ -131,6 +142,9 @@ class Participant:
         self._entities: list[object] = []
         self._channels: list[zenoh.Handler[zenoh.Sample]] = []
         self.callback_failures = 0
+        # The role's check at the door: a decoded message it names a reason for ("window": a step far
+        # ahead of its own) is dropped and counted as rejected, never as traffic.
+        self.window: Callable[[Message], str | None] | None = None
 
     # ------------------------------------------------------------------ receiving
     def listen(self, key_expr: str) -> None:
@@ -201,6 +215,9 @@ class Participant:
                 self.counter.count_rejected(rejection.reason)
                 continue
             assert route is not None
+            if self.window is not None and (reason := self.window(message)) is not None:
+                self.counter.count_rejected(reason)
+                continue
             self.counter.count_received((message.kind, route.source, route.destination), len(payload))
             accepted.append(Delivery(message, route, len(payload)))
         return accepted

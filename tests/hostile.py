@@ -41,6 +41,7 @@ def rounds(keys: Keys, step: int) -> dict[str, tuple[str, bytes]]:
         "route": (keys.data("r1", "r0", "reply"), encode(request)),
         "sender": (keys.data("r1", "r2", "request"), encode(request)),
         "forged_reply": (keys.data("r1", "r0", "reply"), encode(Reply(SCHEMA, keys.run, step, 0, 1, 12345, (99.0, 99.0)))),
+        "far_future": (keys.data("r1", "r0", "request"), encode(Request(SCHEMA, keys.run, 2**64 - 1, 0, 1, 7))),
         # to the world
         "world_malformed": (keys.data("world", "r3", "command"), b"\x93\x01"),
         "world_sender": (keys.data("world", "r3", "command"),

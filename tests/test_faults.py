@@ -324,6 +324,7 @@ def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: 
         "foreign": sent["foreign"],
         "route": sent["route"],
         "sender": sent["impossible_sender"] + sent["negative_sender"] + sent["sender"],
+        "window": sent["far_future"],  # a step no run reaches: dropped at the door, never traffic
     }
     assert by["r1"] == expected_r1
     assert log.end["notes"]["ignored_replies"] == sent["forged_reply"]  # well formed, wrong nonce
@@ -334,6 +335,10 @@ def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: 
     monitor = log.end["rejected"]
     assert monitor["malformed"] == expected_r1["malformed"] + sent["world_malformed"] + sent["monitor_short_tick"]
     assert monitor["sender"] == expected_r1["sender"] + sent["world_sender"]
+    assert monitor["window"] == sent["far_future"] + sent["world_off_boundary"]
+    seen = {(kind, source, destination): messages for kind, source, destination, messages, _ in log.end["traffic"]}
+    said = {(kind, source, destination): messages for kind, source, destination, messages, _ in log.end["senders"]["r0"]}
+    assert seen[("request", "r0", "r1")] == said[("request", "r0", "r1")]  # no forged request counts as traffic
     assert all(robot not in by or by[robot] == {} for robot in ("r0", "r2", "r3", "r4", "r5"))
     # well-formed forgeries cannot be told from the wire, but the monitor notices the surplus
     assert log.end["consistent"] is False

@@ -30,12 +30,11 @@ from ringtrack.bus.security import create_team
 from ringtrack.tools.runlog.log import read_log
 from tests.helpers import assert_equals_engine
 
+HANG_S = 600  # seconds a three-host team may take before the test calls it hung
 pytestmark = [
     pytest.mark.processes,
     pytest.mark.root,
-    pytest.mark.timeout(300),
-    pytest.mark.processes,
-    pytest.mark.root,
+    pytest.mark.timeout(HANG_S + 120),
     pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root"),
     pytest.mark.skipif(shutil.which("ip") is None, reason="iproute2 ('ip') is not installed"),
 ]
@@ -137,7 +136,9 @@ def run_team(hosts: Hosts, log: Path, via_router: bool, steps: int | None = None
     for host, ids, endpoint in (("b", "0-2", hub[0]), ("c", "3-5", hub[1])):
         own = [] if via_router else ["--listen", f"{protocol}/{hosts.addresses[host][0]}:0"]
         robots.append(hosts.start(host, "robot", *common, *joining, *own, "--connect", endpoint, "--id", ids))
-    codes = [process.wait(timeout=240) for process in (world, monitor, *robots)]
+    # a hang guard only: beside a full suite and two CPU burners, retransmissions over a lossy link
+    # and a loaded scheduler have taken a three-host run past 240 s
+    codes = [process.wait(timeout=HANG_S) for process in (world, monitor, *robots)]
     return codes, time.monotonic() - started
 
 
@@ -168,7 +169,7 @@ table inet ringtrack_loss {{
 }}
 """
     subprocess.run(["ip", "netns", "exec", hosts.names["b"], "nft", "-f", "-"], input=rules.encode(), check=True)
-    steps = 200
+    steps = 100
     codes, wall = run_team(hosts, tmp_path / "log.jsonl", via_router=True, steps=steps)
     assert codes == [0, 0, 0, 0], hosts.errors()
     log = read_log(tmp_path / "log.jsonl")

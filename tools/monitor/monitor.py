@@ -41,7 +41,7 @@ from ringtrack.bus.messages import (
     Tick,
     Traffic,
 )
-from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, peak_rss_kib
+from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, far_ahead, peak_rss_kib
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.tools.monitor.state import TeamModel, startup_names
 from ringtrack.tools.runlog.log import LogWriter, step_record
@@ -356,6 +356,7 @@ async def run_monitor(
             writer.header(scenario, "emulator", run, seed, clock, steps)
             handlers = [handler for handler in (None if model is None else model.add, on_record) if handler is not None]
             recorder = Recorder(writer, scenario, _each(handlers), FORCE_AFTER_S[clock])
+            participant.window = lambda message: far_ahead(message, max(recorder.latest_tick, recorder.next_step))
             code, report = await _watch(participant, recorder, roster, held, refresh, digests)
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)

@@ -23,7 +23,7 @@ from pathlib import Path
 from ringtrack.agents.summary import summarise
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
-from ringtrack.bus.keys import new_run_id
+from ringtrack.bus.keys import new_run_id, robot_name
 from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport, energy_report
 from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
@@ -318,7 +318,8 @@ def _result(scenario: Scenario, folder: Path, log_path: Path, clock: Clock, run:
     if log.end is None:  # the monitor was lost: count traffic as its senders say they sent it
         traffic = [tuple(row) for counts in senders.values() for row in counts["sent"]]
         result.monitor_lost = True
-        result.uncounted = sorted(scenario.participants(monitor=False) - senders.keys())
+        # robot-to-robot traffic is what the robots sent: unknown if one of them left no counts
+        result.uncounted = sorted({robot_name(robot) for robot in range(scenario.robots)} - senders.keys())
     else:
         traffic = [tuple(row) for row in end.get("traffic", [])]
     by_category = totals_by_category(traffic)
