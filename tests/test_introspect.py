@@ -4,6 +4,7 @@ bus/observer.py) see it as it is and change nothing."""
 from __future__ import annotations
 
 import re
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -51,8 +52,8 @@ def ringtrack(*arguments: str) -> str:
 
 @pytest.mark.processes
 def test_a_lockstep_run_watched_by_list_echo_and_hz_equals_the_engine(tmp_path: Path) -> None:
-    steps = 1500
-    process = start_spawn(tmp_path, "--steps", str(steps))
+    # a run that outlasts the watching however loaded the machine, stopped (Ctrl-C) once watched
+    process = start_spawn(tmp_path, "--steps", "100000")
     try:
         deadline = time.monotonic() + 60
         while not (logs := list(tmp_path.glob("*/log.jsonl"))) or b'"type":"step"' not in logs[0].read_bytes():
@@ -75,18 +76,20 @@ def test_a_lockstep_run_watched_by_list_echo_and_hz_equals_the_engine(tmp_path: 
         # a loaded machine may hold the whole team for a period: listen again until a period heard it
         for _ in range(10):
             rates = ringtrack("hz", str(folder), "--reports", "1", "--period", "0.5")
-            if "nothing heard" not in rates or process.poll() is not None:
+            if "nothing heard" not in rates:
                 break
         assert re.search(r"measurement │ +\d+\.\d │ +\d+ │ +\d+\.\d", rates), rates
         assert re.search(r"world>r0 │", rates), rates
         assert re.search(r"world>monitor │ +\d+\.\d │ +\d+ │ +\d+\.\d", rates), rates
-        code = process.wait(timeout=180)
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=60)
+        code = process.returncode
     finally:
         stop_all(process)
-    assert code == 0
+    assert code == 130  # stopped as asked
     log = read_log(folder / "log.jsonl")
-    assert len(log.steps) == steps and log.end["consistent"] is True and log.end["rejected"] == {}
-    assert_equals_engine(log)
+    assert log.end["rejected"] == {}  # watching put nothing on the team's keys
+    assert_equals_engine(log)  # and changed nothing it did
     assert processes_mentioning(str(folder)) == []
 
 
