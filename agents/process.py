@@ -10,7 +10,9 @@ liveliness token goes) or comes back (the world's measurements say so) re-forms 
 told it is outside the ring (restarted, woken after a freeze past the lease, or dropped by a lockstep
 world that waited too long) shows whom it reaches, and every robot shows which robots outside its ring
 it reaches (:mod:`bus.reach`), until the world re-admits them (:mod:`world.admission`). It ends on the
-world's End, on a signal, or when the world is gone.
+world's End, on a signal, or when the world is gone. Each process is a *life* of its robot id,
+granted by the world as it joins (:mod:`bus.lives`); one that finds its id taken by a newer life (it
+was frozen past the lease and the id rejoined) stops at once with :class:`bus.lives.Superseded`.
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ from ringtrack.agents.node import BUFFERED_LIMIT, Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
-from ringtrack.bus.messages import Command, End, Measurement, Push, RangeReport, Reply, Request, Stats
+from ringtrack.bus.lives import NewerLife, Superseded, Voyage, ask_life, row_out, superseded_message
+from ringtrack.bus.messages import Command, End, Measurement, Push, RangeReport, Reply, Request, Stats, encode
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence, far_ahead
 from ringtrack.bus.reach import ReachTokens
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
@@ -36,6 +39,7 @@ from ringtrack.world.scenario import Scenario
 # Realtime: the share of the reply timeout (one step period under spawn) a robot waits for the
 # centre's estimate, leaving the rest of the step to poll and command about the last estimate.
 ESTIMATE_SHARE = 0.5
+FENCED = 2  # the exit code of a life replaced by a newer one of its robot id
 
 
 @dataclass(frozen=True)
@@ -56,7 +60,8 @@ async def run_robot(
     expect_monitor: bool = False,
     reply_timeout: float | None = None,
 ) -> int:
-    """Run robot ``robot`` until the run ends; returns the exit code (0 done, 1 world lost, 130 stopped).
+    """Run robot ``robot`` until the run ends; returns the exit code (0 done, 1 world lost, 130
+    stopped). Raises :class:`bus.lives.Superseded` when a newer life of its id replaced it.
 
     ``reply_timeout`` (wall seconds) bounds how long a poll waits in realtime; None (lockstep) waits
     for every answer or an explicit loss, so results do not depend on timing.
@@ -67,8 +72,10 @@ async def run_robot(
     claim: IdClaim | None = None
 
     async def check_identity(participant: Participant) -> None:
-        """Refuse to start as a robot that is alive already (before this one declares its token)."""
+        """Refuse to start as a robot that is alive already (before this one declares its token),
+        then take the life the world grants."""
         await refuse_if_alive(participant)
+        participant.live_as(await ask_life(participant))
 
     def claim_identity(participant: Participant) -> None:
         nonlocal claim
@@ -76,22 +83,29 @@ async def run_robot(
 
     async def main(participant: Participant, roster: Roster, events: list) -> int:
         nonlocal link
-        link = RobotLink(participant, node, reply_timeout)
+        link = RobotLink(participant, node, reply_timeout, expect_monitor)
         try:
-            return await _serve(link, roster, events)
+            assert claim is not None
+            return await _serve(link, roster, events, FenceCheck(bus, claim))
         finally:
             link.reach.close()
             if claim is not None:
                 claim.close()
 
-    def stats(participant: Participant, code: int) -> Stats:
+    def stats(participant: Participant, code: int) -> Stats | None:
+        """The robot's books; a replaced life sends them over a lifeboat itself (None: nothing left
+        for :func:`bus.runtime.perform` to send)."""
         assert link is not None and claim is not None
         notes = {"polls": node.polls, "probes": node.probes, "pushes": node.pushes_sent,
                  "pushes_waited_out": node.pushes_waited_out, "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,
-                 "id_collisions": len(claim.rivals)}
-        return participant.stats(final=True, faults=link.shim.counter.table(), notes=notes,
-                                 energy_j=(link.shim.energy_j[0], link.shim.energy_j[1]))
+                 "id_collisions": len(claim.rivals), "superseded": int(code == FENCED)}
+        books = participant.stats(final=True, faults=link.shim.counter.table(), notes=notes,
+                                  energy_j=(link.shim.energy_j[0], link.shim.energy_j[1]))
+        if code == FENCED and expect_monitor:
+            FenceCheck(bus, claim).send_books(books)
+            return None
+        return books
 
     role = Role(
         name=node.name,
@@ -101,9 +115,13 @@ async def run_robot(
         before_alive=check_identity,
         on_joined=claim_identity,
         stats=stats,
-        linger_for=lambda code: {MONITOR} if expect_monitor and code != STOPPED else set(),
+        linger_for=lambda code: {MONITOR} if expect_monitor and code not in (STOPPED, FENCED) else set(),
     )
-    return await perform(role, bus, keys, scenario.robots, interrupts)
+    code = await perform(role, bus, keys, scenario.robots, interrupts)
+    if code == FENCED:
+        assert claim is not None
+        raise Superseded(superseded_message(node.name, run, claim.life, claim.newer))
+    return code
 
 
 async def run_robots(
@@ -128,8 +146,10 @@ async def run_robots(
 class RobotLink:
     """Connects the node to the bus through the fault layer, turning losses into ``on_lost``."""
 
-    def __init__(self, participant: Participant, node: RobotNode, reply_timeout: float | None) -> None:
+    def __init__(self, participant: Participant, node: RobotNode, reply_timeout: float | None,
+                 expect_monitor: bool = False) -> None:
         self.participant = participant
+        self.expect_monitor = expect_monitor  # the run has a monitor, which keeps everyone's books
         self.node = node
         self.reply_timeout = reply_timeout
         participant.window = lambda message: far_ahead(message, node.step)  # forged far-future steps
@@ -256,7 +276,40 @@ def _may_change_reach(event: object) -> bool:
                                            and event.message.live is not None)
 
 
-async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
+class FenceCheck:
+    """When the world seems gone, ask it through a lifeboat (:func:`bus.lives.row_out`) whether a
+    newer life of this robot's id was granted meanwhile: a process woken after a freeze past the
+    lease learns it was replaced within a lease, though its own session may link again only later.
+    A replaced life sends its books to the monitor through a lifeboat too (:meth:`send_books`)."""
+
+    def __init__(self, bus: BusConfig, claim: IdClaim) -> None:
+        self.bus = bus
+        self.claim = claim
+        self.task: asyncio.Future[None] | None = None
+
+    def voyage(self, books: bytes | None = None) -> Voyage:
+        participant = self.claim.participant
+        return Voyage(self.bus, participant.keys.run, participant.name, self.claim.life, books)
+
+    def start(self) -> None:
+        """Start a check unless one is under way."""
+        if self.task is None or self.task.done():
+            self.task = asyncio.ensure_future(asyncio.to_thread(self._check))
+
+    def under_way(self) -> bool:
+        return self.task is not None and not self.task.done()
+
+    def _check(self) -> None:
+        if (newest := row_out(self.voyage())) is not None:
+            self.claim.newer_life(newest)
+
+    def send_books(self, stats: Stats) -> None:
+        """Send a replaced life's final statistics to the monitor (its own session may not reach
+        the monitor yet)."""
+        row_out(self.voyage(encode(stats)))
+
+
+async def _serve(link: RobotLink, roster: Roster, events: list, fence: FenceCheck) -> int:
     node = link.node
     reach_may_change = True  # shown once at the start
     while True:
@@ -270,8 +323,12 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
                 link.deadline(event)
             elif isinstance(event, Interrupt):
                 return STOPPED
+            elif isinstance(event, NewerLife):
+                return FENCED
             elif isinstance(event, Presence):
                 roster.update(event)
+                if event.name == WORLD and event.kind == "alive" and not event.up:
+                    fence.start()
                 robot = robot_index(event.name)
                 if event.kind == "alive" and not event.up and robot in node.alive - {node.robot}:
                     # The team starts whole; a robot that leaves (crash) is dropped at once. One that
@@ -280,6 +337,6 @@ async def _serve(link: RobotLink, roster: Roster, events: list) -> int:
         if reach_may_change:
             link.show_reach(roster.alive)
             reach_may_change = False
-        if roster.gone_for_good(WORLD):
+        if roster.gone_for_good(WORLD) and not fence.under_way():
             return 1  # the world went away without ending the run
         events = await next_events(link.participant, roster)

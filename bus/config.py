@@ -19,6 +19,7 @@ from typing import Literal, Protocol
 import zenoh
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+RECONNECT = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}
 LEASE_S = 10.0  # Zenoh's default link lease: a frozen peer is seen gone after about as long
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(\[[0-9a-fA-F:.]+\]|[^/:\s]+):\d{1,5}$")
 
@@ -86,6 +87,10 @@ class BusConfig:
             "connect/endpoints": list(self.connect),
             "scouting/multicast/enabled": False,
             "transport/link/tx/lease": self.lease_ms,
+            # A process woken after a freeze past the lease finds its links closed: it tries its
+            # --connect endpoints again soon (from 0.2 s, at most every second), to learn within a
+            # lease whether a newer life replaced it (bus.lives).
+            "connect/retry": RECONNECT,
             "adminspace/enabled": self.admin_space,
             # No shared memory: Zenoh would copy every payload of 3 kB or more (a digest, a large
             # team's statistics) into a 16 MiB pool mapped by sender and receiver alike.

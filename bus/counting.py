@@ -92,3 +92,52 @@ def robot_link_totals(rows: Iterable[Sequence[Any]]) -> dict[tuple[str, str], To
     links = summed((row for row in rows if category_of(row[0]) == "robot"), lambda row: (row[1], row[2]))
     return {pair: links[pair] for pair in sorted(links, key=lambda pair: (robot_index(pair[0]) or 0,
                                                                           robot_index(pair[1]) or 0))}
+
+
+@dataclass(frozen=True)
+class Books:
+    """How a run's books close, link by link (``(kind, source, destination)``, categories compared).
+
+    ``said`` is what the senders, every life of each, counted as sent; ``seen`` what the monitor saw
+    (taken in, or dropped at its door as a replaced life's). A link balances when the two agree; a
+    shortfall on a link one of whose ends was cut off during the run (``cut_off``: it left, froze
+    past the lease or was replaced) is ``in_flight``: messages counted as sent that were still
+    queued in, or on their way to, a process when its links closed. Anything else is
+    ``unexplained``: (said, seen) messages."""
+
+    in_flight: dict[Link, int]
+    unexplained: dict[Link, tuple[int, int]]
+
+    @property
+    def balanced(self) -> bool:
+        return not self.unexplained
+
+    def lines(self) -> list[str]:
+        """One line per link that did not simply agree, naming what happened."""
+        lines = [f"{kind} {source} > {destination}: {count} in flight when the link closed (a process was cut off)"
+                 for (kind, source, destination), count in sorted(self.in_flight.items())]
+        lines += [f"{kind} {source} > {destination}: {said} sent, {seen} seen (unexplained)"
+                  for (kind, source, destination), (said, seen) in sorted(self.unexplained.items())]
+        return lines
+
+
+def close_books(said_rows: Iterable[Sequence[Any]], seen_rows: Iterable[Sequence[Any]], cut_off: set[str],
+                categories: tuple[str, ...]) -> Books:
+    """Compare, on every link of ``categories``, the messages the senders counted (``said_rows``)
+    with those the monitor saw (``seen_rows``), shortfalls on links touching ``cut_off`` (participant
+    names) being in flight (:class:`Books`). Bytes follow messages: a link whose message counts
+    agree but whose bytes differ is unexplained too."""
+    said, seen = per_link(said_rows, categories), per_link(seen_rows, categories)
+    none = {"messages": 0, "bytes": 0}
+    in_flight: dict[Link, int] = {}
+    unexplained: dict[Link, tuple[int, int]] = {}
+    for link in sorted(said.keys() | seen.keys()):
+        sent, got = said.get(link, none), seen.get(link, none)
+        if sent == got:
+            continue
+        short = sent["messages"] - got["messages"]
+        if short > 0 and (link[1] in cut_off or link[2] in cut_off):
+            in_flight[link] = short
+        else:
+            unexplained[link] = (sent["messages"], got["messages"])
+    return Books(in_flight, unexplained)

@@ -6,8 +6,10 @@ first is up, and the first one's departure is then not seen either. So a robot a
 declares its own ``alive`` token, whether the world sees one of its name (the world's
 ``reach/<name>/world`` token, :mod:`bus.reach`, which reaches a joining process over its first link,
 whatever the load) or whether it sees one itself; it also holds a claim token
-``claim/<name>/<session id>`` of a key no other session can hold, watching its name's claims for any
-other session's for as long as it runs.
+``claim/<name>/<life>-<session id>`` of a key no other session can hold, watching its name's claims
+for as long as it runs: another session's claim of the same life is a collision, one of a newer life
+(the world granted the id again after this process was seen gone: :mod:`bus.lives`) means this
+process was replaced, and it is told so through its inbox (:class:`bus.lives.NewerLife`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import logging
 import zenoh
 
 from ringtrack.bus.keys import WORLD
+from ringtrack.bus.lives import NewerLife
 from ringtrack.bus.participant import Participant
 
 log = logging.getLogger(__name__)
@@ -54,25 +57,41 @@ async def refuse_if_alive(participant: Participant) -> None:
 
 
 class IdClaim:
-    """Holds this session's claim on ``participant.name`` and records every other session that
-    claims the same name (``rivals``, Zenoh session ids), warning once for each."""
+    """Holds this session's claim on ``participant.name`` as its life ``participant.life`` and
+    records every other session that claims the same name as the same life (``rivals``, Zenoh
+    session ids), warning once for each; a claim by a newer life posts :class:`bus.lives.NewerLife`
+    to the participant's inbox (``newer``: the newest such life seen, 0 while none). A claim of an
+    older life is that life's process, fenced: it stops as soon as it sees this one's claim."""
 
     def __init__(self, participant: Participant) -> None:
         session = participant.session
+        self.participant = participant
         self.name = participant.name
         self.zid = str(session.zid())
+        self.life = participant.life
         self.rivals: set[str] = set()
+        self.newer = 0
         keys = participant.keys
-        self._token = session.liveliness().declare_token(keys.claim(participant.name, self.zid))
+        self._token = session.liveliness().declare_token(keys.claim(participant.name, f"{self.life}-{self.zid}"))
         self._subscriber = session.liveliness().declare_subscriber(
             keys.claim(participant.name), zenoh.handlers.Callback(self._on_claim, indirect=False), history=True)
 
     def _on_claim(self, sample: zenoh.Sample) -> None:
-        zid = str(sample.key_expr).rsplit("/", 1)[-1]
-        if sample.kind == zenoh.SampleKind.PUT and zid != self.zid and zid not in self.rivals:
+        life_text, _, zid = str(sample.key_expr).rsplit("/", 1)[-1].partition("-")
+        if sample.kind != zenoh.SampleKind.PUT or zid == self.zid or not life_text.isdigit():
+            return
+        self.newer_life(int(life_text))
+        if int(life_text) == self.life and zid not in self.rivals:
             self.rivals.add(zid)
             log.warning("%s: another process (Zenoh session %s) also runs as %s: an id collision; this run's "
                         "results cannot be trusted", self.name, zid, self.name)
+
+    def newer_life(self, life: int) -> None:
+        """Post :class:`bus.lives.NewerLife` once for each life of this name newer than any seen
+        (any thread)."""
+        if life > max(self.life, self.newer):
+            self.newer = life
+            self.participant.inbox.push(NewerLife(life))
 
     def close(self) -> None:
         for entity in (self._subscriber, self._token):

@@ -4,8 +4,10 @@ Data keys read ``ringtrack/<run>/<destination>/<source>/<kind>`` with participan
 ``monitor``, ``fusion`` (the centralized estimator), ``all`` (broadcast) and ``r<i>`` (robot i), so
 the monitor learns the link of every message from its key alone. Liveliness tokens live under
 ``ringtrack/<run>/alive/<name>`` (the process is up), ``ringtrack/<run>/ready/<name>`` (it has seen
-everyone it talks to), ``ringtrack/<run>/claim/<name>/<session>`` (one session's claim on a name) and
-``ringtrack/<run>/reach/<observed>/<observer>`` (``observer`` sees ``observed`` alive: :mod:`bus.reach`).
+everyone it talks to), ``ringtrack/<run>/claim/<name>/<life>-<session>`` (one session's claim on a
+name, as its life) and ``ringtrack/<run>/reach/<observed>/<observer>`` (``observer`` sees
+``observed`` alive: :mod:`bus.reach`). A joining robot queries ``ringtrack/<run>/life/<name>`` for
+its life number (:mod:`bus.lives`).
 """
 
 from __future__ import annotations
@@ -88,6 +90,10 @@ class Keys:
     def claim(self, name: str, session: str = "*") -> str:
         """The liveliness key by which Zenoh session ``session`` claims participant name ``name``."""
         return f"{self.prefix}/claim/{name}/{session}"
+
+    def life(self, name: str = "*") -> str:
+        """The key a joining process queries for a life number of participant ``name`` (:mod:`bus.lives`)."""
+        return f"{self.prefix}/life/{name}"
 
     def reach(self, observed: str = "*", observer: str = "*") -> str:
         """The liveliness key by which ``observer`` says it sees ``observed``'s ``alive`` token."""

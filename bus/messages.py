@@ -372,7 +372,8 @@ class Rejected(ValueError):
 # "size": longer than its kind can be (trailing fields, padding): refused before or after decoding.
 # "window": stamped with a step too far ahead of the receiver's to be genuine (a forged step 2^64-1):
 # dropped at the door by the receiver's own check (:attr:`bus.participant.Participant.window`).
-REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size", "window")
+# "superseded": sent by an older life of a robot id than one the receiver has seen (:mod:`bus.lives`).
+REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size", "window", "superseded")
 
 
 def size_limit(kind: str, robots: int) -> int:

@@ -27,24 +27,25 @@ class Outbox(PerLoop):
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         super().__init__(loop)
-        self._held: list[tuple[zenoh.Publisher, bytes]] = []
+        self._held: list[tuple[zenoh.Publisher, bytes, bytes | None]] = []
 
-    def put(self, publisher: zenoh.Publisher, payload: bytes) -> None:
-        """Put ``payload`` with ``publisher``: at once when the loop has one participant, else once
-        the loop's current iteration is over (in the order of the calls)."""
+    def put(self, publisher: zenoh.Publisher, payload: bytes, attachment: bytes | None = None) -> None:
+        """Put ``payload`` (with ``attachment``, the sender's life) with ``publisher``: at once when
+        the loop has one participant, else once the loop's current iteration is over (in the order of
+        the calls)."""
         if self.users < 2:
-            publisher.put(payload)
+            publisher.put(payload, attachment=attachment)
             return
-        self._held.append((publisher, payload))
+        self._held.append((publisher, payload, attachment))
         if len(self._held) == 1:
             self._loop.call_soon(self.flush)
 
     def flush(self) -> None:
         """Put everything held, in order; a put that fails is logged and the others still go."""
         held, self._held = self._held, []
-        for publisher, payload in held:
+        for publisher, payload, attachment in held:
             try:
-                publisher.put(payload)
+                publisher.put(payload, attachment=attachment)
             except Exception:  # pragma: no cover - a closed session; the rest must not be lost
                 log.exception("a held put failed")
 

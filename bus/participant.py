@@ -62,6 +62,7 @@ class Delivery:
     route: Route
     size: int
     released: bool = False
+    life: int = 0  # the sender's life (bus.lives); 0: a participant with one life
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,28 @@ class Posted:
 
 
 Event = Delivery | Presence | Interrupt | Posted
-Raw = tuple[str, bytes]  # a sample as a Zenoh callback hands it over: key expression, payload
+# A sample as a Zenoh callback hands it over: key expression, payload, the sender's life (0: none).
+Raw = tuple[str, bytes, int]
+LIFE_BYTES = 4  # a life number on the wire (a sample's attachment): unsigned, little-endian
+
+
+def life_attachment(life: int) -> bytes:
+    """The attachment that stamps a sample with its sender's ``life`` (:mod:`bus.lives`)."""
+    return life.to_bytes(LIFE_BYTES, "little")
+
+
+def attached_life(attachment: zenoh.ZBytes | None) -> int:
+    """The sender's life a sample's attachment carries; 0 for a sample without one (the world, the
+    monitor and the fusion centre have one life each) or with one of another shape."""
+    if attachment is None:
+        return 0
+    raw = attachment.to_bytes()
+    return int.from_bytes(raw, "little") if len(raw) == LIFE_BYTES else 0
+
+
+def raw(sample: zenoh.Sample) -> Raw:
+    """What :meth:`Participant.accept` takes of ``sample``."""
+    return str(sample.key_expr), sample.payload.to_bytes(), attached_life(sample.attachment)
 
 
 def peak_rss_kib() -> int:
@@ -145,6 +167,12 @@ class Participant:
         # The role's check at the door: a decoded message it names a reason for ("window": a step far
         # ahead of its own) is dropped and counted as rejected, never as traffic.
         self.window: Callable[[Message], str | None] | None = None
+        # Fenced lives (bus.lives): this participant's own life (0: none, it is no robot) and the
+        # newest life seen or granted of every sender; a message of an older one is "superseded".
+        self.life = 0
+        self._attachment: bytes | None = None
+        self.lives: dict[str, int] = {}
+        self.fenced = TrafficCounter()  # received (as counted here) = messages of superseded lives, per link
 
     # ------------------------------------------------------------------ receiving
     def listen(self, key_expr: str) -> None:
@@ -164,7 +192,7 @@ class Participant:
         batch: list[Raw | Event] = []
         for channel in self._channels:
             while (sample := channel.try_recv()) is not None:
-                batch.append((str(sample.key_expr), sample.payload.to_bytes()))
+                batch.append(raw(sample))
         while self.inbox.pending():
             batch.extend(self.inbox.take())
         return self.accept(batch)
@@ -180,7 +208,7 @@ class Participant:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:
-            self.inbox.push((str(sample.key_expr), sample.payload.to_bytes()))
+            self.inbox.push(raw(sample))
         except Exception:  # pragma: no cover - a failing callback must never go silent
             self.callback_failures += 1
             log.exception("sample callback failed")
@@ -207,7 +235,7 @@ class Participant:
             if not isinstance(item, tuple):
                 accepted.append(item)
                 continue
-            key, payload = item
+            key, payload, life = item
             route = self.keys.parse(key)
             try:
                 message = decode(payload, route, self.keys.run, self.robots)
@@ -215,14 +243,26 @@ class Participant:
                 self.counter.count_rejected(rejection.reason)
                 continue
             assert route is not None
+            newest = self.lives.get(route.source, 0)
+            if life < newest and message.kind != "stats":  # an older life's last word is still its book
+                self.counter.count_rejected("superseded")
+                self.fenced.count_received((message.kind, route.source, route.destination), len(payload))
+                continue
+            if life > newest:
+                self.lives[route.source] = life
             if self.window is not None and (reason := self.window(message)) is not None:
                 self.counter.count_rejected(reason)
                 continue
             self.counter.count_received((message.kind, route.source, route.destination), len(payload))
-            accepted.append(Delivery(message, route, len(payload)))
+            accepted.append(Delivery(message, route, len(payload), life=life))
         return accepted
 
     # ------------------------------------------------------------------ sending
+    def live_as(self, life: int) -> None:
+        """Stamp every message from now on with ``life`` (granted by the world, :mod:`bus.lives`)."""
+        self.life = life
+        self._attachment = life_attachment(life)
+
     def announce(self, kind: PresenceKind) -> None:
         """Declare this participant's ``kind`` liveliness token (withdrawn when the session closes)."""
         key = self.keys.alive(self.name) if kind == "alive" else self.keys.ready(self.name)
@@ -242,7 +282,7 @@ class Participant:
                 priority=zenoh.Priority.INTERACTIVE_HIGH if message.kind in CONTROL_KINDS else zenoh.Priority.DATA,
             )
             self._publishers[key] = publisher
-        self._outbox.put(publisher, payload)
+        self._outbox.put(publisher, payload, self._attachment)
         self.counter.count_sent((message.kind, self.name, destination), len(payload))
         return len(payload)
 

@@ -27,6 +27,7 @@ from typing import Literal
 
 from ringtrack.bus.config import BusConfig, open_session
 from ringtrack.bus.keys import MONITOR, WORLD, Keys
+from ringtrack.bus.lives import life_label
 from ringtrack.bus.messages import Stats
 from ringtrack.bus.participant import Event, Interrupt, Participant, Presence, peak_rss_kib
 
@@ -110,17 +111,19 @@ COUNTS_FOLDER_ENV = "RINGTRACK_COUNTS_FOLDER"  # set by a supervisor (spawn) to 
 
 def write_final_counts(participant: Participant) -> None:
     """With ``RINGTRACK_COUNTS_FOLDER`` set, write what ``participant`` sent (its traffic rows) and
-    its peak memory (KiB) to ``<folder>/<name>.sent.json`` as it leaves: the senders' own counts,
+    its peak memory (KiB) to ``<folder>/<name>.sent.json`` (``<name>.life<n>.sent.json`` for a
+    robot's life n > 1, :mod:`bus.lives`) as it leaves: the senders' own counts,
     which a supervisor reads when the monitor that collects them was lost. Best effort: a process
     killed by SIGKILL writes nothing, and a file that cannot be written is skipped (none is left
     half-written)."""
     folder = os.environ.get(COUNTS_FOLDER_ENV)
     if not folder:
         return
-    path = os.path.join(folder, f"{participant.name}.sent.json")
+    name = life_label(participant.name, participant.life)
+    path = os.path.join(folder, f"{name}.sent.json")
     try:
         with open(f"{path}.partial", "w") as file:
-            json.dump({"name": participant.name, "sent": participant.counter.sent_table(),
+            json.dump({"name": name, "sent": participant.counter.sent_table(),
                        "rss_kib": peak_rss_kib()}, file)
         os.replace(f"{path}.partial", path)
     except OSError:  # a full disk: leave no partial file behind

@@ -297,7 +297,8 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
     the source (``<prefix>/<destination>/<itself>/<kind>``: robot i its requests, replies, commands,
     range reports, statistics and fault notices; the world its measurements, ticks and End), declare
     liveliness tokens only for its own name, subscribe only to its own inbox and the broadcast (the
-    monitor: everything) and watch everyone's tokens. Anything sent out is allowed to the team (each
+    monitor: everything), ask only for a life of its own name and watch everyone's tokens; only the
+    world answers life queries (:mod:`bus.lives`). Anything sent out is allowed to the team (each
     receiver checks for itself). A certificate of another authority never gets a link at all. With
     ``routers`` (the policy of a router) another router of the team, which enforces this policy
     itself, may forward anything; peers trust no router: through a router, participants are clients.
@@ -308,6 +309,8 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
          "key_exprs": [f"{ROOT}/**"]},
         {"id": "watch-tokens", "messages": WATCHING, "flows": ["ingress"], "permission": "allow",
          "key_exprs": [f"{ROOT}/*/alive/*", f"{ROOT}/*/ready/*", f"{ROOT}/*/claim/*/*", f"{ROOT}/*/reach/*/*"]},
+        {"id": "world-grants-lives", "messages": ["declare_queryable", "reply"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [f"{ROOT}/*/life/*"]},
     ]
     policies: list[dict[str, object]] = []
     for name in names:
@@ -319,10 +322,13 @@ def access_policy(robots: int, routers: bool = False) -> dict[str, object]:
                            f"{ROOT}/*/reach/*/{name}"]},
             {"id": f"{name}-subscribes", "messages": SUBSCRIBING, "flows": ["ingress"], "permission": "allow",
              "key_exprs": inboxes(name)},
+            {"id": f"{name}-asks-life", "messages": ["query"], "flows": ["ingress"], "permission": "allow",
+             "key_exprs": [f"{ROOT}/*/life/{name}"]},
         ]
+        own = ["world-grants-lives"] if name == WORLD else []
         policies.append({"id": f"{name}-policy", "subjects": [name],
                          "rules": ["send-to-team", "watch-tokens", f"{name}-sends", f"{name}-tokens",
-                                   f"{name}-subscribes"]})
+                                   f"{name}-subscribes", f"{name}-asks-life", *own]})
     if routers:
         rules.append({"id": "router-forwards", "messages": EVERY_MESSAGE, "flows": ["ingress"], "permission": "allow",
                       "key_exprs": [f"{ROOT}/**"]})

@@ -256,19 +256,24 @@ def test_participant_counts_rejections_and_accepts_the_rest() -> None:
     try:
         participant = Participant(session=None, keys=KEYS, name="monitor", robots=ROBOTS, loop=loop)  # type: ignore[arg-type]
         good = Request(SCHEMA, RUN, 3, 1, 2, 42)
+        newer = Request(SCHEMA, RUN, 4, 1, 2, 43)
         batch = [
-            (KEYS.data("r2", "r1", "request"), encode(good)),
-            (KEYS.data("r2", "r1", "request"), b"garbage"),
-            (KEYS.data("r2", "r1", "request"), encode(Request(SCHEMA, 7, 3, 1, 2, 42))),
-            ("ringtrack/ffffffff/r2/r1/request", encode(good)),
-            (KEYS.data("r2", "r1", "request"), encode(Stats(SCHEMA, RUN, "r1", False, [], [], {}, 0))),
+            (KEYS.data("r2", "r1", "request"), encode(good), 1),
+            (KEYS.data("r2", "r1", "request"), b"garbage", 1),
+            (KEYS.data("r2", "r1", "request"), encode(Request(SCHEMA, 7, 3, 1, 2, 42)), 1),
+            ("ringtrack/ffffffff/r2/r1/request", encode(good), 1),
+            (KEYS.data("r2", "r1", "request"), encode(Stats(SCHEMA, RUN, "r1", False, [], [], {}, 0)), 1),
+            (KEYS.data("r2", "r1", "request"), encode(newer), 2),  # r1's next life: from now on, life 1 is fenced
+            (KEYS.data("r2", "r1", "request"), encode(good), 1),
+            (KEYS.data("r2", "r1", "request"), encode(good), 0),
         ]
         accepted = participant.accept(batch)
     finally:
         loop.close()
-    assert [event.message for event in accepted if isinstance(event, Delivery)] == [good]
-    assert dict(participant.counter.rejected) == {"malformed": 1, "foreign": 2, "route": 1}
-    assert participant.counter.received_messages[("request", "r1", "r2")] == 1
+    assert [event.message for event in accepted if isinstance(event, Delivery)] == [good, newer]
+    assert dict(participant.counter.rejected) == {"malformed": 1, "foreign": 2, "route": 1, "superseded": 2}
+    assert participant.counter.received_messages[("request", "r1", "r2")] == 2
+    assert participant.lives == {"r1": 2}
 
 
 def test_keys_keep_runs_apart() -> None:

@@ -27,6 +27,7 @@ from typing import Literal
 
 from ringtrack.bus.config import BusConfig, announce_endpoints
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index, robot_name
+from ringtrack.bus.lives import LifeRegistry
 from ringtrack.bus.messages import SCHEMA, Command, Digest, DigestEntry, End, EndReason, Tick, digest_entries
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
@@ -80,6 +81,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
     everyone = scenario.participants(monitor=options.expect_monitor)
     admission = Admission({name for name in everyone if robot_index(name) is None}, scenario.robots)
     tokens: list[ReachTokens] = []
+    registries: list[LifeRegistry] = []
 
     async def main(participant: Participant, roster: Roster, _held: list) -> int:
         world = WorldState(scenario, seed, run, options.steps, options.cerr)
@@ -119,6 +121,10 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         log.info("run %s after %d steps in %.2f s (%.0f steps/s)", said, last, wall, last / wall if wall else 0.0)
         return code
 
+    async def grant_lives(participant: Participant) -> None:
+        """Answer robots' life queries (:mod:`bus.lives`) before anyone can see the world alive."""
+        registries.append(LifeRegistry(participant))
+
     def on_joined(participant: Participant) -> None:
         tokens.append(ReachTokens(participant))
         if options.announce is not None:
@@ -131,6 +137,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         listen=(keys.inbox(WORLD),),
         start_on="ready",
         announces_ready=False,
+        before_alive=grant_lives,
         on_joined=on_joined,
         on_gathering=lambda roster: tokens[0].hold(alive_robots(roster, scenario.robots)),
         linger_for=lambda code: team,
@@ -140,6 +147,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
     finally:
         for held in tokens:
             held.close()
+        for registry in registries:
+            registry.close()
 
 
 Measurements = list[tuple[int, int]]  # (robot, payload bytes) of the measurements of a step

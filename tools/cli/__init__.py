@@ -48,6 +48,8 @@ USER_ERRORS = (
     ("ringtrack.tools.output.files", "OutputError"),
     ("ringtrack.bus.config", "BusError"),
     ("ringtrack.bus.identity", "IdCollision"),
+    ("ringtrack.bus.lives", "Superseded"),
+    ("ringtrack.bus.lives", "NoLife"),
     ("ringtrack.tools.runlog.log", "LogError"),
 )
 

@@ -109,7 +109,9 @@ def summary_line(result: TeamResult) -> str:
         return f"spawn: run folder {result.folder}"
     speed = f" at {result.steps_per_s:.0f} steps/s" if result.steps_per_s else ""
     line = f"spawn: {outcome.steps} steps{speed}"
-    if result.monitor_lost:  # no monitor's report above: say what the senders counted
+    if result.distrust:
+        line += f"; not trusted: {result.distrust}"
+    elif result.monitor_lost:  # no monitor's report above: say what the senders counted
         converged = f"converged at step {outcome.ctime}" if outcome.converged else "did not converge"
         if result.uncounted:  # a sender that left no counts (killed, or a full disk): the total is not known
             line += (f"; {converged}; robot-to-robot messages unknown (the monitor was lost and "

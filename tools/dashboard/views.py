@@ -249,7 +249,15 @@ def print_report(console: Console, report: MonitorReport, outcome: RunSummary | 
         ending += f" (Ctime = {report.end.step} steps)"
     console.print(f"run: {ending}; rejected: {rejected}; late: {report.late}", highlight=False)
     console.print(f"monitor vs senders: {verdict}", highlight=False)
-    if outcome is not None:
+    for line in report.books().lines():
+        console.print(f"  {line}", highlight=False)
+    if report.superseded:
+        fenced = sum(row[3] for row in report.superseded)
+        console.print(f"replaced lives: {fenced} messages of robots' older lives dropped at the door "
+                      f"({', '.join(sorted({row[1] for row in report.superseded}))})", highlight=False)
+    if (reason := report.distrust()) is not None:
+        console.print(f"outcome: not trusted: {reason}", highlight=False)
+    elif outcome is not None:
         print_outcome(console, outcome, report)
 
 

@@ -19,9 +19,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ringtrack.bus.config import BusConfig
-from ringtrack.bus.counting import TrafficCounter, per_link, totals_by_category
+from ringtrack.bus.counting import Books, close_books, totals_by_category
 from ringtrack.bus.faults import DELIVERED, FAULT_COUNTERS, Fate, request_traffic, team_faults
 from ringtrack.bus.keys import MONITOR, WORLD, Keys, Route, robot_index, robot_name
+from ringtrack.bus.lives import life_label
 from ringtrack.bus.messages import (
     KINDS,
     ROBOT_TRAFFIC_KINDS,
@@ -44,6 +45,7 @@ from ringtrack.bus.messages import (
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, far_ahead, peak_rss_kib
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.tools.monitor.state import TeamModel, startup_names
+from ringtrack.tools.runlog.derived import distrust
 from ringtrack.tools.runlog.log import LogWriter, step_record
 from ringtrack.world.scenario import Scenario
 
@@ -299,6 +301,8 @@ class MonitorReport:
     notes: Counter[str] = field(default_factory=Counter)  # robots' protocol counters, summed
     rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
     energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
+    superseded: list[Traffic] = field(default_factory=list)  # messages of replaced lives, dropped at the door
+    cut_off: set[str] = field(default_factory=set)  # participants whose alive token went during the run
 
     def sender_rows(self) -> list[Traffic]:
         """Every traffic row of every sender's final statistics."""
@@ -310,10 +314,20 @@ class MonitorReport:
     def monitor_totals(self) -> dict[str, dict[str, int]]:
         return totals_by_category(self.received)
 
+    def books(self) -> Books:
+        """On every (kind, source, destination) link of the ``COMPARED`` categories, the messages the
+        senders, every life of each, say they sent against those the monitor saw (taken in, or
+        dropped at its door as a replaced life's: ``superseded``), shortfalls on links of a process
+        cut off during the run being in flight (:func:`bus.counting.close_books`)."""
+        return close_books(self.sender_rows(), [*self.received, *self.superseded], self.cut_off, COMPARED)
+
     def consistent(self) -> bool:
-        """On every (kind, source, destination) link of the ``COMPARED`` categories, the messages and
-        bytes the monitor saw equal what the senders say they sent."""
-        return per_link(self.received, COMPARED) == per_link(self.sender_rows(), COMPARED)
+        """Whether the books balance (:meth:`books`)."""
+        return self.books().balanced
+
+    def distrust(self) -> str | None:
+        """Why this run's results cannot be trusted, or None (:func:`tools.runlog.derived.distrust`)."""
+        return distrust({"consistent": self.consistent(), "notes": self.notes})
 
 
 Refresh = Callable[[bool], None]  # redraw the display (must not wait for it); True once at the end
@@ -372,10 +386,12 @@ async def run_monitor(
                 "dropped_ahead": recorder.dropped_ahead,
                 "rss_kib": report.rss_kib,
                 "consistent": report.consistent(),
+                "books": report.books().lines(),
                 "faults": {name: report.faults[name] for name in (*FAULT_COUNTERS, "lost")},
                 "notes": dict(report.notes),
                 "rejected_by": report.rejected_by,
                 "energy_j": report.energy_j,
+                "superseded": [list(row) for row in report.superseded],
             }
             writer.write(end)
         if on_record is not None:
@@ -405,7 +421,8 @@ async def _watch(
     """Record until the run has ended and everything every sender says it sent has been seen (or
     nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died); with ``digests``, the world's
     digests count for the messages the monitor does not receive (:data:`DIGESTED`)."""
-    finals: dict[str, Stats] = {}
+    finals: dict[str, Stats] = {}  # by life_label(sender, life)
+    cut_off: set[str] = set()
     end: End | None = None
     code = 0
     interrupted_at = 0.0
@@ -422,11 +439,13 @@ async def _watch(
                 message = event.message
                 recorder.on_delivery(event)
                 if isinstance(message, Stats) and message.final:
-                    finals[message.name] = message
+                    finals[life_label(message.name, event.life)] = message
                 elif isinstance(message, End):
                     end = message
             elif isinstance(event, Presence):
                 roster.update(event)
+                if event.kind == "alive" and not event.up and end is None:
+                    cut_off.add(event.name)
                 if event.kind == "alive" and robot_index(event.name) is not None:
                     recorder.record({"type": "event", "event": "joined" if event.up else "left",
                                      "robot": event.name, "step": recorder.latest_tick, "wall": time.time()})
@@ -438,8 +457,9 @@ async def _watch(
         if code and (end is not None or loop.time() - interrupted_at > END_AFTER_INTERRUPT_S):
             break  # stopped: keep what the world's End says completed, if it comes in time
         if end is not None:
-            accounted = all(name in finals or roster.gone_for_good(name) for name in team)
-            if (accounted and _seen_everything(participant.counter, finals)) or (
+            finished = {stats.name for stats in finals.values()}
+            accounted = all(name in finished or roster.gone_for_good(name) for name in team)
+            if (accounted and _seen_everything(participant, finals)) or (
                 loop.time() - last_event_at > FINAL_STATS_GRACE_S
             ):
                 break
@@ -463,6 +483,8 @@ async def _watch(
         notes=sum((Counter(stats.notes) for stats in finals.values()), Counter()),
         rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
         energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
+        superseded=participant.fenced.received_table(),
+        cut_off=cut_off | {stats.name for name, stats in finals.items() if name != stats.name},
     )
     return code, report
 
@@ -507,11 +529,14 @@ def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestE
                 recorder.count_reported(command.step, each, (ROBOT_TRAFFIC_KINDS[kind], sender, receiver))
 
 
-def _seen_everything(counter: TrafficCounter, finals: dict[str, Stats]) -> bool:
-    """Whether the monitor has received every message each finished sender says it sent."""
-    for name, stats in finals.items():
-        said = sum(row[3] for row in stats.sent)
-        seen = sum(count for (_kind, source, _dest), count in counter.received_messages.items() if source == name)
-        if seen < said:
-            return False
-    return True
+def _seen_everything(participant: Participant, finals: dict[str, Stats]) -> bool:
+    """Whether the monitor has seen (taken in, or dropped as a replaced life's) every message each
+    finished sender, every life of it, says it sent."""
+    said: Counter[str] = Counter()
+    for stats in finals.values():
+        said[stats.name] += sum(row[3] for row in stats.sent)
+    seen: Counter[str] = Counter()
+    for counts in (participant.counter.received_messages, participant.fenced.received_messages):
+        for (_kind, source, _destination), count in counts.items():
+            seen[source] += count
+    return all(seen[name] >= count for name, count in said.items())

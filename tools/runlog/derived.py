@@ -20,6 +20,18 @@ LINK_KINDS = ("request", "reply", "push", "probe")  # how a ring link fired
 ELLIPSE_SIGMAS = 2.0  # the ellipses drawn hold a belief's 2-sigma region (86 % of a 2-D Gaussian)
 
 
+def distrust(end: dict[str, Any]) -> str | None:
+    """Why a run's results cannot be trusted, from its end record, or None: its books do not balance
+    (the monitor's count of some link differs from its senders', every life of each), or two
+    processes ran as the same life of one robot (an id collision no fence caught)."""
+    reasons = []
+    if end.get("consistent") is False:
+        reasons.append("its books do not balance (the monitor's counts differ from the senders')")
+    if collisions := end.get("notes", {}).get("id_collisions", 0):
+        reasons.append(f"two processes ran as one robot ({collisions} id collisions)")
+    return "; ".join(reasons) or None
+
+
 def step_errors(record: dict[str, Any]) -> tuple[float, float]:
     """Cerr of the true positions (degrees, :func:`world.metrics.true_cerr`) and Terr (metres, the
     mean distance from each robot's centre to the true target, :func:`world.metrics.target_error`;

@@ -105,6 +105,8 @@ class TeamResult(msgspec.Struct, kw_only=True):
     rss_kib: dict[str, int] = msgspec.field(default_factory=dict)
     end_reason: EndReason | None = None
     id_collisions: int = 0
+    fenced_lives: int = 0  # robot processes stopped because a newer life of their id replaced them
+    distrust: str | None = None  # why the results cannot be trusted (tools.runlog.derived.distrust)
     energy: EnergyReport | None = None  # None unless every robot reported its energy
     steps_per_s: float | None = None
     startup_s: float | None = None  # from the first start to the first step in the log

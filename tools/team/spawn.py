@@ -20,19 +20,28 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ringtrack.agents.process import FENCED
 from ringtrack.agents.summary import summarise
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
-from ringtrack.bus.keys import new_run_id, robot_name
+from ringtrack.bus.keys import new_run_id, robot_index, robot_name
 from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport, energy_report
 from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
 from ringtrack.tools.dashboard.startup import StartupView
 from ringtrack.tools.output.console import UsageError, err, out, warn_if_threshold_loose
 from ringtrack.tools.output.files import OutputError, write_json
+from ringtrack.tools.runlog.derived import distrust
 from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
 from ringtrack.tools.team.plan import Clock, Stop, TeamPlan, TeamResult
-from ringtrack.tools.team.supervisor import FORK_WORKS, ROLE_COMMAND, Supervisor, Terminated, terminate_as_exception
+from ringtrack.tools.team.supervisor import (
+    FORK_WORKS,
+    ROLE_COMMAND,
+    Child,
+    Supervisor,
+    Terminated,
+    terminate_as_exception,
+)
 from ringtrack.world.scenario import Scenario
 
 STALL_TIMEOUT_S = 60.0
@@ -104,15 +113,16 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
         finally:
             supervisor.stop(stop_signal=stop_signal)
     if stop is None:
-        for line in _failure_lines(supervisor, log_path):
+        for line in _failure_lines(supervisor, log_path, read_fenced(log_path)):
             err.print(line, highlight=False, markup=False)
     result = _result(scenario, folder, log_path, plan.clock, run, supervisor, time.perf_counter() - started,
                      plan.settle)
     result.topology = topology
     result.startup_s = first_step.after
-    result.failures = {child.name: child.process.returncode for child in supervisor.crashed()}
+    result.failures = failures(supervisor, result.fenced_lives)
     result.stopped = None if stop is None else f"{stop.value}: {stalled}" if stalled else stop.value
-    result.exit_code = 130 if stop is not None and stop.by_signal else int(bool(result.failures or stop))
+    result.exit_code = 130 if stop is not None and stop.by_signal else \
+        int(bool(result.failures or stop or result.distrust))
     return reported(result, folder, log_path)
 
 
@@ -217,11 +227,11 @@ def reported(result: TeamResult, folder: Path, log_path: Path) -> TeamResult:
         result.exit_code = result.exit_code or 1
     if result.stopped is not None:
         err.print(f"ringtrack: run {result.stopped}; every process stopped; log: {log_path}", highlight=False)
-    if result.id_collisions:
-        err.print("ringtrack: warning: two processes ran as the same robot (an id collision; see the robots' stderr)",
-                  highlight=False)
-    if result.monitor_equals_senders is False:
-        err.print("ringtrack: warning: the monitor's totals differ from what the senders counted", highlight=False)
+    if result.fenced_lives:
+        err.print(f"spawn: {result.fenced_lives} robot processes stopped as a newer life of their id replaced them "
+                  "(fenced; see the robots' stderr)", highlight=False)
+    if result.distrust:
+        err.print(f"ringtrack: error: this run's results cannot be trusted: {result.distrust}", highlight=False)
     return result
 
 
@@ -255,12 +265,36 @@ def stalled_at(log_path: Path, folder: Path) -> str:
     return f"after step {steps} (waiting for step {steps + 1}{waiting})"
 
 
-def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:
-    """One line per child that crashed on its own, with the tail of its standard error; a monitor
-    that stopped because the run log could not be written (a full disk, whose stderr file cannot
-    hold its message either) says which file and how many complete steps it holds."""
+def fenced(supervisor: Supervisor, lives: int) -> list[Child]:
+    """The robot processes that stopped because a newer life of their id replaced them (exit code
+    :data:`agents.process.FENCED`), at most ``lives`` of them (the fenced lives the monitor's books
+    record): the fence did its work, they did not fail."""
+    return [child for child in supervisor.crashed()
+            if robot_index(child.name) is not None and child.process.returncode == FENCED][:lives]
+
+
+def failures(supervisor: Supervisor, lives: int) -> dict[str, int | None]:
+    """Exit code by name of every child that failed on its own (not a fenced life)."""
+    excused = fenced(supervisor, lives)
+    return {child.name: child.process.returncode for child in supervisor.crashed() if child not in excused}
+
+
+def read_fenced(log_path: Path) -> int:
+    """The fenced lives a complete run log's end record counts (0 without one)."""
+    end = read_log(log_path).end if log_path.is_file() else None
+    return (end or {}).get("notes", {}).get("superseded", 0)
+
+
+def _failure_lines(supervisor: Supervisor, log_path: Path, lives: int) -> list[str]:
+    """One line per child that crashed on its own, with the tail of its standard error (not the
+    ``lives`` fenced ones: :func:`fenced`); a monitor that stopped because the run log could not be
+    written (a full disk, whose stderr file cannot hold its message either) says which file and how
+    many complete steps it holds."""
     lines = []
+    excused = fenced(supervisor, lives)
     for child in supervisor.crashed():
+        if child in excused:
+            continue
         if child.name == "monitor" and child.process.returncode == LogWriteError.exit_code:
             steps = len(read_log(log_path).steps) if log_path.is_file() else 0
             lines.append(f"ringtrack: error: {log_path}: the run log could not be written (disk full or not "
@@ -332,6 +366,8 @@ def _result(scenario: Scenario, folder: Path, log_path: Path, clock: Clock, run:
     result.rss_kib = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
     result.end_reason = EndReason(end["reason"]) if "reason" in end else None
     result.id_collisions = end.get("notes", {}).get("id_collisions", 0)
+    result.fenced_lives = end.get("notes", {}).get("superseded", 0)
+    result.distrust = distrust(end) if log.end is not None else None
     result.energy = robot_energy(end.get("energy_j", {}), scenario.robots)
     if end.get("wall_s") and end.get("steps"):
         result.steps_per_s = end["steps"] / end["wall_s"]
