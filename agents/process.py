@@ -96,6 +96,7 @@ async def run_robot(
         """The robot's books; a replaced life sends them over a lifeboat itself (None: nothing left
         for :func:`bus.runtime.perform` to send)."""
         assert link is not None and claim is not None
+        link.shim.release_held()
         notes = {"polls": node.polls, "probes": node.probes, "pushes": node.pushes_sent,
                  "pushes_waited_out": node.pushes_waited_out, "ignored_replies": node.ignored_replies,
                  "ignored_requests": node.ignored_requests, "rate_limited": node.rate_limited,

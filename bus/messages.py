@@ -224,6 +224,7 @@ class EndReason(enum.StrEnum):
     SIGTERM = "interrupted (SIGTERM)"
     PARENT_EXITED = "interrupted (parent exited)"  # the process that started the world went away
     MONITOR_STOPPED = "monitor stopped"  # the log only: the monitor stopped before the world's End
+    MONITOR_LOST = "the monitor went away"  # the world ended the run: nobody keeps its log and books
 
     @classmethod
     def interrupted_by(cls, cause: str) -> EndReason:
@@ -372,8 +373,10 @@ class Rejected(ValueError):
 # "size": longer than its kind can be (trailing fields, padding): refused before or after decoding.
 # "window": stamped with a step too far ahead of the receiver's to be genuine (a forged step 2^64-1):
 # dropped at the door by the receiver's own check (:attr:`bus.participant.Participant.window`).
-# "superseded": sent by an older life of a robot id than one the receiver has seen (:mod:`bus.lives`).
-REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size", "window", "superseded")
+# "superseded": sent by an older life of a robot id than one the receiver has seen (:mod:`bus.lives`);
+# "unstamped": claiming a robot id whose lives the receiver knows, but stamped with no life at all.
+REJECT_REASONS = ("malformed", "schema", "foreign", "route", "sender", "value", "size", "window", "superseded",
+                  "unstamped")
 
 
 def size_limit(kind: str, robots: int) -> int:

@@ -172,6 +172,7 @@ class Participant:
         self.life = 0
         self._attachment: bytes | None = None
         self.lives: dict[str, int] = {}
+        self.life_history: dict[str, list[int]] = {}  # every life each sender was seen to take up, in order
         self.fenced = TrafficCounter()  # received (as counted here) = messages of superseded lives, per link
 
     # ------------------------------------------------------------------ receiving
@@ -243,16 +244,20 @@ class Participant:
                 self.counter.count_rejected(rejection.reason)
                 continue
             assert route is not None
-            newest = self.lives.get(route.source, 0)
-            if life < newest and message.kind != "stats":  # an older life's last word is still its book
-                self.counter.count_rejected("superseded")
-                self.fenced.count_received((message.kind, route.source, route.destination), len(payload))
-                continue
-            if life > newest:
-                self.lives[route.source] = life
             if self.window is not None and (reason := self.window(message)) is not None:
                 self.counter.count_rejected(reason)
                 continue
+            newest = self.lives.get(route.source, 0)
+            if life < newest and not (life and message.kind == "stats"):  # an older life's books still count
+                if not life:  # no life at all: no robot sent it (each stamps its life)
+                    self.counter.count_rejected("unstamped")
+                    continue
+                self.counter.count_rejected("superseded")  # an older life: a replaced process
+                self.fenced.count_received((message.kind, route.source, route.destination), len(payload))
+                continue
+            if life > newest or route.source not in self.lives:
+                self.lives[route.source] = life
+                self.life_history.setdefault(route.source, []).append(life)
             self.counter.count_received((message.kind, route.source, route.destination), len(payload))
             accepted.append(Delivery(message, route, len(payload), life=life))
         return accepted

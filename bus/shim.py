@@ -62,6 +62,9 @@ class LinkShim:
         # one came], and its pushes as (step, row).
         self._requests: dict[int, list[int]] = {}
         self._pushes: list[tuple[int, RobotTraffic]] = []
+        # Delayed copies not yet published, by a running key: (their timer, what publishes them).
+        self._held: dict[int, tuple[asyncio.TimerHandle, Callable[[], None]]] = {}
+        self._held_key = 0
 
     def _fate(self, message: RobotMessage) -> Fate:
         if isinstance(message, Request) and not self.reachable(message.receiver):
@@ -117,11 +120,28 @@ class LinkShim:
             return False
         for _ in range(fate.copies):
             if fate.delay_s or airtime:
-                loop = asyncio.get_running_loop()
-                loop.call_later(fate.delay_s + airtime, self.participant.send, destination, message, payload)
+                self._hold(fate.delay_s + airtime, destination, message, payload)
             else:
                 self.participant.send(destination, message, payload)
         return True
+
+    def _hold(self, delay_s: float, destination: str, message: Message, payload: bytes) -> None:
+        """Publish a copy ``delay_s`` seconds from now (a delayed one), unless :meth:`release_held`
+        publishes it first."""
+        key = self._held_key = self._held_key + 1
+
+        def publish() -> None:
+            del self._held[key]
+            self.participant.send(destination, message, payload)
+
+        self._held[key] = (asyncio.get_running_loop().call_later(delay_s, publish), publish)
+
+    def release_held(self) -> None:
+        """Publish every delayed copy still held, now: the robot is leaving, and its books (what it
+        sent) must hold every message it will ever put on the bus."""
+        for timer, publish in list(self._held.values()):
+            timer.cancel()
+            publish()
 
     def receive(self, delivery: Delivery) -> tuple[list[Delivery], bool]:
         """``(deliveries for the robot now, lost)``; a reply's fate applies on arrival."""

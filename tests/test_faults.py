@@ -310,7 +310,7 @@ def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: 
                                  capture_output=True, text=True, timeout=60)
         assert hostile.returncode == 0, hostile.stderr
         sent = json.loads(hostile.stdout)
-        assert process.wait(timeout=180) == 0  # no process crashed
+        assert process.wait(timeout=180) == 0  # no process crashed, and the books balance
     finally:
         stop_all(process)
     log = read_log(folder / "log.jsonl")
@@ -325,23 +325,27 @@ def test_hostile_messages_are_dropped_counted_and_cannot_move_a_robot(tmp_path: 
         "route": sent["route"],
         "sender": sent["impossible_sender"] + sent["negative_sender"] + sent["sender"],
         "window": sent["far_future"],  # a step no run reaches: dropped at the door, never traffic
+        # well formed, but stamped with no life: no robot sent it (each stamps the life the world
+        # granted it), so it never reaches the robot (it would be a reply with a wrong nonce)
+        "unstamped": sent["forged_reply"],
     }
     assert by["r1"] == expected_r1
-    assert log.end["notes"]["ignored_replies"] == sent["forged_reply"]  # well formed, wrong nonce
-    # The world drops malformed and misattributed commands, and refuses a goal off the boundary.
+    assert log.end["notes"].get("ignored_replies", 0) == 0
+    # The world drops malformed, misattributed and unstamped commands.
     assert by["world"] == {"malformed": sent["world_malformed"], "sender": sent["world_sender"],
-                           "value": sent["world_off_boundary"]}
+                           "unstamped": sent["world_off_boundary"]}
     # The monitor hears everything: all of the above, and a tick that does not fit the team.
     monitor = log.end["rejected"]
     assert monitor["malformed"] == expected_r1["malformed"] + sent["world_malformed"] + sent["monitor_short_tick"]
     assert monitor["sender"] == expected_r1["sender"] + sent["world_sender"]
     assert monitor["window"] == sent["far_future"] + sent["world_off_boundary"]
+    assert monitor["unstamped"] == sent["forged_reply"]
     seen = {(kind, source, destination): messages for kind, source, destination, messages, _ in log.end["traffic"]}
     said = {(kind, source, destination): messages for kind, source, destination, messages, _ in log.end["senders"]["r0"]}
     assert seen[("request", "r0", "r1")] == said[("request", "r0", "r1")]  # no forged request counts as traffic
     assert all(robot not in by or by[robot] == {} for robot in ("r0", "r2", "r3", "r4", "r5"))
-    # well-formed forgeries cannot be told from the wire, but the monitor notices the surplus
-    assert log.end["consistent"] is False
+    # no forgery counts as traffic anywhere: the books balance
+    assert log.end["consistent"] is True and log.end["books"] == []
 
 
 @pytest.mark.processes

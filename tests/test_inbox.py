@@ -55,7 +55,7 @@ class Publisher:
     def __init__(self, name: str, puts: list[tuple[str, bytes]]) -> None:
         self.name, self.puts = name, puts
 
-    def put(self, payload: bytes) -> None:
+    def put(self, payload: bytes, attachment: bytes | None = None) -> None:
         self.puts.append((self.name, payload))
 
 

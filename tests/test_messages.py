@@ -264,14 +264,15 @@ def test_participant_counts_rejections_and_accepts_the_rest() -> None:
             ("ringtrack/ffffffff/r2/r1/request", encode(good), 1),
             (KEYS.data("r2", "r1", "request"), encode(Stats(SCHEMA, RUN, "r1", False, [], [], {}, 0)), 1),
             (KEYS.data("r2", "r1", "request"), encode(newer), 2),  # r1's next life: from now on, life 1 is fenced
-            (KEYS.data("r2", "r1", "request"), encode(good), 1),
-            (KEYS.data("r2", "r1", "request"), encode(good), 0),
+            (KEYS.data("r2", "r1", "request"), encode(good), 1),  # superseded
+            (KEYS.data("r2", "r1", "request"), encode(good), 0),  # no life at all: unstamped
         ]
         accepted = participant.accept(batch)
     finally:
         loop.close()
     assert [event.message for event in accepted if isinstance(event, Delivery)] == [good, newer]
-    assert dict(participant.counter.rejected) == {"malformed": 1, "foreign": 2, "route": 1, "superseded": 2}
+    assert dict(participant.counter.rejected) == {"malformed": 1, "foreign": 2, "route": 1, "superseded": 1,
+                                                  "unstamped": 1}
     assert participant.counter.received_messages[("request", "r1", "r2")] == 2
     assert participant.lives == {"r1": 2}
 

@@ -93,7 +93,7 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         start = asyncio.get_running_loop().time()
         watch = ReachWatch(participant)
         digests = Digests(participant) if options.digest else None
-        context = Context(participant, world, roster, admission, tokens[0], digests)
+        context = Context(participant, world, roster, admission, tokens[0], digests, options.expect_monitor)
         try:
             for index in range(options.steps):
                 context.measurements, context.commands = [], []
@@ -165,6 +165,7 @@ class Context:
     admission: Admission
     tokens: ReachTokens
     digests: Digests | None = None  # lockstep without audit: what the world tells the monitor, in digests
+    expect_monitor: bool = False  # the run has a monitor: the world ends the run when it goes
     # This step's tick, measurements published (robot, payload bytes) and commands received (with
     # their payload bytes): what a digest entry tells the monitor.
     tick: Tick | None = None
@@ -260,7 +261,8 @@ def _handle(event: object, context: Context) -> None:
 
     A robot whose process goes away (a crash, or a freeze past the lease: its liveliness token is
     withdrawn) leaves the live set and stays where it is; one whose token comes up outside the ring
-    (a restart, a wake-up) is told it is outside, and comes back by the handshake of :func:`admit`."""
+    (a restart, a wake-up) is told it is outside, and comes back by the handshake of :func:`admit`.
+    A run with a monitor ends when the monitor goes (:attr:`EndReason.MONITOR_LOST`)."""
     world, participant, roster = context.world, context.participant, context.roster
     if isinstance(event, Delivery) and isinstance(event.message, Command):
         context.commands.append((event.message, event.size))
@@ -274,6 +276,10 @@ def _handle(event: object, context: Context) -> None:
         raise RunStopped(EndReason.interrupted_by(event.reason))
     elif isinstance(event, Presence) and event.kind == "alive":
         roster.update(event)
+        if event.name == MONITOR and not event.up and context.expect_monitor:
+            log.error("the monitor went away at step %d (crashed, killed or cut off): nobody keeps the run's log "
+                      "and books; ending the run", world.step)
+            raise RunStopped(EndReason.MONITOR_LOST)
         context.tokens.hold(alive_robots(roster, world.scenario.robots))
         robot = robot_index(event.name)
         if robot is None or robot >= world.scenario.robots:

@@ -9,7 +9,7 @@ from rich import box
 from rich.table import Table
 
 from ringtrack.agents.strategy import StrategyError, strategy_for
-from ringtrack.tools.cli import experiment_faults, experiment_gates, experiment_tracking
+from ringtrack.tools.cli import experiment_faults, experiment_gates, experiment_nemesis, experiment_tracking
 from ringtrack.tools.cli.options import (
     add_output_arguments,
     add_strategy_parameter_arguments,
@@ -86,6 +86,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     moving.set_defaults(handler=run_moving)
     experiment_faults.register(kinds)
     experiment_gates.register(kinds)
+    experiment_nemesis.register(kinds)
     experiment_tracking.register(kinds, strategy_list)
 
 

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ringtrack.bus.config import LEASE_S
+from ringtrack.bus.keys import robot_index
 from ringtrack.tools.cli.monitor import add_foxglove_arguments, check_foxglove_arguments
 from ringtrack.tools.cli.options import (
     JSON_FILE,
@@ -18,8 +19,9 @@ from ringtrack.tools.cli.options import (
     scenario_from_arguments,
     stops_at_convergence,
 )
-from ringtrack.tools.output.console import out
+from ringtrack.tools.output.console import UsageError, out
 from ringtrack.tools.output.files import write_json
+from ringtrack.tools.team.nemesis import EXAMPLE, parse_plan
 from ringtrack.tools.team.plan import LOCKSTEP_WAIT_S, TeamPlan, TeamResult
 from ringtrack.tools.team.spawn import MESH_LIMIT, spawn_team
 
@@ -68,6 +70,10 @@ def register(commands: argparse._SubParsersAction) -> None:
                         "tally); by default, in lockstep, it takes measurements and commands by the world's own "
                         "counts and robot-to-robot messages by the robots' own, from the world's digests, and "
                         "observes the rest")
+    parser.add_argument("--nemesis", metavar="PLAN",
+                        help="process faults against the live team, in wall seconds after its first step: "
+                        f"'{EXAMPLE}' (kill, restart a robot as its next life, pause for a time), or a TOML file "
+                        "with [nemesis] faults = [...]; what was done is written to nemesis.jsonl and the summary")
     add_foxglove_arguments(parser)
     parser.set_defaults(handler=run_spawn)
 
@@ -75,6 +81,9 @@ def register(commands: argparse._SubParsersAction) -> None:
 def run_spawn(args: argparse.Namespace) -> int:
     check_foxglove_arguments(args)
     scenario = scenario_from_arguments(args)
+    faults = [] if args.nemesis is None else parse_plan(args.nemesis, scenario.robots)
+    if args.robots_per_process > 1 and any(robot_index(fault.target) is not None for fault in faults):
+        raise UsageError("--nemesis: faults against robots need one robot per process; drop --robots-per-process")
     plan = TeamPlan(
         scenario=scenario,
         clock=args.clock,
@@ -94,6 +103,7 @@ def run_spawn(args: argparse.Namespace) -> int:
         start=args.start,
         foxglove=args.foxglove,
         record=args.record,
+        nemesis=faults,
     )
     result = spawn_team(plan)
     if args.json:

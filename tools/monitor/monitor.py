@@ -303,6 +303,7 @@ class MonitorReport:
     energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
     superseded: list[Traffic] = field(default_factory=list)  # messages of replaced lives, dropped at the door
     cut_off: set[str] = field(default_factory=set)  # participants whose alive token went during the run
+    silent: frozenset[str] = frozenset()  # senders one of whose lives left no books (killed)
 
     def sender_rows(self) -> list[Traffic]:
         """Every traffic row of every sender's final statistics."""
@@ -319,7 +320,8 @@ class MonitorReport:
         senders, every life of each, say they sent against those the monitor saw (taken in, or
         dropped at its door as a replaced life's: ``superseded``), shortfalls on links of a process
         cut off during the run being in flight (:func:`bus.counting.close_books`)."""
-        return close_books(self.sender_rows(), [*self.received, *self.superseded], self.cut_off, COMPARED)
+        return close_books(self.sender_rows(), [*self.received, *self.superseded], self.cut_off, COMPARED,
+                           self.silent)
 
     def consistent(self) -> bool:
         """Whether the books balance (:meth:`books`)."""
@@ -485,6 +487,8 @@ async def _watch(
         energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
         superseded=participant.fenced.received_table(),
         cut_off=cut_off | {stats.name for name, stats in finals.items() if name != stats.name},
+        silent=frozenset(name for name, lives in participant.life_history.items()
+                         if any(life_label(name, life) not in finals for life in lives)),
     )
     return code, report
 

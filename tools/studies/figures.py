@@ -14,6 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from ringtrack.tools.studies.experiment import MovingRun, MovingStudy, StationaryCell, StationaryStudy
+from ringtrack.tools.studies.nemesis import NemesisStudy
 from ringtrack.tools.studies.robustness import METRICS, MOVING_METRICS, FaultStudy, FaultSummary
 
 # A study's strategies (or runs) take these colours in the order the study compares them.
@@ -206,5 +207,30 @@ def robustness_curves(result: FaultStudy, path: Path) -> None:
     figure.suptitle(f"{result.scenario}, N = {result.robots}: mean ± 1 sd (error bars) over "
                     f"{result.trials} trials per point; {costs}", fontsize=11)
     path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def plot_schedules(study: NemesisStudy, path: Path) -> None:
+    """Where each schedule's ring re-formed and how well it tracked after, by clock; a red cross marks
+    a schedule whose books did not balance or whose lives overlapped."""
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    for clock, marker in (("lockstep", "o"), ("realtime", "s")):
+        rows = [row for row in study.rows if row.clock == clock]
+        top.plot([row.schedule for row in rows], [row.reformed_at_step or float("nan") for row in rows], marker,
+                 label=clock, linestyle="none")
+        bottom.plot([row.schedule for row in rows], [row.cerr_after_deg or float("nan") for row in rows], marker,
+                    label=clock, linestyle="none")
+    broken = [row.schedule for row in study.rows if not row.books_balanced or row.overlapping_lives]
+    for axis in (top, bottom):
+        for schedule in broken:
+            axis.axvline(schedule, color="red", linestyle=":")
+    top.set_ylabel("ring re-formed at step")
+    bottom.set_ylabel("Cerr after (deg)")
+    bottom.set_xlabel("schedule")
+    top.legend()
+    top.set_title(f"{study.schedules} nemesis schedules on {study.scenario}: overlapping lives "
+                  f"{study.overlapping_lives}, unbalanced books {study.unbalanced_books}")
+    figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)

@@ -18,6 +18,7 @@ from ringtrack.bus.config import LEASE_S
 from ringtrack.bus.counting import Totals
 from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport
+from ringtrack.tools.team.nemesis import Fault
 from ringtrack.world.scenario import Scenario
 
 LOCKSTEP_WAIT_S = LEASE_S  # a frozen robot is seen gone (liveliness) after about as long
@@ -45,7 +46,8 @@ class TeamPlan(msgspec.Struct, kw_only=True, frozen=True):
     ``settle`` steps. ``start`` "fork" forks the robot processes from one launcher that has imported
     their code, "exec" starts each as a fresh interpreter (None: fork where it works, Linux).
     ``foxglove`` ``(host, port)`` has the monitor serve the run live to Foxglove, ``record`` has it
-    record the run as MCAP (:mod:`tools.viz.sink`); both off by default."""
+    record the run as MCAP (:mod:`tools.viz.sink`); both off by default. ``nemesis`` schedules
+    process faults against the team (:mod:`tools.team.nemesis`)."""
 
     scenario: Scenario
     clock: Clock = "lockstep"
@@ -66,6 +68,7 @@ class TeamPlan(msgspec.Struct, kw_only=True, frozen=True):
     start: Literal["fork", "exec"] | None = None
     foxglove: tuple[str, int] | None = None
     record: Path | None = None
+    nemesis: list[Fault] = msgspec.field(default_factory=list)
 
 
 class Stop(enum.Enum):
@@ -105,6 +108,7 @@ class TeamResult(msgspec.Struct, kw_only=True):
     rss_kib: dict[str, int] = msgspec.field(default_factory=dict)
     end_reason: EndReason | None = None
     id_collisions: int = 0
+    nemesis: list[dict] = msgspec.field(default_factory=list)  # the faults carried out (tools.team.nemesis)
     fenced_lives: int = 0  # robot processes stopped because a newer life of their id replaced them
     distrust: str | None = None  # why the results cannot be trusted (tools.runlog.derived.distrust)
     energy: EnergyReport | None = None  # None unless every robot reported its energy

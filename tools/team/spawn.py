@@ -13,6 +13,7 @@ hands the terminal to the monitor once the monitor is ready to draw (:mod:`tools
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime
 import math
 import signal
@@ -33,6 +34,7 @@ from ringtrack.tools.output.console import UsageError, err, out, warn_if_thresho
 from ringtrack.tools.output.files import OutputError, write_json
 from ringtrack.tools.runlog.derived import distrust
 from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
+from ringtrack.tools.team.nemesis import Nemesis
 from ringtrack.tools.team.plan import Clock, Stop, TeamPlan, TeamResult
 from ringtrack.tools.team.supervisor import (
     FORK_WORKS,
@@ -93,15 +95,23 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
         err.print(f"spawn: run {run:08x} in {folder}: starting the world, the monitor{fusion} and {scenario.robots} "
                   f"robots in {processes} processes", highlight=False)
     stop: Stop | None = None
+    nemesis: Nemesis | None = None
     stalled = ""
     stop_signal = signal.SIGTERM
     with Supervisor(folder) as supervisor:
         supervisor.leader = "world"
         try:
             with terminate_as_exception(), view or contextlib.nullcontext():
-                start_team(supervisor, plan, TeamLaunch(run, folder, log_path, topology, listen, start, view, started))
+                robots = start_team(supervisor, plan, TeamLaunch(run, folder, log_path, topology, listen, start, view,
+                                                                 started))
+                nemesis = unleash(plan, supervisor, folder, robots, start)
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
-                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=first_step,
+                def poll() -> None:
+                    first_step()
+                    if nemesis is not None and world_running(supervisor):  # no fault once the run is over
+                        nemesis.tick(first_step.since())
+
+                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=poll,
                                 started=lambda: first_step.after is not None,
                                 startup_s=startup_limit(len(supervisor.children)))
         except KeyboardInterrupt:
@@ -111,6 +121,8 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
         except TimeoutError as error:
             stop, stalled = Stop.STALLED, f"{error} {stalled_at(log_path, folder)}"
         finally:
+            if nemesis is not None:
+                nemesis.wake_all()
             supervisor.stop(stop_signal=stop_signal)
     if stop is None:
         for line in _failure_lines(supervisor, log_path, read_fenced(log_path)):
@@ -119,6 +131,7 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
                      plan.settle)
     result.topology = topology
     result.startup_s = first_step.after
+    result.nemesis = [dataclasses.asdict(struck) for struck in nemesis.struck] if nemesis is not None else []
     result.failures = failures(supervisor, result.fenced_lives)
     result.stopped = None if stop is None else f"{stop.value}: {stalled}" if stalled else stop.value
     result.exit_code = 130 if stop is not None and stop.by_signal else \
@@ -158,9 +171,10 @@ class TeamLaunch:
     started: float
 
 
-def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> None:
+def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> list[tuple[str, list[str]]]:
     """Start the monitor and the world, wait for the world's endpoints, then start the fusion centre
-    (centralized estimation) and the robot processes, all told to connect to the world."""
+    (centralized estimation) and the robot processes, all told to connect to the world; returns the
+    robot processes' names and arguments (of ``ringtrack``)."""
     scenario, folder, view = plan.scenario, launch.folder, launch.view
     announce, handover = folder / "world-endpoints.json", folder / "display.handover"
     common = [str(folder / "scenario.toml"), "--run", f"{launch.run:08x}", "--monitor", "--exit-with-parent",
@@ -215,6 +229,45 @@ def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> No
     if view is not None:
         say(view, "every process started; the monitor takes over this screen once it is up")
         view.started_all()
+    return robots
+
+
+def world_running(supervisor: Supervisor) -> bool:
+    """Whether the world process is still running (the run is not over)."""
+    return any(child.name == "world" for child in supervisor.running())
+
+
+def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, robots: list[tuple[str, list[str]]],
+            start: str) -> Nemesis | None:
+    """The nemesis of ``plan`` against the team just started (None: no plan). A restarted robot is a
+    new process with its first process's arguments, named ``r<i>@<n>`` for its n-th restart."""
+    if not plan.nemesis:
+        return None
+    arguments = dict(robots)
+    restarts: dict[str, int] = {}
+
+    def find(name: str) -> Child | None:
+        running = [child for child in supervisor.running() if child.name.split("@")[0] == name]
+        return running[-1] if running else None
+
+    def send(child: object, number: int) -> int | None:
+        assert isinstance(child, Child)
+        with contextlib.suppress(ProcessLookupError):
+            child.process.send_signal(number)
+        return child.pid
+
+    def restart(robot: int) -> int:
+        name = robot_name(robot)
+        restarts[name] = restarts.get(name, 0) + 1
+        role = (f"{name}@{restarts[name]}", arguments[name])
+        child = supervisor.fork([role])[0] if start == "fork" else supervisor.start(role[0], [*ROLE_COMMAND, *role[1]])
+        return child.pid
+
+    def spare(child: object) -> None:
+        assert isinstance(child, Child)
+        supervisor.spared.add(child.pid)
+
+    return Nemesis(plan.nemesis, folder, find, send, restart, spare)
 
 
 def reported(result: TeamResult, folder: Path, log_path: Path) -> TeamResult:
@@ -334,6 +387,10 @@ class FirstStep:
     def __call__(self) -> None:
         if self.after is None and self.log_path.exists() and b'"type":"step"' in self.log_path.read_bytes()[:65536]:
             self.after = time.perf_counter() - self.started
+
+    def since(self) -> float | None:
+        """Seconds since the first step was seen (None: not yet)."""
+        return None if self.after is None else time.perf_counter() - self.started - self.after
 
 
 def _result(scenario: Scenario, folder: Path, log_path: Path, clock: Clock, run: int, supervisor: Supervisor,

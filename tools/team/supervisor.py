@@ -176,6 +176,7 @@ class Supervisor:
         self.folder = folder
         self.children: list[Child] = []
         self.ended: set[str] = set()  # children still running when stop() signalled them: not crashes
+        self.spared: set[int] = set()  # pids of children a nemesis ended on purpose: not failures
         self.launcher: Launcher | None = None
         self.leader: str | None = None  # the child stop() signals first (None: the first started)
 
@@ -222,12 +223,14 @@ class Supervisor:
         return found
 
     def failed(self) -> list[Child]:
-        return [child for child in self.children if child.process.poll() not in (None, 0)]
+        return [child for child in self.children if child.process.poll() not in (None, 0)
+                and child.pid not in self.spared]
 
     def crashed(self) -> list[Child]:
         """Children that failed on their own (a non-zero exit other than a stop they were asked
-        for): not those ``stop()`` ended, nor those that obeyed a SIGTERM or Ctrl-C."""
-        return [child for child in self.children if child.name not in self.ended
+        for): not those ``stop()`` ended, those a nemesis ended (``spared``), nor those that obeyed
+        a SIGTERM or Ctrl-C."""
+        return [child for child in self.children if child.name not in self.ended and child.pid not in self.spared
                 and child.process.returncode not in (0, None, -15, -2, 130)]
 
     def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,

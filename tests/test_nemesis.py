@@ -1,0 +1,101 @@
+"""The nemesis: plans parsed with one-line errors, carried out against live six-robot teams with the
+wire audit on (books balance, no two processes act as one life), and a lost monitor noticed by the
+team itself."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from ringtrack.tools.output.console import UsageError
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.nemesis import Fault, parse_plan, random_plan
+from tests.helpers import RINGTRACK, processes_mentioning
+
+
+def test_a_plan_reads_as_faults_in_time_order() -> None:
+    assert parse_plan("kill r3@5s, restart r3@8s, pause r1@1.5s:3s, kill monitor@15s", 6) == [
+        Fault("pause", "r1", 1.5, 3.0), Fault("kill", "r3", 5.0), Fault("restart", "r3", 8.0),
+        Fault("kill", "monitor", 15.0)]
+    assert str(Fault("pause", "r1", 1.5, 3.0)) == "pause r1@1.5s:3s"
+
+
+def test_a_plan_file_holds_its_faults_in_a_nemesis_table(tmp_path: Path) -> None:
+    path = tmp_path / "plan.toml"
+    path.write_text('[nemesis]\nfaults = ["kill r2@1s", "restart r2@2s"]\n')
+    assert parse_plan(str(path), 6) == [Fault("kill", "r2", 1.0), Fault("restart", "r2", 2.0)]
+    path.write_text("[nemesis]\nfaults = 3\n")
+    with pytest.raises(UsageError, match=r"faults must be a list of strings like \"kill r3@5s\""):
+        parse_plan(str(path), 6)
+
+
+@pytest.mark.parametrize(("plan", "error"), [
+    ("kill r9@5s", "--nemesis 'kill r9@5s': the team has robots r0..r5"),
+    ("explode r1@5s", "--nemesis 'explode r1@5s': unknown action 'explode'; use kill, restart or pause"),
+    ("pause r1@5s", "--nemesis 'pause r1@5s': a pause needs its length (pause r1@10s:3s), and only a pause has one"),
+    ("restart monitor@5s", "--nemesis 'restart monitor@5s': only a robot can be restarted"),
+    ("kill fusion@5s", "--nemesis 'kill fusion@5s': 'fusion' is no participant; name r0..r5, monitor or world"),
+    ("kill r1 at 5", "--nemesis 'kill r1 at 5': write a fault like 'kill r3@5s' or 'pause r1@10s:3s' (e.g. kill "
+                     "r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s)"),
+    (" , ", "--nemesis ' , ': no fault in it; e.g. kill r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s"),
+])
+def test_a_bad_plan_gets_one_line_naming_the_fault_and_the_fix(plan: str, error: str) -> None:
+    with pytest.raises(UsageError) as raised:
+        parse_plan(plan, 6)
+    assert str(raised.value) == error
+
+
+def test_random_plans_are_seeded_and_restart_every_robot_they_kill() -> None:
+    plan = random_plan(7, 6, 10.0, faults=12)
+    assert plan == random_plan(7, 6, 10.0, faults=12) and plan != random_plan(8, 6, 10.0, faults=12)
+    assert [fault.at_s for fault in plan] == sorted(fault.at_s for fault in plan)
+    kills = [fault for fault in plan if fault.action == "kill"]
+    for kill in kills:
+        assert any(fault.action == "restart" and fault.target == kill.target and fault.at_s >= kill.at_s
+                   for fault in plan)
+    assert all(fault.for_s is not None and fault.for_s > 0 for fault in plan if fault.action == "pause")
+
+
+@pytest.mark.processes
+@pytest.mark.realtime
+@pytest.mark.timeout(600)
+def test_the_nemesis_against_lockstep_and_realtime_teams_leaves_balanced_books_and_no_overlapping_lives(
+        tmp_path: Path) -> None:
+    done = subprocess.run([*RINGTRACK, "experiment", "nemesis", "--schedules", "2", "--steps", "500", "--seed", "3",
+                           "--runs", str(tmp_path / "runs"), "--json", str(tmp_path / "nemesis.json"), "--quiet"],
+                          capture_output=True, text=True, timeout=560)
+    assert done.returncode == 0, done.stdout + done.stderr
+    study = json.loads((tmp_path / "nemesis.json").read_text())
+    assert [row["clock"] for row in study["rows"]] == ["lockstep", "realtime"]
+    assert study["overlapping_lives"] == 0 and study["unbalanced_books"] == 0
+    for row, folder in zip(study["rows"], sorted((tmp_path / "runs").iterdir()), strict=True):
+        carried_out = [json.loads(line)["fault"] for line in (folder / "nemesis.jsonl").read_text().splitlines()]
+        planned = row["plan"].split(", ")
+        assert [fault for fault in carried_out if not fault.startswith("wake ")] == planned
+        assert len([fault for fault in carried_out if fault.startswith("wake ")]) == row["plan"].count("pause")
+        summary = json.loads((folder / "summary.json").read_text())
+        end = read_log(folder / "log.jsonl").end
+        assert end is not None and end["consistent"] is True and summary["distrust"] is None, end["books"]
+        assert summary["id_collisions"] == 0 and summary["exit_code"] == 0 and row["reformed"]
+    assert processes_mentioning(str(tmp_path)) == []
+
+
+@pytest.mark.processes
+@pytest.mark.timeout(300)
+def test_a_killed_monitor_is_noticed_by_the_world_which_ends_the_run_in_one_line(tmp_path: Path) -> None:
+    done = subprocess.run([*RINGTRACK, "spawn", "paper-stationary", "--robots", "6", "--steps", "100000",
+                           "--runs", str(tmp_path), "--no-dashboard", "--nemesis", "kill monitor@1s"],
+                          capture_output=True, text=True, timeout=240)
+    (folder,) = tmp_path.iterdir()
+    world = (folder / "world.stderr").read_text()
+    assert done.returncode == 1
+    assert "the monitor went away at step" in world and "nobody keeps the run's log and books; ending the run" in world
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["stopped"] is None  # the team ended on its own: spawn did not have to stop it
+    assert summary["failures"] == {"world": 1} and summary["monitor_lost"] is True
+    assert [json.loads(line)["fault"] for line in (folder / "nemesis.jsonl").read_text().splitlines()] == [
+        "kill monitor@1s"]
+    assert processes_mentioning(str(folder)) == []

@@ -1,0 +1,152 @@
+"""``ringtrack experiment nemesis``: many seeded random fault schedules against live teams, and a
+checker that says, for each, what broke.
+
+Every schedule is one ``spawn`` run with the wire audit on (the monitor observes every message
+itself) and a random nemesis plan (:func:`tools.team.nemesis.random_plan`): robots killed and
+restarted as their next life, paused below and past the liveliness lease; every fifth schedule
+ends by killing the monitor or the world. The checker reads the run folder: whether the ring
+re-formed and at which step, the tracking quality after it (mean true Cerr in degrees, and Terr in
+metres for a moving target, from the step it re-formed on), overlapping lives (two processes acting
+as the same life of a robot: must be 0), whether the books balance (they must), and whether a lost
+monitor or world was noticed (every process ended on its own, and the world said why).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from ringtrack.tools.runlog.derived import step_errors
+from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.team.nemesis import Fault, random_plan
+from ringtrack.tools.team.plan import TeamPlan
+from ringtrack.tools.team.spawn import spawn_team
+from ringtrack.world.scenario import Scenario
+
+Clock = Literal["lockstep", "realtime"]
+LEASE_S = 2.0  # the teams' liveliness lease: pauses of 2.5-4 s outlast it
+RATE = 5.0  # realtime teams run five times faster than the wall clock
+LOCKSTEP_STEPS_PER_S = 250.0  # about a six-robot lockstep team's pace here, to spread the faults over the run
+FATAL_EVERY = 5  # every fifth schedule ends by killing the monitor or the world
+
+
+class ScheduleRow(msgspec.Struct, frozen=True):
+    """What one schedule came to (see the module's text); ``noticed`` is None when the plan killed
+    neither the monitor nor the world, ``reformed_at_step`` (the first step from which the whole team
+    was in the ring to the end) None when it did (the run ended early) or the ring never re-formed."""
+
+    schedule: int
+    seed: int
+    clock: Clock
+    plan: str
+    exit_code: int
+    steps: int
+    reformed: bool
+    reformed_at_step: int | None
+    cerr_after_deg: float | None
+    terr_after_m: float | None
+    overlapping_lives: int
+    fenced_lives: int
+    books_balanced: bool
+    books: list[str]
+    noticed: bool | None
+
+
+def plan_for(schedule: int, seed: int, clock: Clock, scenario: Scenario, steps: int) -> list[Fault]:
+    """The faults of schedule ``schedule``: a random plan over the first half of the run's expected
+    wall time, and for every :data:`FATAL_EVERY`-th a monitor or world kill at three quarters."""
+    pace = RATE / scenario.control.dt if clock == "realtime" else LOCKSTEP_STEPS_PER_S
+    span_s = max(1.0, 0.5 * steps / pace)
+    faults = random_plan(seed, scenario.robots, span_s)
+    if schedule % FATAL_EVERY == FATAL_EVERY - 1:
+        victim = "monitor" if (schedule // FATAL_EVERY) % 2 == 0 else "world"
+        faults.append(Fault("kill", victim, round(1.5 * span_s, 1)))
+    return faults
+
+
+def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, runs: Path, settle: int) -> ScheduleRow:
+    """Run one schedule of ``scenario.max_steps`` steps as a spawned team and check it."""
+    faults = plan_for(schedule, seed, clock, scenario, scenario.max_steps)
+    plan = TeamPlan(scenario=scenario, clock=clock, rate=RATE, runs=runs, dashboard=False, quiet=True,
+                    lease=LEASE_S, audit=True, nemesis=faults)
+    result = spawn_team(plan)
+    folder = Path(result.folder)
+    fatal = next((fault.target for fault in faults if fault.target in ("monitor", "world")), None)
+    log = read_log(folder / "log.jsonl") if (folder / "log.jsonl").is_file() else None
+    records = [] if log is None else log.steps
+    whole = [record for record in records if len(record["live"]) == scenario.robots]
+    broken = [record["step"] for record in records if len(record["live"]) < scenario.robots]
+    reformed_at = (broken[-1] + 1 if broken else 1) \
+        if fatal is None and records and len(records[-1]["live"]) == scenario.robots else None
+    after = [record for record in whole if reformed_at is not None and record["step"] >= max(reformed_at, settle)]
+    errors = np.array([step_errors(record) for record in after]) if after else np.empty((0, 2))
+    terr = float(np.nanmean(errors[:, 1])) if len(errors) and not np.isnan(errors[:, 1]).all() else None
+    return ScheduleRow(
+        schedule=schedule, seed=seed, clock=clock, plan=", ".join(str(fault) for fault in faults),
+        exit_code=result.exit_code, steps=len(records), reformed=reformed_at is not None,
+        reformed_at_step=reformed_at,
+        cerr_after_deg=float(np.mean(errors[:, 0])) if len(errors) else None,
+        terr_after_m=terr if scenario.moving else None,
+        overlapping_lives=result.id_collisions, fenced_lives=result.fenced_lives,
+        books_balanced=fatal is not None or result.distrust is None,
+        books=[] if log is None or log.end is None else log.end.get("books", []),
+        noticed=None if fatal is None else noticed(folder, fatal, result.stopped),
+    )
+
+
+def noticed(folder: Path, victim: str, stopped: str | None) -> bool:
+    """Whether the team noticed its lost ``victim`` on its own: spawn did not have to stop it (a
+    stall), and the world said the monitor went away (or the robots that the world did)."""
+    if stopped is not None:
+        return False
+    if victim == "monitor":
+        return "the monitor went away" in (folder / "world.stderr").read_text(errors="replace")
+    robots = list(folder.glob("r*.stderr"))
+    return any("the world went away" in path.read_text(errors="replace") for path in robots)
+
+
+class NemesisStudy(msgspec.Struct, frozen=True):
+    """A nemesis study: its settings, one row per schedule and the totals the issue of trust asks for."""
+
+    scenario: str
+    schedules: int
+    seed: int
+    steps: int
+    rows: list[ScheduleRow]
+    overlapping_lives: int
+    unbalanced_books: int
+    lost_noticed: str  # "k/n": lost monitors or worlds noticed of those killed
+    reformed: str  # "k/n" of the schedules that killed neither
+
+
+def nemesis_study(scenario: Scenario, schedules: int, seed: int, clocks: tuple[Clock, ...], settle: int,
+                  on_row: Callable[[ScheduleRow], None] | None = None, runs: Path | None = None) -> NemesisStudy:
+    """Run ``schedules`` schedules of ``scenario.max_steps`` steps, alternating ``clocks``, schedule i
+    seeded ``seed + i``; ``runs`` keeps the run folders (None: a scratch folder)."""
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="ringtrack-nemesis-") as scratch:
+        for schedule in range(schedules):
+            clock = clocks[schedule % len(clocks)]
+            row = run_schedule(schedule, seed + schedule, clock, scenario, runs or Path(scratch), settle)
+            rows.append(row)
+            if on_row is not None:
+                on_row(row)
+    fatal = [row for row in rows if row.noticed is not None]
+    survivable = [row for row in rows if row.noticed is None]
+    return NemesisStudy(
+        scenario=scenario.name, schedules=schedules, seed=seed, steps=scenario.max_steps, rows=rows,
+        overlapping_lives=sum(row.overlapping_lives for row in rows),
+        unbalanced_books=sum(not row.books_balanced for row in rows),
+        lost_noticed=f"{sum(bool(row.noticed) for row in fatal)}/{len(fatal)}",
+        reformed=f"{sum(row.reformed for row in survivable)}/{len(survivable)}",
+    )
+
+
+def study_json(study: NemesisStudy) -> str:
+    return json.dumps(msgspec.to_builtins(study), indent=1)

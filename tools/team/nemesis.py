@@ -1,0 +1,172 @@
+"""A nemesis: process faults scheduled against a live team, in wall seconds after its first step.
+
+A plan is a short string of faults separated by commas (or a TOML file whose ``[nemesis]`` table
+holds ``faults = [...]``)::
+
+    kill r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s
+
+``kill NAME@T`` sends SIGKILL to a robot (``r<i>``), the monitor or the world; ``restart r<i>@T``
+starts a new process for robot i (it joins as the id's next life, :mod:`bus.lives`); ``pause
+NAME@T:D`` freezes a process with SIGSTOP for D seconds, then wakes it with SIGCONT. Every fault
+carried out is written, with when and to which pid, to ``nemesis.jsonl`` in the run folder and to
+the run's summary. :func:`random_plan` draws seeded plans for ``ringtrack experiment nemesis``.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+import signal
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+
+from ringtrack.bus.keys import MONITOR, WORLD, robot_index, robot_name
+from ringtrack.tools.output.console import UsageError
+
+Action = Literal["kill", "restart", "pause"]
+FAULT = re.compile(r"^(?P<action>[a-z]+)\s+(?P<target>[a-z0-9]+)\s*@\s*(?P<at>\d+(?:\.\d+)?)s"
+                   r"(?::(?P<for>\d+(?:\.\d+)?)s)?$")
+EXAMPLE = "kill r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s"
+
+
+class Fault(msgspec.Struct, frozen=True):
+    """One scheduled fault: ``action`` on participant ``target`` at ``at_s`` wall seconds after the
+    first step, lasting ``for_s`` seconds (a pause only)."""
+
+    action: Action
+    target: str
+    at_s: float
+    for_s: float | None = None
+
+    def __str__(self) -> str:
+        lasting = f":{self.for_s:g}s" if self.for_s is not None else ""
+        return f"{self.action} {self.target}@{self.at_s:g}s{lasting}"
+
+
+def parse_fault(text: str, robots: int) -> Fault:
+    """One fault of a plan; a :class:`UsageError` naming it and the fix when it is not one."""
+    match = FAULT.match(text.strip())
+    if match is None:
+        raise UsageError(f"--nemesis {text.strip()!r}: write a fault like 'kill r3@5s' or 'pause r1@10s:3s' "
+                         f"(e.g. {EXAMPLE})")
+    action, target = match["action"], match["target"]
+    robot = robot_index(target)
+    if action not in ("kill", "restart", "pause"):
+        raise UsageError(f"--nemesis {text.strip()!r}: unknown action {action!r}; use kill, restart or pause")
+    if robot is None and target not in (MONITOR, WORLD):
+        raise UsageError(f"--nemesis {text.strip()!r}: {target!r} is no participant; name r0..r{robots - 1}, "
+                         "monitor or world")
+    if robot is not None and robot >= robots:
+        raise UsageError(f"--nemesis {text.strip()!r}: the team has robots r0..r{robots - 1}")
+    if action == "restart" and robot is None:
+        raise UsageError(f"--nemesis {text.strip()!r}: only a robot can be restarted")
+    lasting = float(match["for"]) if match["for"] is not None else None
+    if (action == "pause") != (lasting is not None):
+        raise UsageError(f"--nemesis {text.strip()!r}: a pause needs its length (pause r1@10s:3s), and only a pause "
+                         "has one")
+    return Fault(action, target, float(match["at"]), lasting)  # type: ignore[arg-type]
+
+
+def parse_plan(plan: str, robots: int) -> list[Fault]:
+    """The faults of a plan string, or of a TOML file's ``[nemesis] faults`` when ``plan`` names one,
+    in time order."""
+    path = Path(plan)
+    if plan.endswith(".toml"):
+        try:
+            table = tomllib.loads(path.read_text())
+        except (OSError, tomllib.TOMLDecodeError) as error:
+            raise UsageError(f"--nemesis {plan}: {error}; give a TOML file with [nemesis] faults = [...]") from None
+        faults = table.get("nemesis", {}).get("faults")
+        if not isinstance(faults, list) or not all(isinstance(fault, str) for fault in faults):
+            raise UsageError(f"--nemesis {plan}: [nemesis] faults must be a list of strings like \"kill r3@5s\"")
+        texts = faults
+    else:
+        texts = [text for text in plan.split(",") if text.strip()]
+    if not texts:
+        raise UsageError(f"--nemesis {plan!r}: no fault in it; e.g. {EXAMPLE}")
+    return sorted((parse_fault(text, robots) for text in texts), key=lambda fault: fault.at_s)
+
+
+def random_plan(seed: int, robots: int, span_s: float, faults: int = 3) -> list[Fault]:
+    """A seeded random plan of ``faults`` robot faults in the first ``span_s`` seconds: kills followed
+    by a restart of the same robot, short pauses (below a typical lease) and long ones (past it)."""
+    rng = random.Random(seed)
+    plan: list[Fault] = []
+    for _ in range(faults):
+        name = robot_name(rng.randrange(robots))
+        at = round(rng.uniform(0.0, span_s), 1)
+        kind = rng.choice(("kill", "pause", "pause"))
+        if kind == "kill":
+            plan += [Fault("kill", name, at), Fault("restart", name, round(at + rng.uniform(0.5, 3.0), 1))]
+        else:
+            plan.append(Fault("pause", name, at, round(rng.choice((rng.uniform(0.2, 1.0), rng.uniform(2.5, 4.0))), 1)))
+    return sorted(plan, key=lambda fault: fault.at_s)
+
+
+@dataclass
+class Struck:
+    """A fault carried out: when (seconds after the first step), what, and on which process."""
+
+    at_s: float
+    fault: str
+    pid: int | None
+
+
+class Nemesis:
+    """Carries a plan out against a team: :meth:`tick` (called as the supervisor polls) does every
+    fault that fell due. ``find(name)`` gives the newest process of a participant (None: none
+    running), ``signal(process, number)`` signals it, ``restart(robot)`` starts a new one and
+    ``spare(process)`` tells the supervisor that it ends by the nemesis's hand, not by failing."""
+
+    def __init__(self, faults: list[Fault], folder: Path, find: Callable[[str], object | None],
+                 send: Callable[[object, int], int | None], restart: Callable[[int], int],
+                 spare: Callable[[object], None]) -> None:
+        pending: list[tuple[float, str, Fault]] = []
+        for fault in faults:
+            pending.append((fault.at_s, "start", fault))
+            if fault.for_s is not None:
+                pending.append((fault.at_s + fault.for_s, "end", fault))
+        self.pending = sorted(pending, key=lambda entry: entry[0])
+        self.path = folder / "nemesis.jsonl"
+        self.find, self.send, self.restart, self.spare = find, send, restart, spare
+        self.struck: list[Struck] = []
+        self.paused: dict[Fault, object] = {}
+
+    def tick(self, since_first_step_s: float | None) -> None:
+        """Carry out every fault due ``since_first_step_s`` seconds after the first step (None: the
+        run has not stepped yet)."""
+        while self.pending and since_first_step_s is not None and self.pending[0][0] <= since_first_step_s:
+            _, phase, fault = self.pending.pop(0)
+            self._carry_out(fault, phase, since_first_step_s)
+
+    def _carry_out(self, fault: Fault, phase: str, now_s: float) -> None:
+        pid: int | None = None
+        if fault.action == "restart":
+            pid = self.restart(robot_index(fault.target) or 0)
+        elif phase == "end":  # the end of a pause
+            process = self.paused.pop(fault, None)
+            pid = None if process is None else self.send(process, signal.SIGCONT)
+        elif (process := self.find(fault.target)) is not None:
+            if fault.action == "kill":
+                self.spare(process)
+                pid = self.send(process, signal.SIGKILL)
+            else:
+                self.paused[fault] = process
+                pid = self.send(process, signal.SIGSTOP)
+        what = f"wake {fault.target}" if phase == "end" else str(fault)
+        self.struck.append(Struck(round(now_s, 3), what, pid))
+        with self.path.open("a") as file:
+            file.write(json.dumps({"at_s": round(now_s, 3), "fault": what, "pid": pid, "wall": time.time()}) + "\n")
+
+    def wake_all(self) -> None:
+        """Wake every process still paused (the run is ending)."""
+        for process in self.paused.values():
+            self.send(process, signal.SIGCONT)
+        self.paused.clear()
