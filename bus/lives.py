@@ -60,9 +60,12 @@ def life_label(name: str, life: int) -> str:
     return name if life <= 1 else f"{name}.life{life}"
 
 
+SUPERSEDED_MARK = "was replaced by life"  # what the line of a replaced process says (a supervisor reads it)
+
+
 def superseded_message(name: str, run: int, life: int, newer: int) -> str:
     """The one line a replaced process stops with."""
-    return (f"{name} (life {life}) of run {run:08x} was replaced by life {newer} of {name} (it was seen gone and "
+    return (f"{name} (life {life}) of run {run:08x} {SUPERSEDED_MARK} {newer} of {name} (it was seen gone and "
             "its id rejoined); this process stops")
 
 

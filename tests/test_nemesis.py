@@ -12,7 +12,7 @@ import pytest
 
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.runlog.log import read_log
-from ringtrack.tools.team.nemesis import Fault, parse_plan, random_plan
+from ringtrack.tools.team.nemesis import Fault, parse_plan, random_plan, split_brain
 from tests.helpers import RINGTRACK, processes_mentioning
 
 
@@ -49,14 +49,19 @@ def test_a_bad_plan_gets_one_line_naming_the_fault_and_the_fix(plan: str, error:
 
 
 def test_random_plans_are_seeded_and_restart_every_robot_they_kill() -> None:
-    plan = random_plan(7, 6, 10.0, faults=12)
-    assert plan == random_plan(7, 6, 10.0, faults=12) and plan != random_plan(8, 6, 10.0, faults=12)
+    plan = random_plan(7, 6, 10.0, faults=6)
+    assert plan == random_plan(7, 6, 10.0, faults=6) and plan != random_plan(8, 6, 10.0, faults=6)
     assert [fault.at_s for fault in plan] == sorted(fault.at_s for fault in plan)
     kills = [fault for fault in plan if fault.action == "kill"]
     for kill in kills:
         assert any(fault.action == "restart" and fault.target == kill.target and fault.at_s >= kill.at_s
                    for fault in plan)
     assert all(fault.for_s is not None and fault.for_s > 0 for fault in plan if fault.action == "pause")
+    assert len({fault.target for fault in plan}) == 6  # one robot, one kind of fault
+
+
+def test_a_split_brain_restarts_a_robot_frozen_past_the_lease_before_waking_it() -> None:
+    assert split_brain("r3", 1.0, 2.0) == [Fault("pause", "r3", 1.0, 6.0), Fault("restart", "r3", 4.0)]
 
 
 @pytest.mark.processes

@@ -3,8 +3,9 @@ checker that says, for each, what broke.
 
 Every schedule is one ``spawn`` run with the wire audit on (the monitor observes every message
 itself) and a random nemesis plan (:func:`tools.team.nemesis.random_plan`): robots killed and
-restarted as their next life, paused below and past the liveliness lease; every fifth schedule
-ends by killing the monitor or the world. The checker reads the run folder: whether the ring
+restarted as their next life, paused below and past the liveliness lease, and split brains (a robot
+frozen past the lease, a new life of it started, the old one woken); every fifth schedule ends by
+killing the monitor or the world. The checker reads the run folder: whether the ring
 re-formed and at which step, the tracking quality after it (mean true Cerr in degrees, and Terr in
 metres for a moving target, from the step it re-formed on), overlapping lives (two processes acting
 as the same life of a robot: must be 0), whether the books balance (they must), and whether a lost
@@ -27,12 +28,12 @@ from ringtrack.tools.runlog.log import read_log
 from ringtrack.tools.team.nemesis import Fault, random_plan
 from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
-from ringtrack.world.scenario import Scenario
+from ringtrack.world.scenario import Scenario, apply_overrides, resolve
 
 Clock = Literal["lockstep", "realtime"]
 LEASE_S = 2.0  # the teams' liveliness lease: pauses of 2.5-4 s outlast it
 RATE = 5.0  # realtime teams run five times faster than the wall clock
-LOCKSTEP_STEPS_PER_S = 250.0  # about a six-robot lockstep team's pace here, to spread the faults over the run
+LOCKSTEP_STEPS_PER_S = 250.0  # about a six-robot lockstep team's pace here: its runs last as long as realtime's
 FATAL_EVERY = 5  # every fifth schedule ends by killing the monitor or the world
 
 
@@ -58,12 +59,18 @@ class ScheduleRow(msgspec.Struct, frozen=True):
     noticed: bool | None
 
 
-def plan_for(schedule: int, seed: int, clock: Clock, scenario: Scenario, steps: int) -> list[Fault]:
-    """The faults of schedule ``schedule``: a random plan over the first half of the run's expected
-    wall time, and for every :data:`FATAL_EVERY`-th a monitor or world kill at three quarters."""
-    pace = RATE / scenario.control.dt if clock == "realtime" else LOCKSTEP_STEPS_PER_S
-    span_s = max(1.0, 0.5 * steps / pace)
-    faults = random_plan(seed, scenario.robots, span_s)
+def lockstep_steps(scenario: Scenario) -> int:
+    """The steps of a lockstep schedule: as many as make it last about as long (wall seconds) as a
+    realtime schedule of ``scenario.max_steps`` steps, so that the same faults fit into both."""
+    return round(scenario.max_steps * scenario.control.dt / RATE * LOCKSTEP_STEPS_PER_S)
+
+
+def plan_for(schedule: int, seed: int, scenario: Scenario) -> list[Fault]:
+    """The faults of schedule ``schedule``: a random plan over the first half of a realtime run of
+    ``scenario.max_steps`` steps (wall seconds), and for every :data:`FATAL_EVERY`-th a monitor or
+    world kill at three quarters."""
+    span_s = max(1.0, 0.5 * scenario.max_steps * scenario.control.dt / RATE)
+    faults = random_plan(seed, scenario.robots, span_s, lease_s=LEASE_S)
     if schedule % FATAL_EVERY == FATAL_EVERY - 1:
         victim = "monitor" if (schedule // FATAL_EVERY) % 2 == 0 else "world"
         faults.append(Fault("kill", victim, round(1.5 * span_s, 1)))
@@ -71,8 +78,11 @@ def plan_for(schedule: int, seed: int, clock: Clock, scenario: Scenario, steps: 
 
 
 def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, runs: Path, settle: int) -> ScheduleRow:
-    """Run one schedule of ``scenario.max_steps`` steps as a spawned team and check it."""
-    faults = plan_for(schedule, seed, clock, scenario, scenario.max_steps)
+    """Run one schedule as a spawned team and check it: ``scenario.max_steps`` steps in realtime, as
+    many as last as long in lockstep (:func:`lockstep_steps`)."""
+    faults = plan_for(schedule, seed, scenario)
+    if clock == "lockstep":
+        scenario = resolve(apply_overrides(scenario.spec, max_steps=lockstep_steps(scenario)), scenario.name)
     plan = TeamPlan(scenario=scenario, clock=clock, rate=RATE, runs=runs, dashboard=False, quiet=True,
                     lease=LEASE_S, audit=True, nemesis=faults)
     result = spawn_team(plan)

@@ -94,19 +94,30 @@ def parse_plan(plan: str, robots: int) -> list[Fault]:
     return sorted((parse_fault(text, robots) for text in texts), key=lambda fault: fault.at_s)
 
 
-def random_plan(seed: int, robots: int, span_s: float, faults: int = 3) -> list[Fault]:
+def split_brain(name: str, at_s: float, lease_s: float) -> list[Fault]:
+    """Freeze ``name`` past the lease, start a new life of it once the team has seen it gone, then
+    wake the old one: two processes would act as one robot but for the fence (:mod:`bus.lives`)."""
+    return [Fault("pause", name, at_s, round(3.0 * lease_s, 1)), Fault("restart", name, round(at_s + 1.5 * lease_s, 1))]
+
+
+def random_plan(seed: int, robots: int, span_s: float, faults: int = 3, lease_s: float = 2.0) -> list[Fault]:
     """A seeded random plan of ``faults`` robot faults in the first ``span_s`` seconds: kills followed
-    by a restart of the same robot, short pauses (below a typical lease) and long ones (past it)."""
+    by a restart of the same robot, short pauses (below a ``lease_s`` liveliness lease), long ones
+    (past it) and split brains (:func:`split_brain`); each robot takes at most one of them."""
     rng = random.Random(seed)
     plan: list[Fault] = []
-    for _ in range(faults):
-        name = robot_name(rng.randrange(robots))
+    for robot in rng.sample(range(robots), min(faults, robots)):
+        name = robot_name(robot)
         at = round(rng.uniform(0.0, span_s), 1)
-        kind = rng.choice(("kill", "pause", "pause"))
+        kind = rng.choice(("kill", "pause", "pause", "split"))
         if kind == "kill":
             plan += [Fault("kill", name, at), Fault("restart", name, round(at + rng.uniform(0.5, 3.0), 1))]
+        elif kind == "split":
+            plan += split_brain(name, at, lease_s)
         else:
-            plan.append(Fault("pause", name, at, round(rng.choice((rng.uniform(0.2, 1.0), rng.uniform(2.5, 4.0))), 1)))
+            long = rng.random() < 0.5
+            length = rng.uniform(1.25, 2.0) * lease_s if long else rng.uniform(0.1, 0.5) * lease_s
+            plan.append(Fault("pause", name, at, round(length, 1)))
     return sorted(plan, key=lambda fault: fault.at_s)
 
 
@@ -139,9 +150,16 @@ class Nemesis:
         self.struck: list[Struck] = []
         self.paused: dict[Fault, object] = {}
 
-    def tick(self, since_first_step_s: float | None) -> None:
+    def tick(self, since_first_step_s: float | None, over: bool = False) -> None:
         """Carry out every fault due ``since_first_step_s`` seconds after the first step (None: the
-        run has not stepped yet)."""
+        run has not stepped yet); once the run is ``over``, no fault more, and every paused process
+        is woken (it must end with its team)."""
+        if over:
+            self.pending.clear()
+            for process in self.paused.values():  # woken too late to end with its team: not a failure
+                self.spare(process)
+            self.wake_all()
+            return
         while self.pending and since_first_step_s is not None and self.pending[0][0] <= since_first_step_s:
             _, phase, fault = self.pending.pop(0)
             self._carry_out(fault, phase, since_first_step_s)

@@ -26,6 +26,7 @@ from ringtrack.agents.summary import summarise
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
 from ringtrack.bus.keys import new_run_id, robot_index, robot_name
+from ringtrack.bus.lives import SUPERSEDED_MARK
 from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport, energy_report
 from ringtrack.bus.security import SECURE_LOOPBACK_ANY_PORT, check_team
@@ -108,8 +109,8 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 def poll() -> None:
                     first_step()
-                    if nemesis is not None and world_running(supervisor):  # no fault once the run is over
-                        nemesis.tick(first_step.since())
+                    if nemesis is not None:
+                        nemesis.tick(first_step.since(), over=not world_running(supervisor))
 
                 supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=poll,
                                 started=lambda: first_step.after is not None,
@@ -125,14 +126,15 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
                 nemesis.wake_all()
             supervisor.stop(stop_signal=stop_signal)
     if stop is None:
-        for line in _failure_lines(supervisor, log_path, read_fenced(log_path)):
+        for line in _failure_lines(supervisor, log_path):
             err.print(line, highlight=False, markup=False)
     result = _result(scenario, folder, log_path, plan.clock, run, supervisor, time.perf_counter() - started,
                      plan.settle)
     result.topology = topology
     result.startup_s = first_step.after
     result.nemesis = [dataclasses.asdict(struck) for struck in nemesis.struck] if nemesis is not None else []
-    result.failures = failures(supervisor, result.fenced_lives)
+    result.fenced_lives = len(fenced(supervisor))
+    result.failures = failures(supervisor)
     result.stopped = None if stop is None else f"{stop.value}: {stalled}" if stalled else stop.value
     result.exit_code = 130 if stop is not None and stop.by_signal else \
         int(bool(result.failures or stop or result.distrust))
@@ -318,33 +320,28 @@ def stalled_at(log_path: Path, folder: Path) -> str:
     return f"after step {steps} (waiting for step {steps + 1}{waiting})"
 
 
-def fenced(supervisor: Supervisor, lives: int) -> list[Child]:
-    """The robot processes that stopped because a newer life of their id replaced them (exit code
-    :data:`agents.process.FENCED`), at most ``lives`` of them (the fenced lives the monitor's books
-    record): the fence did its work, they did not fail."""
+def fenced(supervisor: Supervisor) -> list[Child]:
+    """The robot processes that stopped because a newer life of their id replaced them: exit code
+    :data:`agents.process.FENCED` and, as their last word, the line that says so. The fence did its
+    work; they did not fail."""
     return [child for child in supervisor.crashed()
-            if robot_index(child.name) is not None and child.process.returncode == FENCED][:lives]
+            if robot_index(child.name.split("@")[0]) is not None and child.process.returncode == FENCED
+            and SUPERSEDED_MARK in child.stderr_tail(1)]
 
 
-def failures(supervisor: Supervisor, lives: int) -> dict[str, int | None]:
+def failures(supervisor: Supervisor) -> dict[str, int | None]:
     """Exit code by name of every child that failed on its own (not a fenced life)."""
-    excused = fenced(supervisor, lives)
+    excused = fenced(supervisor)
     return {child.name: child.process.returncode for child in supervisor.crashed() if child not in excused}
 
 
-def read_fenced(log_path: Path) -> int:
-    """The fenced lives a complete run log's end record counts (0 without one)."""
-    end = read_log(log_path).end if log_path.is_file() else None
-    return (end or {}).get("notes", {}).get("superseded", 0)
-
-
-def _failure_lines(supervisor: Supervisor, log_path: Path, lives: int) -> list[str]:
+def _failure_lines(supervisor: Supervisor, log_path: Path) -> list[str]:
     """One line per child that crashed on its own, with the tail of its standard error (not the
-    ``lives`` fenced ones: :func:`fenced`); a monitor that stopped because the run log could not be
-    written (a full disk, whose stderr file cannot hold its message either) says which file and how
-    many complete steps it holds."""
+    fenced ones: :func:`fenced`); a monitor that stopped because the run log could not be written
+    (a full disk, whose stderr file cannot hold its message either) says which file and how many
+    complete steps it holds."""
     lines = []
-    excused = fenced(supervisor, lives)
+    excused = fenced(supervisor)
     for child in supervisor.crashed():
         if child in excused:
             continue
@@ -423,7 +420,6 @@ def _result(scenario: Scenario, folder: Path, log_path: Path, clock: Clock, run:
     result.rss_kib = end.get("rss_kib") or {name: counts["rss_kib"] for name, counts in senders.items()}
     result.end_reason = EndReason(end["reason"]) if "reason" in end else None
     result.id_collisions = end.get("notes", {}).get("id_collisions", 0)
-    result.fenced_lives = end.get("notes", {}).get("superseded", 0)
     result.distrust = distrust(end) if log.end is not None else None
     result.energy = robot_energy(end.get("energy_j", {}), scenario.robots)
     if end.get("wall_s") and end.get("steps"):
