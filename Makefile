@@ -28,10 +28,13 @@ check: $(STAMP)
 	@mkdir -p $(VENV)/typecheck && ln -sfn $(CURDIR) $(VENV)/typecheck/ringtrack
 	$(BIN)/mypy
 
-# The full hypothesis example counts (plain pytest runs the dev profile: 30 % of them).
+# The full hypothesis example counts (plain pytest runs the dev profile: 30 % of them). Then the
+# multi-process tests once more, beside two CPU-burning processes (tests/burn.py): they must hold on
+# a machine whose cores are all busy.
 HYPOTHESIS_PROFILE ?= ci
 test: check
 	HYPOTHESIS_PROFILE=$(HYPOTHESIS_PROFILE) $(BIN)/python -m pytest -q
+	HYPOTHESIS_PROFILE=$(HYPOTHESIS_PROFILE) $(BIN)/python -m tests.burn -q -m processes -p no:cacheprovider
 
 bench: $(STAMP)
 	$(BIN)/ringtrack bench engine

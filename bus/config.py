@@ -19,6 +19,7 @@ from typing import Literal, Protocol
 import zenoh
 
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+MAX_MESSAGE_BYTES = 4 << 20  # a team of a thousand robots' largest message (statistics) is 1 MiB
 RECONNECT = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}
 LEASE_S = 10.0  # Zenoh's default link lease: a frozen peer is seen gone after about as long
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/(\[[0-9a-fA-F:.]+\]|[^/:\s]+):\d{1,5}$")
@@ -91,6 +92,9 @@ class BusConfig:
             # --connect endpoints again soon (from 0.2 s, at most every second), to learn within a
             # lease whether a newer life replaced it (bus.lives).
             "connect/retry": RECONNECT,
+            # Zenoh drops, at the link, a message larger than any a team sends (a flood of 10 MiB
+            # payloads never reaches a process's memory; the link stays up).
+            "transport/link/rx/max_message_size": MAX_MESSAGE_BYTES,
             "adminspace/enabled": self.admin_space,
             # No shared memory: Zenoh would copy every payload of 3 kB or more (a digest, a large
             # team's statistics) into a 16 MiB pool mapped by sender and receiver alike.

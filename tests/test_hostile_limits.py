@@ -84,3 +84,34 @@ def test_a_forged_end_that_empties_the_ring_ends_the_run_as_failed(tmp_path: Pat
     assert summary["failures"] == {"world": 1}
     assert "every robot left the ring by step" in stderr
     assert processes_mentioning(str(folder)) == []
+
+
+FLOOD_PAYLOADS = 30  # of 10 MiB each: 300 MiB, which a monitor that buffered them would hold at once
+FLOOD_RSS_KIB = 200_000  # a six-robot monitor peaks near 90 MB; one that buffered the flood, above 350 MB
+
+
+@pytest.mark.processes
+def test_a_flood_of_oversized_payloads_is_dropped_at_the_link_and_the_monitor_holds_its_memory(
+        tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    spawn = start_spawn(runs, "--steps", "3000")
+    try:
+        folder = wait_for_steps(runs, 20)
+        run = json.loads((folder / "run.json").read_text())
+        keys = Keys(int(run["run"], 16))
+        with open_session(BusConfig(connect=tuple(run["connect"]))) as session:
+            time.sleep(0.5)
+            publisher = session.declare_publisher(keys.data("monitor", "r1", "stats"))
+            blob = bytes(10 << 20)
+            for _ in range(FLOOD_PAYLOADS):
+                publisher.put(blob)
+            time.sleep(1.0)
+            publisher.undeclare()
+        spawn.communicate(timeout=200)
+    finally:
+        stop_all(spawn)
+    assert spawn.returncode == 0  # the run went on, its books untouched
+    end = json.loads((folder / "log.jsonl").read_text().splitlines()[-1])
+    assert end["type"] == "end" and end["consistent"] is True
+    assert end["rss_kib"]["monitor"] < FLOOD_RSS_KIB, end["rss_kib"]
+    assert "size" not in end["rejected"]  # none of them even reached the monitor's door
