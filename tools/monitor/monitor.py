@@ -425,6 +425,7 @@ async def _watch(
     digests count for the messages the monitor does not receive (:data:`DIGESTED`)."""
     finals: dict[str, Stats] = {}  # by life_label(sender, life)
     cut_off: set[str] = set()
+    lives_recorded: dict[str, int] = {}
     end: End | None = None
     code = 0
     interrupted_at = 0.0
@@ -474,6 +475,7 @@ async def _watch(
             last_view = now
         await asyncio.sleep(DRAIN_PERIOD_S)
         events = participant.drain()
+        record_new_lives(participant, recorder, lives_recorded)
     report = MonitorReport(
         received=participant.counter.received_table(),
         senders={name: stats.sent for name, stats in finals.items()},
@@ -531,6 +533,17 @@ def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestE
                 participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
                                                     robot_name(receiver)), each)
                 recorder.count_reported(command.step, each, (ROBOT_TRAFFIC_KINDS[kind], sender, receiver))
+
+
+def record_new_lives(participant: Participant, recorder: Recorder, recorded: dict[str, int]) -> None:
+    """Write a ``life`` event to the log for every new life of a robot the monitor has heard from
+    since the last call (a restarted process; the first life of each robot goes unsaid)."""
+    for name, lives in participant.life_history.items():
+        for life in lives[recorded.get(name, 0):]:
+            if life > 1:
+                recorder.record({"type": "event", "event": "life", "robot": name, "subject": f"life {life}",
+                                 "step": recorder.latest_tick, "wall": time.time()})
+        recorded[name] = len(lives)
 
 
 def _seen_everything(participant: Participant, finals: dict[str, Stats]) -> bool:

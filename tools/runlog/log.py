@@ -356,6 +356,46 @@ class LogError(ValueError):
     """The file is not a run log; the message says why."""
 
 
+def append_records(path: Path, records: list[dict[str, Any]]) -> bool:
+    """Append ``records`` to a complete run log (a supervisor's own events, written once the run is
+    over, after its end record); whether they were written. A write that fails (a full disk) cuts
+    the file back to what it was, so the log stays readable."""
+    try:
+        with path.open("ab") as file:
+            size = file.tell()
+            try:
+                file.write(b"".join(_encoder.encode(record) + b"\n" for record in records))
+                file.flush()
+            except OSError:
+                file.truncate(size)
+                return False
+    except OSError:
+        return False
+    return True
+
+
+TAIL_BYTES = 1 << 20  # how far back from a log's end last_logged_step looks
+
+
+def last_logged_step(path: Path) -> int:
+    """The number of the last step record a run log being written holds so far (0: none, or no
+    file), read from its tail without decoding the rest."""
+    try:
+        with path.open("rb") as file:
+            file.seek(0, os.SEEK_END)
+            file.seek(max(0, file.tell() - TAIL_BYTES))
+            tail = file.read()
+    except OSError:
+        return 0
+    prefix = b'{"type":"step","step":'
+    for line in reversed(tail.split(b"\n")):
+        if line.startswith(prefix):
+            digits = line[len(prefix):].split(b",", 1)[0]
+            if digits.isdigit():
+                return int(digits)
+    return 0
+
+
 def read_log(path: Path) -> RunLog:
     """Read and check a run log, skipping a torn last line (a killed run). A damaged record raises
     :class:`LogError`, a bad scenario :class:`~world.scenario.ScenarioError`, in one line naming

@@ -8,12 +8,14 @@ holds ``faults = [...]``)::
 ``kill NAME@T`` sends SIGKILL to a robot (``r<i>``), the monitor or the world; ``restart r<i>@T``
 starts a new process for robot i (it joins as the id's next life, :mod:`bus.lives`); ``pause
 NAME@T:D`` freezes a process with SIGSTOP for D seconds, then wakes it with SIGCONT. Every fault
-carried out is written, with when and to which pid, to ``nemesis.jsonl`` in the run folder and to
-the run's summary. :func:`random_plan` draws seeded plans for ``ringtrack experiment nemesis``.
+carried out is written, with when, at which step of the run and to which pid, to ``nemesis.jsonl``
+in the run folder, to the run's summary and, once the run is over, to its log as ``nemesis``
+events. :func:`random_plan` draws seeded plans for ``ringtrack experiment nemesis``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import random
 import re
@@ -21,7 +23,6 @@ import signal
 import time
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -121,13 +122,16 @@ def random_plan(seed: int, robots: int, span_s: float, faults: int = 3, lease_s:
     return sorted(plan, key=lambda fault: fault.at_s)
 
 
-@dataclass
+@dataclasses.dataclass
 class Struck:
-    """A fault carried out: when (seconds after the first step), what, and on which process."""
+    """A fault carried out: when (seconds after the first step, and the last step logged by then),
+    what, on which process, and the wall-clock time (seconds since the epoch)."""
 
     at_s: float
+    step: int
     fault: str
     pid: int | None
+    wall: float
 
 
 class Nemesis:
@@ -138,7 +142,7 @@ class Nemesis:
 
     def __init__(self, faults: list[Fault], folder: Path, find: Callable[[str], object | None],
                  send: Callable[[object, int], int | None], restart: Callable[[int], int],
-                 spare: Callable[[object], None]) -> None:
+                 spare: Callable[[object], None], step: Callable[[], int]) -> None:
         pending: list[tuple[float, str, Fault]] = []
         for fault in faults:
             pending.append((fault.at_s, "start", fault))
@@ -146,7 +150,7 @@ class Nemesis:
                 pending.append((fault.at_s + fault.for_s, "end", fault))
         self.pending = sorted(pending, key=lambda entry: entry[0])
         self.path = folder / "nemesis.jsonl"
-        self.find, self.send, self.restart, self.spare = find, send, restart, spare
+        self.find, self.send, self.restart, self.spare, self.step = find, send, restart, spare, step
         self.struck: list[Struck] = []
         self.paused: dict[Fault, object] = {}
 
@@ -179,9 +183,15 @@ class Nemesis:
                 self.paused[fault] = process
                 pid = self.send(process, signal.SIGSTOP)
         what = f"wake {fault.target}" if phase == "end" else str(fault)
-        self.struck.append(Struck(round(now_s, 3), what, pid))
+        struck = Struck(round(now_s, 3), self.step(), what, pid, time.time())
+        self.struck.append(struck)
         with self.path.open("a") as file:
-            file.write(json.dumps({"at_s": round(now_s, 3), "fault": what, "pid": pid, "wall": time.time()}) + "\n")
+            file.write(json.dumps(dataclasses.asdict(struck)) + "\n")
+
+    def events(self) -> list[dict[str, object]]:
+        """The faults carried out as run-log event records (``nemesis``, the fault as ``subject``)."""
+        return [{"type": "event", "event": "nemesis", "step": struck.step, "subject": struck.fault,
+                 "wall": struck.wall} for struck in self.struck]
 
     def wake_all(self) -> None:
         """Wake every process still paused (the run is ending)."""

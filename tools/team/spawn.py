@@ -34,7 +34,7 @@ from ringtrack.tools.dashboard.startup import StartupView
 from ringtrack.tools.output.console import UsageError, err, out, warn_if_threshold_loose
 from ringtrack.tools.output.files import OutputError, write_json
 from ringtrack.tools.runlog.derived import distrust
-from ringtrack.tools.runlog.log import LogWriteError, history_from_log, read_log
+from ringtrack.tools.runlog.log import LogWriteError, append_records, history_from_log, last_logged_step, read_log
 from ringtrack.tools.team.nemesis import Nemesis
 from ringtrack.tools.team.plan import Clock, Stop, TeamPlan, TeamResult
 from ringtrack.tools.team.supervisor import (
@@ -105,7 +105,7 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
             with terminate_as_exception(), view or contextlib.nullcontext():
                 robots = start_team(supervisor, plan, TeamLaunch(run, folder, log_path, topology, listen, start, view,
                                                                  started))
-                nemesis = unleash(plan, supervisor, folder, robots, start)
+                nemesis = unleash(plan, supervisor, folder, log_path, robots, start)
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 def poll() -> None:
                     first_step()
@@ -128,6 +128,8 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
     if stop is None:
         for line in _failure_lines(supervisor, log_path):
             err.print(line, highlight=False, markup=False)
+    if nemesis is not None and nemesis.struck:
+        append_records(log_path, nemesis.events())
     result = _result(scenario, folder, log_path, plan.clock, run, supervisor, time.perf_counter() - started,
                      plan.settle)
     result.topology = topology
@@ -239,8 +241,8 @@ def world_running(supervisor: Supervisor) -> bool:
     return any(child.name == "world" for child in supervisor.running())
 
 
-def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, robots: list[tuple[str, list[str]]],
-            start: str) -> Nemesis | None:
+def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, log_path: Path,
+            robots: list[tuple[str, list[str]]], start: str) -> Nemesis | None:
     """The nemesis of ``plan`` against the team just started (None: no plan). A restarted robot is a
     new process with its first process's arguments, named ``r<i>@<n>`` for its n-th restart."""
     if not plan.nemesis:
@@ -269,7 +271,7 @@ def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, robots: list[t
         assert isinstance(child, Child)
         supervisor.spared.add(child.pid)
 
-    return Nemesis(plan.nemesis, folder, find, send, restart, spare)
+    return Nemesis(plan.nemesis, folder, find, send, restart, spare, lambda: last_logged_step(log_path))
 
 
 def reported(result: TeamResult, folder: Path, log_path: Path) -> TeamResult:
