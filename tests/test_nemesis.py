@@ -79,8 +79,11 @@ def test_the_nemesis_against_lockstep_and_realtime_teams_leaves_balanced_books_a
     for row, folder in zip(study["rows"], sorted((tmp_path / "runs").iterdir()), strict=True):
         carried_out = [json.loads(line)["fault"] for line in (folder / "nemesis.jsonl").read_text().splitlines()]
         planned = row["plan"].split(", ")
-        assert [fault for fault in carried_out if not fault.startswith("wake ")] == planned
-        assert len([fault for fault in carried_out if fault.startswith("wake ")]) == row["plan"].count("pause")
+        struck = [fault for fault in carried_out if not fault.startswith("wake ")]
+        assert struck == planned[:len(struck)] and len(struck) >= len(planned) / 2  # none once the run was over
+        paused = {fault.split("@")[0].removeprefix("pause ") for fault in struck if fault.startswith("pause")}
+        assert sorted(fault.removeprefix("wake ") for fault in carried_out if fault.startswith("wake ")) == sorted(
+            paused)  # every paused process woken, at its time or as the run ended
         summary = json.loads((folder / "summary.json").read_text())
         end = read_log(folder / "log.jsonl").end
         assert end is not None and end["consistent"] is True and summary["distrust"] is None, end["books"]

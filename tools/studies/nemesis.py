@@ -23,6 +23,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 
+from ringtrack.bus.runtime import STOPPED
 from ringtrack.tools.runlog.derived import step_errors
 from ringtrack.tools.runlog.log import read_log
 from ringtrack.tools.team.nemesis import Fault, random_plan
@@ -86,6 +87,8 @@ def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, run
     plan = TeamPlan(scenario=scenario, clock=clock, rate=RATE, runs=runs, dashboard=False, quiet=True,
                     lease=LEASE_S, audit=True, nemesis=faults)
     result = spawn_team(plan)
+    if result.exit_code == STOPPED:  # Ctrl-C or SIGTERM: spawn ended the team; the study ends too
+        raise KeyboardInterrupt
     folder = Path(result.folder)
     fatal = next((fault.target for fault in faults if fault.target in ("monitor", "world")), None)
     log = read_log(folder / "log.jsonl") if (folder / "log.jsonl").is_file() else None

@@ -160,9 +160,9 @@ class Nemesis:
         is woken (it must end with its team)."""
         if over:
             self.pending.clear()
-            for process in self.paused.values():  # woken too late to end with its team: not a failure
+            for fault, process in list(self.paused.items()):  # woken late to end with its team: no failure
                 self.spare(process)
-            self.wake_all()
+                self._carry_out(fault, "end", since_first_step_s or 0.0)
             return
         while self.pending and since_first_step_s is not None and self.pending[0][0] <= since_first_step_s:
             _, phase, fault = self.pending.pop(0)
@@ -172,7 +172,7 @@ class Nemesis:
         pid: int | None = None
         if fault.action == "restart":
             pid = self.restart(robot_index(fault.target) or 0)
-        elif phase == "end":  # the end of a pause
+        elif phase == "end":  # the end of a pause (or the run)
             process = self.paused.pop(fault, None)
             pid = None if process is None else self.send(process, signal.SIGCONT)
         elif (process := self.find(fault.target)) is not None:

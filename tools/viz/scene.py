@@ -328,15 +328,18 @@ class Translator:
         what = record["event"]
         if what == "dropped" and record.get("sender") is not None:
             self.dropped[step].append(record)
-        if record.get("robot") is not None:
-            text = f"{record['robot']} {'left the ring' if what == 'left' else 'joined' if what == 'joined' else what}"
+        if what == "nemesis":  # a fault a nemesis carried out (tools.team.nemesis)
+            text, name = f"nemesis: {record.get('subject')}", "nemesis"
+        elif record.get("robot") is not None:
+            said = {"left": "left the ring", "joined": "joined", "life": f"joined as {record.get('subject')}"}
+            text = f"{record['robot']} {said.get(what, what)}"
             name = record["robot"]
         else:
             text = f"{what} {record.get('subject') or 'message'} r{record.get('sender')} -> r{record.get('receiver')}"
             text += f" ({record['reason']})" if record.get("reason") else ""
             text += f" by {record['delay_s']:g} s" if record.get("delay_s") else ""
             name = f"r{record.get('sender')}"
-        level = fm.LogLevel.Warning if what in ("dropped", "left") else fm.LogLevel.Info
+        level = fm.LogLevel.Warning if what in ("dropped", "left", "nemesis") else fm.LogLevel.Info
         entry = fm.Log(timestamp=stamp(seconds), level=level, message=f"step {step}: {text}", name=name,
                        file="", line=0)
         return [Sample("/log", entry, nanoseconds(seconds))]

@@ -167,8 +167,9 @@ def _live_view(scenario: Scenario, serve: tuple[str, int], connection: Any) -> N
 
 
 def write_mcap(log: RunLog, path: Path) -> None:
-    """Write a run ``log`` as MCAP to ``path``: its step and event records in file order, then its end
-    (``export --mcap``, and ``spawn --record`` once the run's log is complete)."""
+    """Write a run ``log`` as MCAP to ``path``: its step and event records in the order of their steps
+    (file order within a step: a supervisor's events, appended after the end, go where they happened),
+    then its end (``export --mcap``, and ``spawn --record`` once the run's log is complete)."""
     with FoxgloveSink(log.scenario, record=path) as sink:
-        for record in [*log.records, *([log.end] if log.end else [])]:
+        for record in [*sorted(log.records, key=lambda record: record["step"]), *([log.end] if log.end else [])]:
             sink(record)
