@@ -18,21 +18,25 @@ was frozen past the lease and the id rejoined) stops at once with :class:`bus.li
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
 from collections import deque
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import msgspec
 
 from ringtrack.agents.node import BUFFERED_LIMIT, Outgoing, RobotNode
 from ringtrack.bus.config import BusConfig
+from ringtrack.bus.faults import cut_peers
 from ringtrack.bus.identity import IdClaim, refuse_if_alive
 from ringtrack.bus.keys import BROADCAST, MONITOR, WORLD, Keys, participants, robot_index
 from ringtrack.bus.lives import NewerLife, Superseded, Voyage, ask_life, row_out, superseded_message
 from ringtrack.bus.messages import Command, End, Measurement, Push, RangeReport, Reply, Request, Stats, encode
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Posted, Presence, far_ahead
 from ringtrack.bus.reach import ReachTokens
-from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, next_events, perform
+from ringtrack.bus.runtime import COUNTS_FOLDER_ENV, STOPPED, Interrupts, Role, Roster, next_events, perform
 from ringtrack.bus.shim import LinkShim
 from ringtrack.world.scenario import Scenario
 
@@ -84,10 +88,17 @@ async def run_robot(
     async def main(participant: Participant, roster: Roster, events: list) -> int:
         nonlocal link
         link = RobotLink(participant, node, reply_timeout, expect_monitor)
+        folder = os.environ.get(COUNTS_FOLDER_ENV)  # a supervisor's run folder, where a nemesis cuts links
+        loop = asyncio.get_running_loop()
+        if folder:
+            shim = link.shim
+            loop.add_signal_handler(signal.SIGUSR1, lambda: setattr(shim, "cut", cut_peers(Path(folder), robot)))
         try:
             assert claim is not None
             return await _serve(link, roster, events, FenceCheck(bus, claim))
         finally:
+            if folder:
+                loop.remove_signal_handler(signal.SIGUSR1)
             link.reach.close()
             if claim is not None:
                 claim.close()

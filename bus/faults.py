@@ -16,9 +16,11 @@ robot ids; an outage takes a set of links down for steps ``first..last`` (inclus
 
 from __future__ import annotations
 
+import json
 from collections import Counter
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -293,3 +295,18 @@ def team_faults(tables: list[dict[str, int]]) -> dict[str, int]:
     totals: Counter[str] = sum((Counter(table) for table in tables), Counter())
     lost = max(0, totals["published"] - totals["arrived"])
     return {**{name: totals[name] for name in FAULT_COUNTERS}, "dropped": totals["dropped"] + lost, "lost": lost}
+
+
+# A supervisor's nemesis cuts robot links at run time: it writes the links cut now to this file in
+# the run folder, {"cut": [[a, b], ...]}, and tells the robots at their ends (SIGUSR1) to read it.
+PARTITION_FILE = "partition.json"
+
+
+def cut_peers(folder: Path, robot: int) -> frozenset[int]:
+    """The robots whose links to ``robot`` the run folder's :data:`PARTITION_FILE` says are cut now
+    (none when there is no such file, or it cannot be read)."""
+    try:
+        cut = json.loads((folder / PARTITION_FILE).read_text())["cut"]
+        return frozenset(int(b if a == robot else a) for a, b in cut if robot in (a, b))
+    except (OSError, ValueError, KeyError, TypeError):
+        return frozenset()

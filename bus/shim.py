@@ -52,6 +52,7 @@ class LinkShim:
         self.distance = distance
         self.realtime = realtime
         self.counter = FaultCounter()
+        self.cut: frozenset[int] = frozenset()  # robots a nemesis has cut this one off from (bus.faults.cut_peers)
         self.energy_j = [0.0, 0.0]
         # The same energy by the step each message is stamped with, (transmit, receive) per copy,
         # until energy_through folds it into the settled total.
@@ -70,6 +71,8 @@ class LinkShim:
         if isinstance(message, Request) and not self.reachable(message.receiver):
             return Fate(dropped=True, reason="range")
         other = message.receiver if message.sender == self.robot else message.sender
+        if other in self.cut:  # a nemesis's partition
+            return Fate(dropped=True, reason="outage")
         return self.plan.fate(message.kind, message.sender, message.receiver, message.step,
                               self.distance(other, message.step))
 

@@ -12,14 +12,14 @@ import pytest
 
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.runlog.log import read_log
-from ringtrack.tools.team.nemesis import Fault, parse_plan, random_plan, split_brain
+from ringtrack.tools.team.nemesis import EXAMPLE, Fault, parse_plan, random_plan, split_brain
 from tests.helpers import RINGTRACK, processes_mentioning
 
 
 def test_a_plan_reads_as_faults_in_time_order() -> None:
-    assert parse_plan("kill r3@5s, restart r3@8s, pause r1@1.5s:3s, kill monitor@15s", 6) == [
-        Fault("pause", "r1", 1.5, 3.0), Fault("kill", "r3", 5.0), Fault("restart", "r3", 8.0),
-        Fault("kill", "monitor", 15.0)]
+    assert parse_plan("kill r3@5s, restart r3@8s, pause r1@1.5s:3s, partition r0-r2@12s:4s, kill monitor@15s",
+                      6) == [Fault("pause", "r1", 1.5, 3.0), Fault("kill", "r3", 5.0), Fault("restart", "r3", 8.0),
+                             Fault("partition", "r0-r2", 12.0, 4.0), Fault("kill", "monitor", 15.0)]
     assert str(Fault("pause", "r1", 1.5, 3.0)) == "pause r1@1.5s:3s"
 
 
@@ -34,13 +34,18 @@ def test_a_plan_file_holds_its_faults_in_a_nemesis_table(tmp_path: Path) -> None
 
 @pytest.mark.parametrize(("plan", "error"), [
     ("kill r9@5s", "--nemesis 'kill r9@5s': the team has robots r0..r5"),
-    ("explode r1@5s", "--nemesis 'explode r1@5s': unknown action 'explode'; use kill, restart or pause"),
-    ("pause r1@5s", "--nemesis 'pause r1@5s': a pause needs its length (pause r1@10s:3s), and only a pause has one"),
+    ("explode r1@5s", "--nemesis 'explode r1@5s': unknown action 'explode'; use kill, restart, pause or partition"),
+    ("pause r1@5s", "--nemesis 'pause r1@5s': a pause needs its length (pause r1@10s:3s), and only a pause or a "
+                    "partition has one"),
+    ("partition r1-r1@5s:1s", "--nemesis 'partition r1-r1@5s:1s': a partition cuts the link of two robots: "
+                              "partition r0-r2@12s:4s"),
+    ("partition r1-r7@5s:1s", "--nemesis 'partition r1-r7@5s:1s': the team has robots r0..r5"),
+    ("partition r1-r2@5s", "--nemesis 'partition r1-r2@5s': a partition needs its length (partition r0-r2@12s:4s)"),
     ("restart monitor@5s", "--nemesis 'restart monitor@5s': only a robot can be restarted"),
     ("kill fusion@5s", "--nemesis 'kill fusion@5s': 'fusion' is no participant; name r0..r5, monitor or world"),
-    ("kill r1 at 5", "--nemesis 'kill r1 at 5': write a fault like 'kill r3@5s' or 'pause r1@10s:3s' (e.g. kill "
-                     "r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s)"),
-    (" , ", "--nemesis ' , ': no fault in it; e.g. kill r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s"),
+    ("kill r1 at 5", f"--nemesis 'kill r1 at 5': write a fault like 'kill r3@5s' or 'pause r1@10s:3s' (e.g. "
+                     f"{EXAMPLE})"),
+    (" , ", f"--nemesis ' , ': no fault in it; e.g. {EXAMPLE}"),
 ])
 def test_a_bad_plan_gets_one_line_naming_the_fault_and_the_fix(plan: str, error: str) -> None:
     with pytest.raises(UsageError) as raised:
@@ -57,7 +62,9 @@ def test_random_plans_are_seeded_and_restart_every_robot_they_kill() -> None:
         assert any(fault.action == "restart" and fault.target == kill.target and fault.at_s >= kill.at_s
                    for fault in plan)
     assert all(fault.for_s is not None and fault.for_s > 0 for fault in plan if fault.action == "pause")
-    assert len({fault.target for fault in plan}) == 6  # one robot, one kind of fault
+    assert len({fault.target.split("-")[0] for fault in plan}) == 6  # one robot, one kind of fault
+    links = [fault.target.split("-") for fault in plan if fault.action == "partition"]
+    assert all(int(b[1:]) == (int(a[1:]) + 1) % 6 for a, b in links)  # a ring link
 
 
 def test_a_split_brain_restarts_a_robot_frozen_past_the_lease_before_waking_it() -> None:
@@ -79,11 +86,11 @@ def test_the_nemesis_against_lockstep_and_realtime_teams_leaves_balanced_books_a
     for row, folder in zip(study["rows"], sorted((tmp_path / "runs").iterdir()), strict=True):
         carried_out = [json.loads(line)["fault"] for line in (folder / "nemesis.jsonl").read_text().splitlines()]
         planned = row["plan"].split(", ")
-        struck = [fault for fault in carried_out if not fault.startswith("wake ")]
+        struck = [fault for fault in carried_out if not fault.startswith(("wake ", "heal "))]
         assert struck == planned[:len(struck)] and len(struck) >= len(planned) / 2  # none once the run was over
-        paused = {fault.split("@")[0].removeprefix("pause ") for fault in struck if fault.startswith("pause")}
-        assert sorted(fault.removeprefix("wake ") for fault in carried_out if fault.startswith("wake ")) == sorted(
-            paused)  # every paused process woken, at its time or as the run ended
+        for begun, ended in (("pause ", "wake "), ("partition ", "heal ")):  # each ended, in time or as the run did
+            lasting = sorted(fault.split("@")[0].removeprefix(begun) for fault in struck if fault.startswith(begun))
+            assert sorted(fault.removeprefix(ended) for fault in carried_out if fault.startswith(ended)) == lasting
         summary = json.loads((folder / "summary.json").read_text())
         end = read_log(folder / "log.jsonl").end
         assert end is not None and end["consistent"] is True and summary["distrust"] is None, end["books"]
@@ -107,3 +114,26 @@ def test_a_killed_monitor_is_noticed_by_the_world_which_ends_the_run_in_one_line
     assert [json.loads(line)["fault"] for line in (folder / "nemesis.jsonl").read_text().splitlines()] == [
         "kill monitor@1s"]
     assert processes_mentioning(str(folder)) == []
+
+
+@pytest.mark.processes
+@pytest.mark.realtime
+@pytest.mark.timeout(300)
+def test_a_partition_cuts_a_ring_link_for_its_time_and_every_message_across_it_is_counted(tmp_path: Path) -> None:
+    done = subprocess.run([*RINGTRACK, "spawn", "authors-moving", "--clock", "realtime", "--rate", "5", "--steps", "400",
+                           "--lease", "2", "--audit", "--no-dashboard", "--runs", str(tmp_path),
+                           "--nemesis", "partition r0-r1@1s:3s"], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    (folder,) = tmp_path.iterdir()
+    struck = [json.loads(line) for line in (folder / "nemesis.jsonl").read_text().splitlines()]
+    assert [entry["fault"] for entry in struck] == ["partition r0-r1@1s:3s", "heal r0-r1"]
+    log = read_log(folder / "log.jsonl")
+    outages = [event for event in log.events if event["event"] == "dropped" and event["reason"] == "outage"]
+    assert outages and all({event["sender"], event["receiver"]} == {0, 1} for event in outages)
+    faults = log.end["faults"]
+    assert faults["sent"] + faults["duplicated"] == faults["delivered"] + faults["dropped"]
+    assert faults["dropped"] == len(outages)
+    assert log.end["consistent"] is True
+    # the link works again once healed: r0 and r1 poll each other after the partition's last drop
+    healed = max(event["step"] for event in outages)
+    assert any(link[1:3] in ([0, 1], [1, 0]) for record in log.steps[healed:] for link in record["links"])

@@ -24,10 +24,10 @@ def register(kinds: argparse._SubParsersAction) -> None:
         help="random process-fault schedules against live six-robot teams: re-formed?, tracking after, "
         "overlapping lives, balanced books, lost monitor/world noticed",
         description="Run seeded random nemesis schedules (robots killed and restarted as their next life, paused "
-        f"below and past the {LEASE_S:g} s liveliness lease; every fifth schedule also kills the monitor or the "
-        "world) against spawned teams with the wire audit on, alternating the clocks, and check each run: did "
-        "the ring re-form and when, the tracking after it, overlapping lives (must be 0), balanced books (must "
-        "be), and whether a lost monitor or world was noticed.",
+        f"below and past the {LEASE_S:g} s liveliness lease, split brains, ring links partitioned; every fifth "
+        "schedule also kills the monitor or the world) against spawned teams with the wire audit on, alternating "
+        "the clocks, and check each run: did the ring re-form and when, the tracking after it, overlapping lives "
+        "(must be 0), balanced books (must be), and whether a lost monitor or world was noticed.",
     )
     parser.add_argument("scenario", nargs="?", default="authors-moving", help="scenario (default authors-moving)")
     parser.add_argument("--schedules", type=at_least(1), default=50, help="random schedules (default 50)")

@@ -7,7 +7,9 @@ holds ``faults = [...]``)::
 
 ``kill NAME@T`` sends SIGKILL to a robot (``r<i>``), the monitor or the world; ``restart r<i>@T``
 starts a new process for robot i (it joins as the id's next life, :mod:`bus.lives`); ``pause
-NAME@T:D`` freezes a process with SIGSTOP for D seconds, then wakes it with SIGCONT. Every fault
+NAME@T:D`` freezes a process with SIGSTOP for D seconds, then wakes it with SIGCONT; ``partition
+r<a>-r<b>@T:D`` cuts the link between two robots for D seconds (their fault layers drop every
+message between them as an ``outage``; :data:`bus.faults.PARTITION_FILE`). Every fault
 carried out is written, with when, at which step of the run and to which pid, to ``nemesis.jsonl``
 in the run folder, to the run's summary and, once the run is over, to its log as ``nemesis``
 events. :func:`random_plan` draws seeded plans for ``ringtrack experiment nemesis``.
@@ -28,18 +30,21 @@ from typing import Literal
 
 import msgspec
 
+from ringtrack.bus.faults import PARTITION_FILE
 from ringtrack.bus.keys import MONITOR, WORLD, robot_index, robot_name
 from ringtrack.tools.output.console import UsageError
 
-Action = Literal["kill", "restart", "pause"]
-FAULT = re.compile(r"^(?P<action>[a-z]+)\s+(?P<target>[a-z0-9]+)\s*@\s*(?P<at>\d+(?:\.\d+)?)s"
+Action = Literal["kill", "restart", "pause", "partition"]
+FAULT = re.compile(r"^(?P<action>[a-z]+)\s+(?P<target>[a-z0-9]+(?:-r[0-9]+)?)\s*@\s*(?P<at>\d+(?:\.\d+)?)s"
                    r"(?::(?P<for>\d+(?:\.\d+)?)s)?$")
-EXAMPLE = "kill r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s"
+EXAMPLE = "kill r3@5s, restart r3@8s, pause r1@10s:3s, partition r0-r2@12s:4s, kill monitor@15s"
+LASTING = ("pause", "partition")  # the faults that last a given time
 
 
 class Fault(msgspec.Struct, frozen=True):
-    """One scheduled fault: ``action`` on participant ``target`` at ``at_s`` wall seconds after the
-    first step, lasting ``for_s`` seconds (a pause only)."""
+    """One scheduled fault: ``action`` on participant ``target`` (a partition: the link ``r<a>-r<b>``)
+    at ``at_s`` wall seconds after the first step, lasting ``for_s`` seconds (a pause or a
+    partition)."""
 
     action: Action
     target: str
@@ -58,9 +63,12 @@ def parse_fault(text: str, robots: int) -> Fault:
         raise UsageError(f"--nemesis {text.strip()!r}: write a fault like 'kill r3@5s' or 'pause r1@10s:3s' "
                          f"(e.g. {EXAMPLE})")
     action, target = match["action"], match["target"]
+    if action not in ("kill", "restart", *LASTING):
+        raise UsageError(f"--nemesis {text.strip()!r}: unknown action {action!r}; use kill, restart, pause or "
+                         "partition")
+    if action == "partition":
+        return _partition(text.strip(), target, match, robots)
     robot = robot_index(target)
-    if action not in ("kill", "restart", "pause"):
-        raise UsageError(f"--nemesis {text.strip()!r}: unknown action {action!r}; use kill, restart or pause")
     if robot is None and target not in (MONITOR, WORLD):
         raise UsageError(f"--nemesis {text.strip()!r}: {target!r} is no participant; name r0..r{robots - 1}, "
                          "monitor or world")
@@ -71,8 +79,27 @@ def parse_fault(text: str, robots: int) -> Fault:
     lasting = float(match["for"]) if match["for"] is not None else None
     if (action == "pause") != (lasting is not None):
         raise UsageError(f"--nemesis {text.strip()!r}: a pause needs its length (pause r1@10s:3s), and only a pause "
-                         "has one")
+                         "or a partition has one")
     return Fault(action, target, float(match["at"]), lasting)  # type: ignore[arg-type]
+
+
+def _partition(text: str, target: str, match: re.Match[str], robots: int) -> Fault:
+    """A ``partition r<a>-r<b>@T:D`` fault (the link between two robots cut for D seconds)."""
+    ends = [robot_index(name) for name in target.split("-")]
+    if len(ends) != 2 or None in ends or ends[0] == ends[1]:
+        raise UsageError(f"--nemesis {text!r}: a partition cuts the link of two robots: partition r0-r2@12s:4s")
+    if any(robot is not None and robot >= robots for robot in ends):
+        raise UsageError(f"--nemesis {text!r}: the team has robots r0..r{robots - 1}")
+    if match["for"] is None:
+        raise UsageError(f"--nemesis {text!r}: a partition needs its length (partition r0-r2@12s:4s)")
+    return Fault("partition", target, float(match["at"]), float(match["for"]))
+
+
+
+def partition_ends(fault: Fault) -> tuple[int, int]:
+    """The two robots of a partition fault's link."""
+    first, second = (robot_index(name) or 0 for name in fault.target.split("-"))
+    return first, second
 
 
 def parse_plan(plan: str, robots: int) -> list[Fault]:
@@ -104,14 +131,18 @@ def split_brain(name: str, at_s: float, lease_s: float) -> list[Fault]:
 def random_plan(seed: int, robots: int, span_s: float, faults: int = 3, lease_s: float = 2.0) -> list[Fault]:
     """A seeded random plan of ``faults`` robot faults in the first ``span_s`` seconds: kills followed
     by a restart of the same robot, short pauses (below a ``lease_s`` liveliness lease), long ones
-    (past it) and split brains (:func:`split_brain`); each robot takes at most one of them."""
+    (past it), split brains (:func:`split_brain`) and partitions of the robot's link to its
+    counter-clockwise neighbour; each robot takes at most one of them."""
     rng = random.Random(seed)
     plan: list[Fault] = []
     for robot in rng.sample(range(robots), min(faults, robots)):
         name = robot_name(robot)
         at = round(rng.uniform(0.0, span_s), 1)
-        kind = rng.choice(("kill", "pause", "pause", "split"))
-        if kind == "kill":
+        kind = rng.choice(("kill", "pause", "pause", "split", "partition"))
+        if kind == "partition":
+            link = f"{name}-{robot_name((robot + 1) % robots)}"
+            plan.append(Fault("partition", link, at, round(rng.uniform(0.5, 1.5) * lease_s, 1)))
+        elif kind == "kill":
             plan += [Fault("kill", name, at), Fault("restart", name, round(at + rng.uniform(0.5, 3.0), 1))]
         elif kind == "split":
             plan += split_brain(name, at, lease_s)
@@ -143,6 +174,7 @@ class Nemesis:
     def __init__(self, faults: list[Fault], folder: Path, find: Callable[[str], object | None],
                  send: Callable[[object, int], int | None], restart: Callable[[int], int],
                  spare: Callable[[object], None], step: Callable[[], int]) -> None:
+        self.cuts: set[tuple[int, int]] = set()  # the robot links a partition cuts now
         pending: list[tuple[float, str, Fault]] = []
         for fault in faults:
             pending.append((fault.at_s, "start", fault))
@@ -159,9 +191,13 @@ class Nemesis:
         run has not stepped yet); once the run is ``over``, no fault more, and every paused process
         is woken (it must end with its team)."""
         if over:
+            ending = [fault for _, phase, fault in self.pending if phase == "end" and fault.action == "partition"
+                      and partition_ends(fault) in self.cuts]
             self.pending.clear()
             for fault, process in list(self.paused.items()):  # woken late to end with its team: no failure
                 self.spare(process)
+                self._carry_out(fault, "end", since_first_step_s or 0.0)
+            for fault in ending:
                 self._carry_out(fault, "end", since_first_step_s or 0.0)
             return
         while self.pending and since_first_step_s is not None and self.pending[0][0] <= since_first_step_s:
@@ -172,6 +208,9 @@ class Nemesis:
         pid: int | None = None
         if fault.action == "restart":
             pid = self.restart(robot_index(fault.target) or 0)
+        elif fault.action == "partition":
+            (self.cuts.add if phase == "start" else self.cuts.discard)(partition_ends(fault))
+            self._announce_cuts(partition_ends(fault))
         elif phase == "end":  # the end of a pause (or the run)
             process = self.paused.pop(fault, None)
             pid = None if process is None else self.send(process, signal.SIGCONT)
@@ -182,11 +221,22 @@ class Nemesis:
             else:
                 self.paused[fault] = process
                 pid = self.send(process, signal.SIGSTOP)
-        what = f"wake {fault.target}" if phase == "end" else str(fault)
+        what = (f"heal {fault.target}" if fault.action == "partition" else f"wake {fault.target}") \
+            if phase == "end" else str(fault)
         struck = Struck(round(now_s, 3), self.step(), what, pid, time.time())
         self.struck.append(struck)
         with self.path.open("a") as file:
             file.write(json.dumps(dataclasses.asdict(struck)) + "\n")
+
+    def _announce_cuts(self, ends: tuple[int, int]) -> None:
+        """Write the links cut now to ``partition.json`` in the run folder (whole, then renamed) and
+        tell the two robots of ``ends`` to read it (SIGUSR1: :func:`agents.process.cut_links`)."""
+        path = self.path.with_name(PARTITION_FILE)
+        path.with_suffix(".partial").write_text(json.dumps({"cut": sorted(self.cuts)}))
+        path.with_suffix(".partial").replace(path)
+        for robot in ends:
+            if (process := self.find(robot_name(robot))) is not None:
+                self.send(process, signal.SIGUSR1)
 
     def events(self) -> list[dict[str, object]]:
         """The faults carried out as run-log event records (``nemesis``, the fault as ``subject``)."""
