@@ -47,7 +47,7 @@ from ringtrack.world.params import Criterion
 TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
 FEASIBLE = -1e-12  # a face's stationary weights at least this are on the simplex (clipped to 0)
 DEGENERATE = 1e-12  # relative determinant below which a face's system is singular
-SHORT_SUM = 16  # terms a sum adds one by one; longer ones take a cumulative sum
+ACCUMULATED_TERMS = 100  # elements per term up to which sequential_sum takes numpy's running sum
 
 
 @dataclass(frozen=True)
@@ -79,32 +79,35 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
     means = np.asarray(means, dtype=float)
     rows, count = means.shape[:2]
     present = np.ones((rows, count), dtype=bool) if present is None else np.asarray(present, dtype=bool)
-    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), np.eye(2))
+    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), _identity(2))
     information = inverse_2x2(covariances)
     traces = information[..., 0, 0] + information[..., 1, 1]
     determinants = _determinant_form(information, traces)
-    vertices = np.broadcast_to(np.eye(count), (rows, count, count))
     if count == 1:
         return _intersect(means, information, np.ones((rows, 1)))
     face_weights, face_feasible = _face_candidates(traces, determinants, criterion, present)
-    candidates = np.concatenate([vertices, face_weights], axis=1)  # (B, C, k)
+    candidates = np.empty((rows, count + face_weights.shape[1], count))  # (B, C, k): the vertices, then the faces'
+    candidates[:, :count], candidates[:, count:] = _identity(count), face_weights
     feasible = np.concatenate([present, face_feasible], axis=1)
     values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
     # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
     # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
-    chosen = values <= values.min(axis=1, keepdims=True) * (1.0 + TIE_TOLERANCE)
+    chosen = values <= np.minimum.reduce(values, axis=1, keepdims=True) * (1.0 + TIE_TOLERANCE)
     total = sequential_sum(np.where(chosen[..., None], candidates, 0.0), axis=1)
-    return _intersect(means, information, total / chosen.sum(axis=1)[:, None])
+    return _intersect(means, information, total / np.add.reduce(chosen, axis=1)[:, None])
 
 
 def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
-    """The sum along ``axis`` added strictly in order, so that a row's sum never depends on the shape
-    of its batch (numpy's ``sum`` may pair terms differently)."""
+    """The sum along ``axis`` added strictly in order, ``((v_0 + v_1) + v_2) + ...``, so that a row's
+    sum never depends on the shape of its batch (numpy's ``sum`` may pair terms differently). Small
+    arrays take the last of numpy's running sums (one call), larger ones add term by term (numpy's
+    running sum along an inner axis pays per element): the same additions either way."""
     values = np.asarray(values)
     count = values.shape[axis]
-    if count > SHORT_SUM:
-        return np.take(np.cumsum(values, axis=axis), -1, axis=axis)
     index: list[slice | int] = [slice(None)] * values.ndim
+    if count > 2 and values.size <= ACCUMULATED_TERMS * count:
+        index[axis] = -1
+        return np.add.accumulate(values, axis=axis)[tuple(index)]
     index[axis] = 0
     total = values[tuple(index)]
     for term in range(1, count):
@@ -122,24 +125,45 @@ def solve_small(matrices: FloatArray, right: FloatArray) -> tuple[FloatArray, Fl
         determinant: FloatArray = np.asarray(np.linalg.det(matrices), dtype=float)
         safe = np.where(determinant[..., None, None] != 0.0, matrices, np.eye(size))
         return np.asarray(np.linalg.solve(safe, right), dtype=float), determinant
-    m = [[matrices[..., row, column] for column in range(size)] for row in range(size)]
     if size == 1:
-        adjugate = [[np.ones(matrices.shape[:-2])]]
-        determinant = m[0][0]
+        stacked = np.ones(matrices.shape)
+        determinant = matrices[..., 0, 0]
     elif size == 2:
-        adjugate = [[m[1][1], -m[0][1]], [-m[1][0], m[0][0]]]
+        m = [[matrices[..., row, column] for column in range(size)] for row in range(size)]
+        stacked = np.stack([m[1][1], -m[0][1], -m[1][0], m[0][0]], axis=-1).reshape(matrices.shape)
         determinant = m[0][0] * m[1][1] - m[0][1] * m[1][0]
     else:
-        (a, b, c), (d, e, f), (g, h, i) = m
-        first = [e * i - f * h, f * g - d * i, d * h - e * g]  # the cofactors of the first row
-        adjugate = [[first[0], c * h - b * i, b * f - c * e],
-                    [first[1], a * i - c * g, c * d - a * f],
-                    [first[2], b * g - a * h, a * e - b * d]]
-        determinant = a * first[0] + b * first[1] + c * first[2]
-    stacked = np.stack([entry for row in adjugate for entry in row], axis=-1).reshape(matrices.shape)
+        stacked, determinant = _adjugate_3x3(matrices)
     with np.errstate(divide="ignore", invalid="ignore"):
         solution = sequential_sum(stacked[..., :, :, None] * right[..., None, :, :], axis=-2)  # adj(M) right
         return solution / determinant[..., None, None], determinant
+
+
+# The adjugate of a 3x3 matrix (entries a..i row by row, flat indices 0..8), entry by entry in row
+# order, each ``x y - z w``: the flat indices of x, y, z and w (rows of this table).
+_ADJUGATE_3X3 = np.array([[4, 2, 1, 5, 0, 2, 3, 1, 0],   # e c b f a c d b a
+                          [8, 7, 5, 6, 8, 3, 7, 6, 4],   # i h f g i d h g e
+                          [5, 1, 2, 3, 2, 0, 4, 0, 1],   # f b c d c a e a b
+                          [7, 8, 4, 8, 6, 5, 6, 7, 3]])  # h i e i g f g h d
+
+
+def _adjugate_3x3(matrices: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The adjugates (..., 3, 3) and determinants (...) of 3x3 ``matrices``, by cofactors: every
+    entry ``x y - z w`` and the determinant ``(a A + b B) + c C`` along the first row, computed
+    elementwise (one gather of all the factors, then three array operations)."""
+    flat = matrices.reshape(matrices.shape[:-2] + (9,))
+    x, y, z, w = np.moveaxis(flat[..., _ADJUGATE_3X3], -2, 0)
+    adjugate = x * y - z * w
+    determinant = flat[..., 0] * adjugate[..., 0] + flat[..., 1] * adjugate[..., 3] + flat[..., 2] * adjugate[..., 6]
+    return adjugate.reshape(matrices.shape), determinant
+
+
+@lru_cache(maxsize=16)
+def _identity(size: int) -> FloatArray:
+    """The ``size`` x ``size`` identity, read-only (shared)."""
+    identity = np.eye(size)
+    identity.setflags(write=False)
+    return identity
 
 
 @lru_cache(maxsize=16)
@@ -245,12 +269,14 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     as a k x k system with the identity outside the face, so all faces are one batched solve."""
     rows, count = traces.shape
     members, sizes = _faces(count)
-    on_face = np.all(present[:, None, :] | ~members, axis=2)  # (B, F)
+    on_face = ~np.logical_or.reduce(members & ~present[:, None, :], axis=2)  # (B, F)
     inside = members[:, :, None] & members[:, None, :]  # (F, k, k)
-    sub = np.where(inside, determinants[:, None], np.eye(count))  # (B, F, k, k)
-    scale = np.where(inside, np.abs(sub), 0.0).max(axis=(2, 3))
-    face_traces = np.where(members, traces[:, None], 0.0)  # (B, F, k)
-    solved, determinant = solve_small(sub, np.stack([face_traces, np.broadcast_to(members, face_traces.shape)], axis=3))
+    sub = np.where(inside, determinants[:, None], _identity(count))  # (B, F, k, k)
+    scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(2, 3))
+    right = np.empty((rows, len(members), count, 2))  # (B, F, k, 2): the face's traces, and its ones
+    right[..., 0], right[..., 1] = np.where(members, traces[:, None], 0.0), members
+    face_traces = right[..., 0]
+    solved, determinant = solve_small(sub, right)
     # a degenerate face's optimum lies on a smaller face
     usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
     solved = np.where(usable[..., None, None], solved, 0.0)
@@ -266,8 +292,8 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
             local = (a[:, :, None, :] + roots[..., None] * b[:, :, None, :]) / total[..., None]
             solvable = usable[..., None] & found & (total != 0)
     # local (B, F, R, k): R candidates per face, 0 off the face
-    feasible = solvable & np.all(local >= FEASIBLE, axis=3)
-    clipped = np.clip(np.where(feasible[..., None], local, members[:, None, :]), 0.0, None)
+    feasible = solvable & np.logical_and.reduce(local >= FEASIBLE, axis=3)
+    clipped = np.maximum(np.where(feasible[..., None], local, members[:, None, :]), 0.0)
     weights = clipped / sequential_sum(clipped, axis=3)[..., None]
     return weights.reshape(rows, -1, count), feasible.reshape(rows, -1)
 
