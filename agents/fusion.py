@@ -79,7 +79,7 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
     means = np.asarray(means, dtype=float)
     rows, count = means.shape[:2]
     present = np.ones((rows, count), dtype=bool) if present is None else np.asarray(present, dtype=bool)
-    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), _identity(2))
+    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), identity(2))
     information = inverse_2x2(covariances)
     traces = information[..., 0, 0] + information[..., 1, 1]
     determinants = _determinant_form(information, traces)
@@ -87,7 +87,7 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
         return _intersect(means, information, np.ones((rows, 1)))
     face_weights, face_feasible = _face_candidates(traces, determinants, criterion, present)
     candidates = np.empty((rows, count + face_weights.shape[1], count))  # (B, C, k): the vertices, then the faces'
-    candidates[:, :count], candidates[:, count:] = _identity(count), face_weights
+    candidates[:, :count], candidates[:, count:] = identity(count), face_weights
     feasible = np.concatenate([present, face_feasible], axis=1)
     values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
     # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
@@ -140,11 +140,11 @@ def solve_small(matrices: FloatArray, right: FloatArray) -> tuple[FloatArray, Fl
 
 
 # The adjugate of a 3x3 matrix (entries a..i row by row, flat indices 0..8), entry by entry in row
-# order, each ``x y - z w``: the flat indices of x, y, z and w (rows of this table).
+# order, each ``x y - z w``: the flat indices of x, y, z and w (the rows of this table, end to end).
 _ADJUGATE_3X3 = np.array([[4, 2, 1, 5, 0, 2, 3, 1, 0],   # e c b f a c d b a
                           [8, 7, 5, 6, 8, 3, 7, 6, 4],   # i h f g i d h g e
                           [5, 1, 2, 3, 2, 0, 4, 0, 1],   # f b c d c a e a b
-                          [7, 8, 4, 8, 6, 5, 6, 7, 3]])  # h i e i g f g h d
+                          [7, 8, 4, 8, 6, 5, 6, 7, 3]]).ravel()  # h i e i g f g h d
 
 
 def _adjugate_3x3(matrices: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -152,14 +152,14 @@ def _adjugate_3x3(matrices: FloatArray) -> tuple[FloatArray, FloatArray]:
     entry ``x y - z w`` and the determinant ``(a A + b B) + c C`` along the first row, computed
     elementwise (one gather of all the factors, then three array operations)."""
     flat = matrices.reshape(matrices.shape[:-2] + (9,))
-    x, y, z, w = np.moveaxis(flat[..., _ADJUGATE_3X3], -2, 0)
-    adjugate = x * y - z * w
+    factors = flat[..., _ADJUGATE_3X3]
+    adjugate = factors[..., :9] * factors[..., 9:18] - factors[..., 18:27] * factors[..., 27:]
     determinant = flat[..., 0] * adjugate[..., 0] + flat[..., 1] * adjugate[..., 3] + flat[..., 2] * adjugate[..., 6]
     return adjugate.reshape(matrices.shape), determinant
 
 
 @lru_cache(maxsize=16)
-def _identity(size: int) -> FloatArray:
+def identity(size: int) -> FloatArray:
     """The ``size`` x ``size`` identity, read-only (shared)."""
     identity = np.eye(size)
     identity.setflags(write=False)
@@ -245,8 +245,8 @@ def _determinant_form(information: FloatArray, traces: FloatArray) -> FloatArray
     a, b, d = information[..., 0, 0], information[..., 0, 1], information[..., 1, 1]
     products = a[:, :, None] * a[:, None, :] + 2.0 * b[:, :, None] * b[:, None, :] + d[:, :, None] * d[:, None, :]
     form = 0.5 * (traces[:, :, None] * traces[:, None, :] - products)
-    diagonal = np.arange(information.shape[1])
-    form[:, diagonal, diagonal] = a * d - b * b
+    count = information.shape[1]
+    form.reshape(len(form), count * count)[:, :: count + 1] = a * d - b * b  # the diagonal (form is fresh, contiguous)
     return form
 
 
@@ -271,7 +271,7 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     members, sizes = _faces(count)
     on_face = ~np.logical_or.reduce(members & ~present[:, None, :], axis=2)  # (B, F)
     inside = members[:, :, None] & members[:, None, :]  # (F, k, k)
-    sub = np.where(inside, determinants[:, None], _identity(count))  # (B, F, k, k)
+    sub = np.where(inside, determinants[:, None], identity(count))  # (B, F, k, k)
     scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(2, 3))
     right = np.empty((rows, len(members), count, 2))  # (B, F, k, 2): the face's traces, and its ones
     right[..., 0], right[..., 1] = np.where(members, traces[:, None], 0.0), members
@@ -319,5 +319,7 @@ def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatAr
     low_found = np.where(swap, second_found, first_found)
     high_found = np.where(swap, first_found, second_found)
     lone = ~low_found & high_found  # a lone second root takes the first slot
-    return (np.stack([np.where(lone, high, low), high], axis=-1),
-            np.stack([low_found | high_found, high_found & ~lone], axis=-1))
+    roots, found = np.empty(low.shape + (2,)), np.empty(low.shape + (2,), dtype=bool)
+    roots[..., 0], roots[..., 1] = np.where(lone, high, low), high
+    found[..., 0], found[..., 1] = low_found | high_found, high_found & ~lone
+    return roots, found
