@@ -202,14 +202,15 @@ class TeamEstimate:
         packed = np.stack([covariance[..., 0, 0], covariance[..., 0, 1], covariance[..., 1, 1]], axis=-1)
         return np.broadcast_to(packed, (self.trials, self.robots, 3))
 
-    def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> None:
+    def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> bool:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
         as they were before anyone fused this step) and steer by the result; ``centres`` is updated
-        in place."""
-        if self.mode != "decentralized" or self.relay is not None:
-            return
+        in place. Whether any robot fused (else every centre is as it was)."""
+        if self.mode != "decentralized" or self.relay is not None or not (fresh_minus.any() or fresh_plus.any()):
+            return False
         self.estimators.fuse(self._told((fresh_minus, fresh_plus), self.beliefs()))
         centres[...] = self.estimators.centre.reshape(centres.shape)
+        return True
 
 
 FAULT_COLUMNS = FAULT_COUNTERS  # sent, delivered, dropped, duplicated, delayed, published
@@ -550,8 +551,7 @@ def run(
             team.relay.hand_over(told[0] | outcome.fresh_minus, told[1] | outcome.fresh_plus)
         pushes[row] = outcome.pushes
         strategy.receive(controller, *replies(neighbours, outcome, content))
-        if team.mode == "decentralized":
-            team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
+        if team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres):
             controller.recentre(centres)
         goal = controller.goal(reach if limit else None, limit)
         requests[row], faults[row], probes[row] = outcome.requests, outcome.faults, outcome.probes
