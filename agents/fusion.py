@@ -81,20 +81,30 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
     present = np.ones((rows, count), dtype=bool) if present is None else np.asarray(present, dtype=bool)
     covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), identity(2))
     information = inverse_2x2(covariances)
-    traces = information[..., 0, 0] + information[..., 1, 1]
-    determinants = _determinant_form(information, traces)
     if count == 1:
         return _intersect(means, information, np.ones((rows, 1)))
-    face_weights, face_feasible = _face_candidates(traces, determinants, criterion, present)
-    candidates = np.empty((rows, count + face_weights.shape[1], count))  # (B, C, k): the vertices, then the faces'
-    candidates[:, :count], candidates[:, count:] = identity(count), face_weights
-    feasible = np.concatenate([present, face_feasible], axis=1)
+    return _intersect(means, information, _optimal_weights(information, present, criterion))
+
+
+def _optimal_weights(information: FloatArray, present: NDArray[np.bool_], criterion: Criterion) -> FloatArray:
+    """The optimal CI weights (B, k) of each row, from the information matrices (B, k, 2, 2) of its
+    ``present`` (B, k) estimates. Worked with the batch on the last axis (each array operation then
+    runs along whole rows of the batch) and returned with the batch first."""
+    rows, count = present.shape
+    entries = np.ascontiguousarray(information.transpose(2, 3, 1, 0))  # (2, 2, k, B)
+    traces = entries[0, 0] + entries[1, 1]
+    determinants = _determinant_form(entries, traces)
+    on_batch = np.ascontiguousarray(present.T)
+    face_weights, face_feasible = _face_candidates(traces, determinants, criterion, on_batch)
+    candidates = np.empty((count, count + face_weights.shape[1], rows))  # (k, C, B): the vertices, then the faces'
+    candidates[:, :count], candidates[:, count:] = identity(count)[..., None], face_weights
+    feasible = np.concatenate([on_batch, face_feasible], axis=0)
     values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
     # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
     # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
-    chosen = values <= np.minimum.reduce(values, axis=1, keepdims=True) * (1.0 + TIE_TOLERANCE)
-    total = sequential_sum(np.where(chosen[..., None], candidates, 0.0), axis=1)
-    return _intersect(means, information, total / np.add.reduce(chosen, axis=1)[:, None])
+    chosen = values <= np.minimum.reduce(values, axis=0, keepdims=True) * (1.0 + TIE_TOLERANCE)
+    total = sequential_sum(np.where(chosen, candidates, 0.0), axis=1)
+    return np.ascontiguousarray((total / np.add.reduce(chosen, axis=0)).T)
 
 
 def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
@@ -117,26 +127,29 @@ def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
 
 
 def solve_small(matrices: FloatArray, right: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """``(X, det)`` with ``matrices X = right`` for square ``matrices`` (..., k, k) and ``right``
-    (..., k, r), and each matrix's determinant; for k <= 3 by the adjugate, component by component
-    (elementwise along the batch, and without LAPACK's cost per call), else by LAPACK."""
-    size = matrices.shape[-1]
+    """``(X, det)`` with ``matrices X = right`` for square ``matrices`` (k, k, ...) and ``right``
+    (k, r, ...), the batch on the last axes, and each matrix's determinant (...); for k <= 3 by the
+    adjugate, component by component (elementwise along the batch, and without LAPACK's cost per
+    call), else by LAPACK."""
+    size = matrices.shape[0]
     if size > 3:
-        determinant: FloatArray = np.asarray(np.linalg.det(matrices), dtype=float)
-        safe = np.where(determinant[..., None, None] != 0.0, matrices, np.eye(size))
-        return np.asarray(np.linalg.solve(safe, right), dtype=float), determinant
+        batch_first = np.moveaxis(matrices, (0, 1), (-2, -1))
+        determinant: FloatArray = np.asarray(np.linalg.det(batch_first), dtype=float)
+        safe = np.where(determinant[..., None, None] != 0.0, batch_first, np.eye(size))
+        solution = np.linalg.solve(safe, np.moveaxis(right, (0, 1), (-2, -1)))
+        return np.asarray(np.moveaxis(solution, (-2, -1), (0, 1)), dtype=float), determinant
     if size == 1:
         stacked = np.ones(matrices.shape)
-        determinant = matrices[..., 0, 0]
+        determinant = matrices[0, 0]
     elif size == 2:
-        m = [[matrices[..., row, column] for column in range(size)] for row in range(size)]
-        stacked = np.stack([m[1][1], -m[0][1], -m[1][0], m[0][0]], axis=-1).reshape(matrices.shape)
+        m = [[matrices[row, column] for column in range(size)] for row in range(size)]
+        stacked = np.stack([m[1][1], -m[0][1], -m[1][0], m[0][0]]).reshape(matrices.shape)
         determinant = m[0][0] * m[1][1] - m[0][1] * m[1][0]
     else:
         stacked, determinant = _adjugate_3x3(matrices)
     with np.errstate(divide="ignore", invalid="ignore"):
-        solution = sequential_sum(stacked[..., :, :, None] * right[..., None, :, :], axis=-2)  # adj(M) right
-        return solution / determinant[..., None, None], determinant
+        solution = sequential_sum(stacked[:, :, None] * right[None], axis=1)  # adj(M) right
+        return solution / determinant, determinant
 
 
 # The adjugate of a 3x3 matrix (entries a..i row by row, flat indices 0..8), entry by entry in row
@@ -148,13 +161,13 @@ _ADJUGATE_3X3 = np.array([[4, 2, 1, 5, 0, 2, 3, 1, 0],   # e c b f a c d b a
 
 
 def _adjugate_3x3(matrices: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """The adjugates (..., 3, 3) and determinants (...) of 3x3 ``matrices``, by cofactors: every
-    entry ``x y - z w`` and the determinant ``(a A + b B) + c C`` along the first row, computed
+    """The adjugates (3, 3, ...) and determinants (...) of 3x3 ``matrices`` (3, 3, ...), by cofactors:
+    every entry ``x y - z w`` and the determinant ``(a A + b B) + c C`` along the first row, computed
     elementwise (one gather of all the factors, then three array operations)."""
-    flat = matrices.reshape(matrices.shape[:-2] + (9,))
-    factors = flat[..., _ADJUGATE_3X3]
-    adjugate = factors[..., :9] * factors[..., 9:18] - factors[..., 18:27] * factors[..., 27:]
-    determinant = flat[..., 0] * adjugate[..., 0] + flat[..., 1] * adjugate[..., 3] + flat[..., 2] * adjugate[..., 6]
+    flat = matrices.reshape((9,) + matrices.shape[2:])
+    factors = flat[_ADJUGATE_3X3]
+    adjugate = factors[:9] * factors[9:18] - factors[18:27] * factors[27:]
+    determinant = flat[0] * adjugate[0] + flat[1] * adjugate[3] + flat[2] * adjugate[6]
     return adjugate.reshape(matrices.shape), determinant
 
 
@@ -240,22 +253,23 @@ def _times(matrices: FloatArray, vectors: FloatArray) -> FloatArray:
     return matrices[..., 0] * vectors[..., None, 0] + matrices[..., 1] * vectors[..., None, 1]
 
 
-def _determinant_form(information: FloatArray, traces: FloatArray) -> FloatArray:
-    """``D`` (B, k, k): ``det(sum_k w_k I_k) = w^T D w`` (the module docstring)."""
-    a, b, d = information[..., 0, 0], information[..., 0, 1], information[..., 1, 1]
-    products = a[:, :, None] * a[:, None, :] + 2.0 * b[:, :, None] * b[:, None, :] + d[:, :, None] * d[:, None, :]
-    form = 0.5 * (traces[:, :, None] * traces[:, None, :] - products)
-    count = information.shape[1]
-    form.reshape(len(form), count * count)[:, :: count + 1] = a * d - b * b  # the diagonal (form is fresh, contiguous)
+def _determinant_form(entries: FloatArray, traces: FloatArray) -> FloatArray:
+    """``D`` (k, k, B): ``det(sum_k w_k I_k) = w^T D w`` (the module docstring), from the entries of
+    the information matrices (2, 2, k, B) and their traces (k, B)."""
+    a, b, d = entries[0, 0], entries[0, 1], entries[1, 1]
+    products = a[:, None] * a[None] + 2.0 * b[:, None] * b[None] + d[:, None] * d[None]
+    form = 0.5 * (traces[:, None] * traces[None] - products)
+    count = len(traces)
+    form.reshape((count * count,) + traces.shape[1:])[:: count + 1] = a * d - b * b  # the diagonal (form is fresh)
     return form
 
 
 def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray, criterion: Criterion) -> FloatArray:
-    """``tr P_c`` or ``det P_c`` at each candidate's ``weights`` (B, C, k) (inf where the fused
-    information is singular)."""
-    form = sequential_sum(determinants[:, None] * weights[:, :, None, :], axis=3)  # D w, (B, C, k)
-    determinant = sequential_sum(weights * form, axis=2)
-    trace = sequential_sum(traces[:, None] * weights, axis=2)
+    """``tr P_c`` or ``det P_c`` (C, B) at each candidate's ``weights`` (k, C, B) (inf where the fused
+    information is singular), from the traces (k, B) and the determinant form (k, k, B)."""
+    form = sequential_sum(determinants[:, :, None] * weights[None], axis=1)  # D w, (k, C, B)
+    determinant = sequential_sum(weights * form, axis=0)
+    trace = sequential_sum(traces[:, None] * weights, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         value = trace / determinant if criterion == "trace" else 1.0 / determinant
     return np.where(determinant > 0.0, value, np.inf)
@@ -264,38 +278,41 @@ def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray
 def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Criterion,
                      present: NDArray[np.bool_]) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Stationary points of the objective restricted to each face of two or more present estimates
-    (other weights 0): the candidates' ``weights`` (B, C, k) and whether each is ``feasible`` (B, C);
-    one candidate per face for "det", one per root (two) for "trace". Each face's system is solved
-    as a k x k system with the identity outside the face, so all faces are one batched solve."""
-    rows, count = traces.shape
+    (other weights 0), from the traces (k, B), the determinant form (k, k, B) and which estimates are
+    ``present`` (k, B): the candidates' ``weights`` (k, C, B) and whether each is ``feasible`` (C, B);
+    one candidate per face for "det", one per root (two) for "trace", face by face. Each face's
+    system is solved as a k x k system with the identity outside the face, so all faces are one
+    batched solve."""
+    count, rows = traces.shape
     members, sizes = _faces(count)
-    on_face = ~np.logical_or.reduce(members & ~present[:, None, :], axis=2)  # (B, F)
-    inside = members[:, :, None] & members[:, None, :]  # (F, k, k)
-    sub = np.where(inside, determinants[:, None], identity(count))  # (B, F, k, k)
-    scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(2, 3))
-    right = np.empty((rows, len(members), count, 2))  # (B, F, k, 2): the face's traces, and its ones
-    right[..., 0], right[..., 1] = np.where(members, traces[:, None], 0.0), members
-    face_traces = right[..., 0]
+    across = members.T[:, :, None]  # (k, F, 1): which weights each face holds
+    on_face = ~np.logical_or.reduce(across & ~present[:, None], axis=0)  # (F, B)
+    inside = (members.T[:, None] & members.T[None])[..., None]  # (k, k, F, 1)
+    sub = np.where(inside, determinants[:, :, None], identity(count)[:, :, None, None])  # (k, k, F, B)
+    scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(0, 1))
+    right = np.empty((count, 2, len(members), rows))  # (k, 2, F, B): the face's traces, and its ones
+    right[:, 0], right[:, 1] = np.where(across, traces[:, None], 0.0), across
+    face_traces = right[:, 0]
     solved, determinant = solve_small(sub, right)
     # a degenerate face's optimum lies on a smaller face
-    usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
-    solved = np.where(usable[..., None, None], solved, 0.0)
-    a, b = solved[..., 0], solved[..., 1]
-    a_sum, b_sum = sequential_sum(a, axis=2), sequential_sum(b, axis=2)
+    usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes[:, None])
+    solved = np.where(usable, solved, 0.0)
+    a, b = solved[:, 0], solved[:, 1]  # (k, F, B)
+    a_sum, b_sum = sequential_sum(a, axis=0), sequential_sum(b, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         if criterion == "det":
-            local, solvable = (b / b_sum[..., None])[:, :, None], (usable & (b_sum != 0))[:, :, None]
+            local, solvable = (b / b_sum)[:, :, None], (usable & (b_sum != 0))[:, None]
         else:
-            roots, found = _positive_roots(b_sum, a_sum - sequential_sum(face_traces * b, axis=2),
-                                           -sequential_sum(face_traces * a, axis=2))  # (B, F, 2)
-            total = a_sum[..., None] + roots * b_sum[..., None]
-            local = (a[:, :, None, :] + roots[..., None] * b[:, :, None, :]) / total[..., None]
-            solvable = usable[..., None] & found & (total != 0)
-    # local (B, F, R, k): R candidates per face, 0 off the face
-    feasible = solvable & np.logical_and.reduce(local >= FEASIBLE, axis=3)
-    clipped = np.maximum(np.where(feasible[..., None], local, members[:, None, :]), 0.0)
-    weights = clipped / sequential_sum(clipped, axis=3)[..., None]
-    return weights.reshape(rows, -1, count), feasible.reshape(rows, -1)
+            roots, found = _positive_roots(b_sum, a_sum - sequential_sum(face_traces * b, axis=0),
+                                           -sequential_sum(face_traces * a, axis=0))  # (F, 2, B)
+            total = a_sum[:, None] + roots * b_sum[:, None]
+            local = (a[:, :, None] + roots * b[:, :, None]) / total
+            solvable = usable[:, None] & found & (total != 0)
+    # local (k, F, R, B): R candidates per face, 0 off the face
+    feasible = solvable & np.logical_and.reduce(local >= FEASIBLE, axis=0)
+    clipped = np.maximum(np.where(feasible, local, across[..., None]), 0.0)
+    weights = clipped / sequential_sum(clipped, axis=0)
+    return weights.reshape(count, -1, rows), feasible.reshape(-1, rows)
 
 
 def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatArray) -> tuple[FloatArray,
@@ -303,7 +320,8 @@ def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatAr
     """The distinct positive real roots ``L`` of ``quadratic L^2 + linear L + constant = 0``
     elementwise (a vanishing leading coefficient leaves the linear equation), in the
     cancellation-free form ``q = -(linear + sign(linear) sqrt(disc)) / 2``, roots ``q / quadratic``
-    and ``constant / q``: ``(roots, found)`` with a last axis of two slots, the smaller root first."""
+    and ``constant / q``: ``(roots, found)`` with two slots on a new axis before the last, the
+    smaller root first."""
     with np.errstate(divide="ignore", invalid="ignore"):
         discriminant = linear * linear - 4.0 * quadratic * constant
         q = -0.5 * (linear + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), linear))
@@ -319,7 +337,8 @@ def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatAr
     low_found = np.where(swap, second_found, first_found)
     high_found = np.where(swap, first_found, second_found)
     lone = ~low_found & high_found  # a lone second root takes the first slot
-    roots, found = np.empty(low.shape + (2,)), np.empty(low.shape + (2,), dtype=bool)
-    roots[..., 0], roots[..., 1] = np.where(lone, high, low), high
-    found[..., 0], found[..., 1] = low_found | high_found, high_found & ~lone
+    slots = low.shape[:-1] + (2,) + low.shape[-1:]
+    roots, found = np.empty(slots), np.empty(slots, dtype=bool)
+    roots[..., 0, :], roots[..., 1, :] = np.where(lone, high, low), high
+    found[..., 0, :], found[..., 1, :] = low_found | high_found, high_found & ~lone
     return roots, found
