@@ -37,6 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import combinations
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -179,15 +180,27 @@ def identity(size: int) -> FloatArray:
     return identity
 
 
+class Faces(NamedTuple):
+    """The faces of the simplex of ``k`` weights with two or more vertices, read-only: which weights
+    each holds (``across``, (k, F, 1)), their sizes (F, 1) and which entries of a k x k system
+    each spans (``inside``, (k, k, F, 1)); the trailing axes broadcast along a batch."""
+
+    across: NDArray[np.bool_]
+    sizes: NDArray[np.int64]
+    inside: NDArray[np.bool_]
+
+
 @lru_cache(maxsize=16)
-def _faces(count: int) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
-    """The faces of the simplex of ``count`` weights with two or more vertices: which weights each
-    holds, (F, k), and their sizes (F,)."""
+def _faces(count: int) -> Faces:
+    """The :class:`Faces` of the simplex of ``count`` weights."""
     faces = [face for size in range(2, count + 1) for face in combinations(range(count), size)]
-    members = np.zeros((len(faces), count), dtype=bool)
+    members = np.zeros((count, len(faces)), dtype=bool)
     for index, face in enumerate(faces):
-        members[index, list(face)] = True
-    return members, members.sum(axis=1)
+        members[list(face), index] = True
+    shared = Faces(members[:, :, None], members.sum(axis=0)[:, None], (members[:, None] & members[None])[..., None])
+    for array in shared:
+        array.setflags(write=False)
+    return shared
 
 
 def covariance_intersection(means: ArrayLike, covariances: ArrayLike, criterion: Criterion = "trace") -> Fused:
@@ -284,18 +297,16 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     system is solved as a k x k system with the identity outside the face, so all faces are one
     batched solve."""
     count, rows = traces.shape
-    members, sizes = _faces(count)
-    across = members.T[:, :, None]  # (k, F, 1): which weights each face holds
+    across, sizes, inside = _faces(count)
     on_face = ~np.logical_or.reduce(across & ~present[:, None], axis=0)  # (F, B)
-    inside = (members.T[:, None] & members.T[None])[..., None]  # (k, k, F, 1)
     sub = np.where(inside, determinants[:, :, None], identity(count)[:, :, None, None])  # (k, k, F, B)
     scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(0, 1))
-    right = np.empty((count, 2, len(members), rows))  # (k, 2, F, B): the face's traces, and its ones
+    right = np.empty((count, 2, across.shape[1], rows))  # (k, 2, F, B): the face's traces, and its ones
     right[:, 0], right[:, 1] = np.where(across, traces[:, None], 0.0), across
     face_traces = right[:, 0]
     solved, determinant = solve_small(sub, right)
     # a degenerate face's optimum lies on a smaller face
-    usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes[:, None])
+    usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
     solved = np.where(usable, solved, 0.0)
     a, b = solved[:, 0], solved[:, 1]  # (k, F, B)
     a_sum, b_sum = sequential_sum(a, axis=0), sequential_sum(b, axis=0)
@@ -327,9 +338,10 @@ def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatAr
         q = -0.5 * (linear + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), linear))
         linear_only = quadratic == 0.0
         first = np.where(linear_only, -constant / linear, q / quadratic)
-        first_found = np.where(linear_only, linear != 0.0, discriminant >= 0.0)
+        real = discriminant >= 0.0
+        first_found = np.where(linear_only, linear != 0.0, real)
         second = constant / q
-        second_found = ~linear_only & (discriminant >= 0.0) & (q != 0.0)
+        second_found = ~linear_only & real & (q != 0.0)
     first_found &= first > 0.0
     second_found &= (second > 0.0) & ~(first_found & (second == first))
     swap = first_found & second_found & (second < first)
