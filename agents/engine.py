@@ -26,15 +26,15 @@ from ringtrack.bus.radio import message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import (
     converged,
+    convergence_error,
     convergence_step,
     mean_communication_rate,
     memory_cerr,
     strategy_cerr,
     target_error,
-    true_cerr,
 )
 from ringtrack.world.ranges import link_distance
-from ringtrack.world.ring import predecessor_values, successor_values
+from ringtrack.world.ring import midpoint_errors, predecessor_values, successor_values
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensors
 from ringtrack.world.state import motion_step
@@ -516,7 +516,7 @@ def run(
         if recorded is not None:
             recorded[row] = positions
         angles[row] = angle_of(positions, targets[:, None, :])
-        cerr_true[row] = true_cerr(positions, targets)
+        cerr_true[row] = convergence_error(midpoint_errors(angles[row]))  # world.metrics.true_cerr, of these angles
         if strategy.listens:
             centres = team.measure(positions, targets, strategy, told, told_beliefs)
             told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry

@@ -64,7 +64,7 @@ class Told(NamedTuple):
 
     def predicted(self, process_noise: float) -> Told:
         """The same beliefs a step older in meaning: ``P + q I`` (m^2)."""
-        return self._replace(covariances=self.covariances + process_noise * np.eye(2))
+        return self._replace(covariances=self.covariances + process_noise * identity(2))
 
 
 class RangeFilters:
