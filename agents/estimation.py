@@ -83,7 +83,7 @@ class RangeFilters:
     def adopt(self, mean: ArrayLike, covariance: ArrayLike, rows: NDArray[np.bool_] | None = None) -> None:
         """Replace the estimates (of the ``rows`` given, default all) by ``mean``, ``covariance``
         (a prior, or the result of fusing with neighbours' beliefs)."""
-        if rows is None:
+        if rows is None or rows.all():
             self.mean = np.array(mean, dtype=float).reshape(self.mean.shape)
             self.covariance = np.array(covariance, dtype=float).reshape(self.covariance.shape)
         else:
