@@ -309,13 +309,13 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
     solved = np.where(usable, solved, 0.0)
     a, b = solved[:, 0], solved[:, 1]  # (k, F, B)
-    a_sum, b_sum = sequential_sum(a, axis=0), sequential_sum(b, axis=0)
+    a_sum, b_sum = sequential_sum(solved, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         if criterion == "det":
             local, solvable = (b / b_sum)[:, :, None], (usable & (b_sum != 0))[:, None]
         else:
-            roots, found = _positive_roots(b_sum, a_sum - sequential_sum(face_traces * b, axis=0),
-                                           -sequential_sum(face_traces * a, axis=0))  # (F, 2, B)
+            traced_a, traced_b = sequential_sum(face_traces[:, None] * solved, axis=0)  # t . a, t . b
+            roots, found = _positive_roots(b_sum, a_sum - traced_b, -traced_a)  # (F, 2, B)
             total = a_sum[:, None] + roots * b_sum[:, None]
             local = (a[:, :, None] + roots * b[:, :, None]) / total
             solvable = usable[:, None] & found & (total != 0)
@@ -344,13 +344,11 @@ def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatAr
         second_found = ~linear_only & real & (q != 0.0)
     first_found &= first > 0.0
     second_found &= (second > 0.0) & ~(first_found & (second == first))
-    swap = first_found & second_found & (second < first)
+    swap = first_found & second_found & (second < first)  # both found, so either order finds both
     low, high = np.where(swap, second, first), np.where(swap, first, second)
-    low_found = np.where(swap, second_found, first_found)
-    high_found = np.where(swap, first_found, second_found)
-    lone = ~low_found & high_found  # a lone second root takes the first slot
+    lone = ~first_found & second_found  # a lone second root takes the first slot
     slots = low.shape[:-1] + (2,) + low.shape[-1:]
     roots, found = np.empty(slots), np.empty(slots, dtype=bool)
     roots[..., 0, :], roots[..., 1, :] = np.where(lone, high, low), high
-    found[..., 0, :], found[..., 1, :] = low_found | high_found, high_found & ~lone
+    found[..., 0, :], found[..., 1, :] = first_found | second_found, first_found & second_found
     return roots, found
