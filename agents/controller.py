@@ -139,7 +139,9 @@ class MidpointController:
         successor_age: ArrayLike = 0,
     ) -> None:
         """Store replied neighbour positions where ``*_fresh`` holds, with their ages in steps (0 for
-        a reply describing the start of the current step); the other side keeps its older memory."""
+        a reply describing the start of the current step); the other side keeps its older memory.
+        Where nothing came at all, the remembered angles stand (the same positions from the same centre)."""
+        came = False
         for side, position, fresh, age in (
             ("predecessor", predecessor_position, predecessor_fresh, predecessor_age),
             ("successor", successor_position, successor_fresh, successor_age),
@@ -149,12 +151,15 @@ class MidpointController:
                     setattr(self, f"{side}_position", np.asarray(position, dtype=float))
                     setattr(self, f"{side}_age", scalar(np.asarray(age, dtype=np.int64)))
                     setattr(self, f"{side}_known", np.True_)
+                    came = True
                 continue
             fresh = np.asarray(fresh, dtype=bool)
             setattr(self, f"{side}_position", np.where(fresh[..., None], position, getattr(self, f"{side}_position")))
             setattr(self, f"{side}_age", np.where(fresh, age, getattr(self, f"{side}_age")))
             setattr(self, f"{side}_known", getattr(self, f"{side}_known") | fresh)
-        self._remembered_angles()
+            came = came or bool(fresh.any())
+        if came:
+            self._remembered_angles()
 
     def forget(self, predecessor: ArrayLike = False, successor: ArrayLike = False) -> None:
         """Drop what is remembered of a side whose neighbour changed (the ring re-formed around a

@@ -26,15 +26,15 @@ from ringtrack.bus.radio import message_bits, receive_energy, transmit_energy
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import (
     converged,
+    convergence_error,
     convergence_step,
     mean_communication_rate,
     memory_cerr,
     strategy_cerr,
     target_error,
-    true_cerr,
 )
 from ringtrack.world.ranges import link_distance
-from ringtrack.world.ring import predecessor_values, successor_values
+from ringtrack.world.ring import midpoint_errors, predecessor_values, successor_values
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensors
 from ringtrack.world.state import motion_step
@@ -184,9 +184,8 @@ class TeamEstimate:
         who told (T, N) per side, ``beliefs`` every robot's told belief (T, N, 2), (T, N, 2, 2)."""
         means, covariances = beliefs
         robots = self.trials * self.robots
-        return Told(np.stack(_to_sides(means), axis=2).reshape(robots, 2, 2),
-                    np.stack(_to_sides(covariances), axis=2).reshape(robots, 2, 2, 2),
-                    np.stack(sides, axis=-1).reshape(robots, 2))
+        return Told(_sides_of(means).reshape(robots, 2, 2), _sides_of(covariances).reshape(robots, 2, 2, 2),
+                    _pair(*sides).reshape(robots, 2))
 
     def beliefs(self) -> tuple[FloatArray, FloatArray]:
         """Every decentralized robot's belief now: means (T, N, 2) metres, covariances (T, N, 2, 2) m^2."""
@@ -203,14 +202,15 @@ class TeamEstimate:
         packed = np.stack([covariance[..., 0, 0], covariance[..., 0, 1], covariance[..., 1, 1]], axis=-1)
         return np.broadcast_to(packed, (self.trials, self.robots, 3))
 
-    def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> None:
+    def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> bool:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
         as they were before anyone fused this step) and steer by the result; ``centres`` is updated
-        in place."""
-        if self.mode != "decentralized" or self.relay is not None:
-            return
+        in place. Whether any robot fused (else every centre is as it was)."""
+        if self.mode != "decentralized" or self.relay is not None or not (fresh_minus.any() or fresh_plus.any()):
+            return False
         self.estimators.fuse(self._told((fresh_minus, fresh_plus), self.beliefs()))
         centres[...] = self.estimators.centre.reshape(centres.shape)
+        return True
 
 
 FAULT_COLUMNS = FAULT_COUNTERS  # sent, delivered, dropped, duplicated, delayed, published
@@ -311,12 +311,14 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     every copy delivered costs its receiver reception (:mod:`bus.radio`), with the exact encoded
     size of each message."""
     trials, robots = polled.shape
-    reach = np.stack([reach_minus, reach_plus], axis=-1)
+    reach = _pair(reach_minus, reach_plus)
+    requested = polled[..., None] | ~reach
+    if not requested.any() and (pushed is None or not pushed.any()):
+        return _silent(reach.shape)
     distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
-                else np.stack([distance_minus, distance_plus], axis=-1))
+                else _pair(distance_minus, distance_plus))
     robot, neighbour = _ring_sides(robots)
     seed = None if seeds is None else np.asarray(seeds)[:, None, None]
-    requested = polled[..., None] | ~reach
     groups = [(plan, np.arange(trials))] if isinstance(plan, FaultPlan) else plan
     request = _group_fates(groups, "request", robot, neighbour, step, distance, seed, reach.shape)
     reply = _group_fates(groups, "reply", neighbour, robot, step, distance, seed, reach.shape)
@@ -334,11 +336,12 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
         counts = {name: counts[name] + of_pushes[name] for name in counts}
     counts["sent"] = requested.astype(np.int64) + requests + pushes
     counts["published"] = ring_traffic(requests) + pushes.sum(axis=-1)
-    faults = np.stack([counts[name].reshape(trials, -1).sum(axis=1) for name in FAULT_COLUMNS], axis=-1)
+    per_message = np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1).sum(axis=(1, 2))  # (T, 5)
+    faults = np.concatenate([per_message, counts["published"].sum(axis=1)[:, None]], axis=1)
     fresh = (requests > 0) & ~reply.dropped
     radio = groups[0][0].radio
     request_bytes = _ring_message_bytes("request", step, robots, request_belief)
-    sides = None if content is None else np.stack(_to_sides(content), axis=2)  # what (predecessor, successor) carry
+    sides = None if content is None else _sides_of(content)  # what (predecessor, successor) carry
     reply_bytes = (_ring_message_bytes("reply", step, robots, belief) if sides is None
                    else robot_message_bytes("reply", step, neighbour, robot, belief, sides))
     if relayed is not None:
@@ -359,8 +362,27 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
                                   of_pushes["delivered"] * receive_energy(radio, push_bits)])
     totals = own.sum(axis=-1) + _to_neighbours(other)
     return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
-                    totals[0].astype(np.int64), np.stack([totals[1], totals[2]], axis=-1), pushes,
+                    totals[0].astype(np.int64), _pair(totals[1], totals[2]), pushes,
                     (pushes > 0) & ~push.dropped)
+
+
+def _silent(shape: tuple[int, int, int]) -> Exchange:
+    """The exchange of a step in which no robot requests or pushes anything (shape (T, N, 2)): no
+    message, no fault, no energy."""
+    trials, robots = shape[:2]
+    nothing = np.zeros(shape, dtype=np.int64)
+    return Exchange(np.zeros((trials, robots), dtype=bool), np.zeros((trials, robots), dtype=bool), nothing,
+                    np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64), np.zeros(trials, dtype=np.int64),
+                    np.zeros((trials, robots), dtype=np.int64), np.zeros(shape), nothing.copy(),
+                    np.zeros(shape, dtype=bool))
+
+
+def _pair(minus: NDArray, plus: NDArray) -> NDArray:
+    """``np.stack([minus, plus], axis=-1)`` of two arrays of one shape (per side: predecessor,
+    successor), without its cost per call."""
+    pair = np.empty(np.shape(minus) + (2,), dtype=np.result_type(minus, plus))
+    pair[..., 0], pair[..., 1] = minus, plus
+    return pair
 
 
 def _ring_message_bytes(kind: str, step: int, robots: int, belief: bool) -> NDArray[np.int64]:
@@ -494,7 +516,7 @@ def run(
         if recorded is not None:
             recorded[row] = positions
         angles[row] = angle_of(positions, targets[:, None, :])
-        cerr_true[row] = true_cerr(positions, targets)
+        cerr_true[row] = convergence_error(midpoint_errors(angles[row]))  # world.metrics.true_cerr, of these angles
         if strategy.listens:
             centres = team.measure(positions, targets, strategy, told, told_beliefs)
             told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry
@@ -514,7 +536,7 @@ def run(
         pushed = None
         if last_told is not None:
             pushing = ~polled & strategy.wants_push(told_beliefs[0], *last_told, scenario.estimation)
-            pushed = pushing[..., None] & np.stack(reach, axis=-1)
+            pushed = pushing[..., None] & _pair(*reach)
             telling = polled | pushing
             last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
                          np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
@@ -529,8 +551,7 @@ def run(
             team.relay.hand_over(told[0] | outcome.fresh_minus, told[1] | outcome.fresh_plus)
         pushes[row] = outcome.pushes
         strategy.receive(controller, *replies(neighbours, outcome, content))
-        if team.mode == "decentralized":
-            team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres)
+        if team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres):
             controller.recentre(centres)
         goal = controller.goal(reach if limit else None, limit)
         requests[row], faults[row], probes[row] = outcome.requests, outcome.faults, outcome.probes
@@ -587,3 +608,9 @@ def replies(neighbours: tuple[FloatArray, FloatArray], outcome: Exchange,
 def _to_sides(values: NDArray) -> tuple[NDArray, NDArray]:
     """What each robot's predecessor and successor hold of ``values`` (robots on axis 1)."""
     return predecessor_values(values, axis=1), successor_values(values, axis=1)
+
+
+def _sides_of(values: NDArray) -> NDArray:
+    """:func:`_to_sides` as one array, the sides on a new axis 2 (predecessor, successor): shape
+    (T, N, 2, ...) of ``values`` (T, N, ...)."""
+    return np.take(values, _ring_sides(values.shape[1])[1][0], axis=1)

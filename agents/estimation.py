@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.fusion import intersect, intersect_in_order, sequential_sum
+from ringtrack.agents.fusion import identity, intersect, intersect_in_order, sequential_sum
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import EstimationParams
 
@@ -64,7 +64,7 @@ class Told(NamedTuple):
 
     def predicted(self, process_noise: float) -> Told:
         """The same beliefs a step older in meaning: ``P + q I`` (m^2)."""
-        return self._replace(covariances=self.covariances + process_noise * np.eye(2))
+        return self._replace(covariances=self.covariances + process_noise * identity(2))
 
 
 class RangeFilters:
@@ -83,7 +83,7 @@ class RangeFilters:
     def adopt(self, mean: ArrayLike, covariance: ArrayLike, rows: NDArray[np.bool_] | None = None) -> None:
         """Replace the estimates (of the ``rows`` given, default all) by ``mean``, ``covariance``
         (a prior, or the result of fusing with neighbours' beliefs)."""
-        if rows is None:
+        if rows is None or rows.all():
             self.mean = np.array(mean, dtype=float).reshape(self.mean.shape)
             self.covariance = np.array(covariance, dtype=float).reshape(self.covariance.shape)
         else:
@@ -92,7 +92,7 @@ class RangeFilters:
 
     def predict(self) -> None:
         """The random walk's prediction: ``x`` unchanged, ``P + q I``."""
-        self.covariance = self.covariance + self.process_noise * np.eye(2)
+        self.covariance = self.covariance + self.process_noise * identity(2)
 
     def step(self, positions: ArrayLike, ranges: ArrayLike) -> None:
         """Predict one step, then update with the ranges measured from ``positions`` (B, m, 2)."""
@@ -105,23 +105,23 @@ class RangeFilters:
         estimate are skipped; a filter with none left only predicts this step."""
         points = np.asarray(positions, dtype=float).reshape(len(self.mean), -1, 2)
         measured = np.asarray(ranges, dtype=float).reshape(len(self.mean), -1)
-        dx, dy = self.mean[:, 0, None] - points[..., 0], self.mean[:, 1, None] - points[..., 1]
-        distances = np.hypot(dx, dy)
+        offsets = self.mean[:, :, None] - points.transpose(0, 2, 1)  # x - p_j, (B, 2, m)
+        distances = np.hypot(offsets[:, 0], offsets[:, 1])
         usable = np.isfinite(measured) & (distances > SINGULAR_DISTANCE)
         if not usable.any():
             return
         safe = np.where(usable, distances, 1.0)
-        rows = np.where(usable[:, None], np.stack([dx, dy], axis=1) / safe[:, None], 0.0)  # H^T, (B, 2, m)
+        rows = np.where(usable[:, None], offsets / safe[:, None], 0.0)  # H^T, (B, 2, m)
         residual = np.where(usable, measured - distances, 0.0)
         covariance = self.covariance
         gain_numerator = _products(covariance, rows)  # P H^T, (B, 2, m)
         innovation = sequential_sum(rows[:, :, :, None] * gain_numerator[:, :, None, :], axis=1)  # H P H^T
-        innovation = innovation + self.range_sigma**2 * np.eye(measured.shape[1])
+        innovation = innovation + self.range_sigma**2 * identity(measured.shape[1])
         inverse = 1.0 / innovation if measured.shape[1] == 1 else np.linalg.inv(innovation)
         gain = sequential_sum(gain_numerator[:, :, :, None] * inverse[:, None, :, :], axis=2)  # K, (B, 2, m)
         mean = self.mean + sequential_sum(gain * residual[:, None, :], axis=2)
         # Joseph form: (I - K H) P (I - K H)^T + K R K^T
-        keep = np.eye(2) - sequential_sum(gain[:, :, None, :] * rows[:, None, :, :], axis=3)  # I - K H
+        keep = identity(2) - sequential_sum(gain[:, :, None, :] * rows[:, None, :, :], axis=3)  # I - K H
         kept = _products(_products(keep, covariance), keep.transpose(0, 2, 1))  # (I - K H) P (I - K H)^T
         noise = sequential_sum(gain[:, :, None, :] * gain[:, None, :, :], axis=3)  # K K^T
         covariance = kept + self.range_sigma**2 * noise

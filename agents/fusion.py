@@ -37,6 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import combinations
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,7 +48,7 @@ from ringtrack.world.params import Criterion
 TIE_TOLERANCE = 1e-12  # relative: candidates this close to the best are equally optimal
 FEASIBLE = -1e-12  # a face's stationary weights at least this are on the simplex (clipped to 0)
 DEGENERATE = 1e-12  # relative determinant below which a face's system is singular
-SHORT_SUM = 16  # terms a sum adds one by one; longer ones take a cumulative sum
+ACCUMULATED_TERMS = 100  # elements per term up to which sequential_sum takes numpy's running sum
 
 
 @dataclass(frozen=True)
@@ -79,32 +80,45 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
     means = np.asarray(means, dtype=float)
     rows, count = means.shape[:2]
     present = np.ones((rows, count), dtype=bool) if present is None else np.asarray(present, dtype=bool)
-    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), np.eye(2))
+    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), identity(2))
     information = inverse_2x2(covariances)
-    traces = information[..., 0, 0] + information[..., 1, 1]
-    determinants = _determinant_form(information, traces)
-    vertices = np.broadcast_to(np.eye(count), (rows, count, count))
     if count == 1:
         return _intersect(means, information, np.ones((rows, 1)))
-    face_weights, face_feasible = _face_candidates(traces, determinants, criterion, present)
-    candidates = np.concatenate([vertices, face_weights], axis=1)  # (B, C, k)
-    feasible = np.concatenate([present, face_feasible], axis=1)
+    return _intersect(means, information, _optimal_weights(information, present, criterion))
+
+
+def _optimal_weights(information: FloatArray, present: NDArray[np.bool_], criterion: Criterion) -> FloatArray:
+    """The optimal CI weights (B, k) of each row, from the information matrices (B, k, 2, 2) of its
+    ``present`` (B, k) estimates. Worked with the batch on the last axis (each array operation then
+    runs along whole rows of the batch) and returned with the batch first."""
+    rows, count = present.shape
+    entries = np.ascontiguousarray(information.transpose(2, 3, 1, 0))  # (2, 2, k, B)
+    traces = entries[0, 0] + entries[1, 1]
+    determinants = _determinant_form(entries, traces)
+    on_batch = np.ascontiguousarray(present.T)
+    face_weights, face_feasible = _face_candidates(traces, determinants, criterion, on_batch)
+    candidates = np.empty((count, count + face_weights.shape[1], rows))  # (k, C, B): the vertices, then the faces'
+    candidates[:, :count], candidates[:, count:] = identity(count)[..., None], face_weights
+    feasible = np.concatenate([on_batch, face_feasible], axis=0)
     values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
     # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
     # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
-    chosen = values <= values.min(axis=1, keepdims=True) * (1.0 + TIE_TOLERANCE)
-    total = sequential_sum(np.where(chosen[..., None], candidates, 0.0), axis=1)
-    return _intersect(means, information, total / chosen.sum(axis=1)[:, None])
+    chosen = values <= np.minimum.reduce(values, axis=0, keepdims=True) * (1.0 + TIE_TOLERANCE)
+    total = sequential_sum(np.where(chosen, candidates, 0.0), axis=1)
+    return np.ascontiguousarray((total / np.add.reduce(chosen, axis=0)).T)
 
 
 def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
-    """The sum along ``axis`` added strictly in order, so that a row's sum never depends on the shape
-    of its batch (numpy's ``sum`` may pair terms differently)."""
+    """The sum along ``axis`` added strictly in order, ``((v_0 + v_1) + v_2) + ...``, so that a row's
+    sum never depends on the shape of its batch (numpy's ``sum`` may pair terms differently). Small
+    arrays take the last of numpy's running sums (one call), larger ones add term by term (numpy's
+    running sum along an inner axis pays per element): the same additions either way."""
     values = np.asarray(values)
     count = values.shape[axis]
-    if count > SHORT_SUM:
-        return np.take(np.cumsum(values, axis=axis), -1, axis=axis)
     index: list[slice | int] = [slice(None)] * values.ndim
+    if count > 2 and values.size <= ACCUMULATED_TERMS * count:
+        index[axis] = -1
+        return np.add.accumulate(values, axis=axis)[tuple(index)]
     index[axis] = 0
     total = values[tuple(index)]
     for term in range(1, count):
@@ -114,43 +128,79 @@ def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
 
 
 def solve_small(matrices: FloatArray, right: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """``(X, det)`` with ``matrices X = right`` for square ``matrices`` (..., k, k) and ``right``
-    (..., k, r), and each matrix's determinant; for k <= 3 by the adjugate, component by component
-    (elementwise along the batch, and without LAPACK's cost per call), else by LAPACK."""
-    size = matrices.shape[-1]
+    """``(X, det)`` with ``matrices X = right`` for square ``matrices`` (k, k, ...) and ``right``
+    (k, r, ...), the batch on the last axes, and each matrix's determinant (...); for k <= 3 by the
+    adjugate, component by component (elementwise along the batch, and without LAPACK's cost per
+    call), else by LAPACK."""
+    size = matrices.shape[0]
     if size > 3:
-        determinant: FloatArray = np.asarray(np.linalg.det(matrices), dtype=float)
-        safe = np.where(determinant[..., None, None] != 0.0, matrices, np.eye(size))
-        return np.asarray(np.linalg.solve(safe, right), dtype=float), determinant
-    m = [[matrices[..., row, column] for column in range(size)] for row in range(size)]
+        batch_first = np.moveaxis(matrices, (0, 1), (-2, -1))
+        determinant: FloatArray = np.asarray(np.linalg.det(batch_first), dtype=float)
+        safe = np.where(determinant[..., None, None] != 0.0, batch_first, np.eye(size))
+        solution = np.linalg.solve(safe, np.moveaxis(right, (0, 1), (-2, -1)))
+        return np.asarray(np.moveaxis(solution, (-2, -1), (0, 1)), dtype=float), determinant
     if size == 1:
-        adjugate = [[np.ones(matrices.shape[:-2])]]
-        determinant = m[0][0]
+        stacked = np.ones(matrices.shape)
+        determinant = matrices[0, 0]
     elif size == 2:
-        adjugate = [[m[1][1], -m[0][1]], [-m[1][0], m[0][0]]]
+        m = [[matrices[row, column] for column in range(size)] for row in range(size)]
+        stacked = np.stack([m[1][1], -m[0][1], -m[1][0], m[0][0]]).reshape(matrices.shape)
         determinant = m[0][0] * m[1][1] - m[0][1] * m[1][0]
     else:
-        (a, b, c), (d, e, f), (g, h, i) = m
-        first = [e * i - f * h, f * g - d * i, d * h - e * g]  # the cofactors of the first row
-        adjugate = [[first[0], c * h - b * i, b * f - c * e],
-                    [first[1], a * i - c * g, c * d - a * f],
-                    [first[2], b * g - a * h, a * e - b * d]]
-        determinant = a * first[0] + b * first[1] + c * first[2]
-    stacked = np.stack([entry for row in adjugate for entry in row], axis=-1).reshape(matrices.shape)
+        stacked, determinant = _adjugate_3x3(matrices)
     with np.errstate(divide="ignore", invalid="ignore"):
-        solution = sequential_sum(stacked[..., :, :, None] * right[..., None, :, :], axis=-2)  # adj(M) right
-        return solution / determinant[..., None, None], determinant
+        solution = sequential_sum(stacked[:, :, None] * right[None], axis=1)  # adj(M) right
+        return solution / determinant, determinant
+
+
+# The adjugate of a 3x3 matrix (entries a..i row by row, flat indices 0..8), entry by entry in row
+# order, each ``x y - z w``: the flat indices of x, y, z and w (the rows of this table, end to end).
+_ADJUGATE_3X3 = np.array([[4, 2, 1, 5, 0, 2, 3, 1, 0],   # e c b f a c d b a
+                          [8, 7, 5, 6, 8, 3, 7, 6, 4],   # i h f g i d h g e
+                          [5, 1, 2, 3, 2, 0, 4, 0, 1],   # f b c d c a e a b
+                          [7, 8, 4, 8, 6, 5, 6, 7, 3]]).ravel()  # h i e i g f g h d
+
+
+def _adjugate_3x3(matrices: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The adjugates (3, 3, ...) and determinants (...) of 3x3 ``matrices`` (3, 3, ...), by cofactors:
+    every entry ``x y - z w`` and the determinant ``(a A + b B) + c C`` along the first row, computed
+    elementwise (one gather of all the factors, then three array operations)."""
+    flat = matrices.reshape((9,) + matrices.shape[2:])
+    factors = flat[_ADJUGATE_3X3]
+    adjugate = factors[:9] * factors[9:18] - factors[18:27] * factors[27:]
+    determinant = flat[0] * adjugate[0] + flat[1] * adjugate[3] + flat[2] * adjugate[6]
+    return adjugate.reshape(matrices.shape), determinant
 
 
 @lru_cache(maxsize=16)
-def _faces(count: int) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
-    """The faces of the simplex of ``count`` weights with two or more vertices: which weights each
-    holds, (F, k), and their sizes (F,)."""
+def identity(size: int) -> FloatArray:
+    """The ``size`` x ``size`` identity, read-only (shared)."""
+    identity = np.eye(size)
+    identity.setflags(write=False)
+    return identity
+
+
+class Faces(NamedTuple):
+    """The faces of the simplex of ``k`` weights with two or more vertices, read-only: which weights
+    each holds (``across``, (k, F, 1)), their sizes (F, 1) and which entries of a k x k system
+    each spans (``inside``, (k, k, F, 1)); the trailing axes broadcast along a batch."""
+
+    across: NDArray[np.bool_]
+    sizes: NDArray[np.int64]
+    inside: NDArray[np.bool_]
+
+
+@lru_cache(maxsize=16)
+def _faces(count: int) -> Faces:
+    """The :class:`Faces` of the simplex of ``count`` weights."""
     faces = [face for size in range(2, count + 1) for face in combinations(range(count), size)]
-    members = np.zeros((len(faces), count), dtype=bool)
+    members = np.zeros((count, len(faces)), dtype=bool)
     for index, face in enumerate(faces):
-        members[index, list(face)] = True
-    return members, members.sum(axis=1)
+        members[list(face), index] = True
+    shared = Faces(members[:, :, None], members.sum(axis=0)[:, None], (members[:, None] & members[None])[..., None])
+    for array in shared:
+        array.setflags(write=False)
+    return shared
 
 
 def covariance_intersection(means: ArrayLike, covariances: ArrayLike, criterion: Criterion = "trace") -> Fused:
@@ -216,22 +266,23 @@ def _times(matrices: FloatArray, vectors: FloatArray) -> FloatArray:
     return matrices[..., 0] * vectors[..., None, 0] + matrices[..., 1] * vectors[..., None, 1]
 
 
-def _determinant_form(information: FloatArray, traces: FloatArray) -> FloatArray:
-    """``D`` (B, k, k): ``det(sum_k w_k I_k) = w^T D w`` (the module docstring)."""
-    a, b, d = information[..., 0, 0], information[..., 0, 1], information[..., 1, 1]
-    products = a[:, :, None] * a[:, None, :] + 2.0 * b[:, :, None] * b[:, None, :] + d[:, :, None] * d[:, None, :]
-    form = 0.5 * (traces[:, :, None] * traces[:, None, :] - products)
-    diagonal = np.arange(information.shape[1])
-    form[:, diagonal, diagonal] = a * d - b * b
+def _determinant_form(entries: FloatArray, traces: FloatArray) -> FloatArray:
+    """``D`` (k, k, B): ``det(sum_k w_k I_k) = w^T D w`` (the module docstring), from the entries of
+    the information matrices (2, 2, k, B) and their traces (k, B)."""
+    a, b, d = entries[0, 0], entries[0, 1], entries[1, 1]
+    products = a[:, None] * a[None] + 2.0 * b[:, None] * b[None] + d[:, None] * d[None]
+    form = 0.5 * (traces[:, None] * traces[None] - products)
+    count = len(traces)
+    form.reshape((count * count,) + traces.shape[1:])[:: count + 1] = a * d - b * b  # the diagonal (form is fresh)
     return form
 
 
 def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray, criterion: Criterion) -> FloatArray:
-    """``tr P_c`` or ``det P_c`` at each candidate's ``weights`` (B, C, k) (inf where the fused
-    information is singular)."""
-    form = sequential_sum(determinants[:, None] * weights[:, :, None, :], axis=3)  # D w, (B, C, k)
-    determinant = sequential_sum(weights * form, axis=2)
-    trace = sequential_sum(traces[:, None] * weights, axis=2)
+    """``tr P_c`` or ``det P_c`` (C, B) at each candidate's ``weights`` (k, C, B) (inf where the fused
+    information is singular), from the traces (k, B) and the determinant form (k, k, B)."""
+    form = sequential_sum(determinants[:, :, None] * weights[None], axis=1)  # D w, (k, C, B)
+    determinant = sequential_sum(weights * form, axis=0)
+    trace = sequential_sum(traces[:, None] * weights, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         value = trace / determinant if criterion == "trace" else 1.0 / determinant
     return np.where(determinant > 0.0, value, np.inf)
@@ -240,36 +291,39 @@ def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray
 def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Criterion,
                      present: NDArray[np.bool_]) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Stationary points of the objective restricted to each face of two or more present estimates
-    (other weights 0): the candidates' ``weights`` (B, C, k) and whether each is ``feasible`` (B, C);
-    one candidate per face for "det", one per root (two) for "trace". Each face's system is solved
-    as a k x k system with the identity outside the face, so all faces are one batched solve."""
-    rows, count = traces.shape
-    members, sizes = _faces(count)
-    on_face = np.all(present[:, None, :] | ~members, axis=2)  # (B, F)
-    inside = members[:, :, None] & members[:, None, :]  # (F, k, k)
-    sub = np.where(inside, determinants[:, None], np.eye(count))  # (B, F, k, k)
-    scale = np.where(inside, np.abs(sub), 0.0).max(axis=(2, 3))
-    face_traces = np.where(members, traces[:, None], 0.0)  # (B, F, k)
-    solved, determinant = solve_small(sub, np.stack([face_traces, np.broadcast_to(members, face_traces.shape)], axis=3))
+    (other weights 0), from the traces (k, B), the determinant form (k, k, B) and which estimates are
+    ``present`` (k, B): the candidates' ``weights`` (k, C, B) and whether each is ``feasible`` (C, B);
+    one candidate per face for "det", one per root (two) for "trace", face by face. Each face's
+    system is solved as a k x k system with the identity outside the face, so all faces are one
+    batched solve."""
+    count, rows = traces.shape
+    across, sizes, inside = _faces(count)
+    on_face = ~np.logical_or.reduce(across & ~present[:, None], axis=0)  # (F, B)
+    sub = np.where(inside, determinants[:, :, None], identity(count)[:, :, None, None])  # (k, k, F, B)
+    scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(0, 1))
+    right = np.empty((count, 2, across.shape[1], rows))  # (k, 2, F, B): the face's traces, and its ones
+    right[:, 0], right[:, 1] = np.where(across, traces[:, None], 0.0), across
+    face_traces = right[:, 0]
+    solved, determinant = solve_small(sub, right)
     # a degenerate face's optimum lies on a smaller face
     usable = on_face & (np.abs(determinant) >= DEGENERATE * np.maximum(scale, 1e-300) ** sizes)
-    solved = np.where(usable[..., None, None], solved, 0.0)
-    a, b = solved[..., 0], solved[..., 1]
-    a_sum, b_sum = sequential_sum(a, axis=2), sequential_sum(b, axis=2)
+    solved = np.where(usable, solved, 0.0)
+    a, b = solved[:, 0], solved[:, 1]  # (k, F, B)
+    a_sum, b_sum = sequential_sum(solved, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         if criterion == "det":
-            local, solvable = (b / b_sum[..., None])[:, :, None], (usable & (b_sum != 0))[:, :, None]
+            local, solvable = (b / b_sum)[:, :, None], (usable & (b_sum != 0))[:, None]
         else:
-            roots, found = _positive_roots(b_sum, a_sum - sequential_sum(face_traces * b, axis=2),
-                                           -sequential_sum(face_traces * a, axis=2))  # (B, F, 2)
-            total = a_sum[..., None] + roots * b_sum[..., None]
-            local = (a[:, :, None, :] + roots[..., None] * b[:, :, None, :]) / total[..., None]
-            solvable = usable[..., None] & found & (total != 0)
-    # local (B, F, R, k): R candidates per face, 0 off the face
-    feasible = solvable & np.all(local >= FEASIBLE, axis=3)
-    clipped = np.clip(np.where(feasible[..., None], local, members[:, None, :]), 0.0, None)
-    weights = clipped / sequential_sum(clipped, axis=3)[..., None]
-    return weights.reshape(rows, -1, count), feasible.reshape(rows, -1)
+            traced_a, traced_b = sequential_sum(face_traces[:, None] * solved, axis=0)  # t . a, t . b
+            roots, found = _positive_roots(b_sum, a_sum - traced_b, -traced_a)  # (F, 2, B)
+            total = a_sum[:, None] + roots * b_sum[:, None]
+            local = (a[:, :, None] + roots * b[:, :, None]) / total
+            solvable = usable[:, None] & found & (total != 0)
+    # local (k, F, R, B): R candidates per face, 0 off the face
+    feasible = solvable & np.logical_and.reduce(local >= FEASIBLE, axis=0)
+    clipped = np.maximum(np.where(feasible, local, across[..., None]), 0.0)
+    weights = clipped / sequential_sum(clipped, axis=0)
+    return weights.reshape(count, -1, rows), feasible.reshape(-1, rows)
 
 
 def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatArray) -> tuple[FloatArray,
@@ -277,21 +331,24 @@ def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatAr
     """The distinct positive real roots ``L`` of ``quadratic L^2 + linear L + constant = 0``
     elementwise (a vanishing leading coefficient leaves the linear equation), in the
     cancellation-free form ``q = -(linear + sign(linear) sqrt(disc)) / 2``, roots ``q / quadratic``
-    and ``constant / q``: ``(roots, found)`` with a last axis of two slots, the smaller root first."""
+    and ``constant / q``: ``(roots, found)`` with two slots on a new axis before the last, the
+    smaller root first."""
     with np.errstate(divide="ignore", invalid="ignore"):
         discriminant = linear * linear - 4.0 * quadratic * constant
         q = -0.5 * (linear + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), linear))
         linear_only = quadratic == 0.0
         first = np.where(linear_only, -constant / linear, q / quadratic)
-        first_found = np.where(linear_only, linear != 0.0, discriminant >= 0.0)
+        real = discriminant >= 0.0
+        first_found = np.where(linear_only, linear != 0.0, real)
         second = constant / q
-        second_found = ~linear_only & (discriminant >= 0.0) & (q != 0.0)
+        second_found = ~linear_only & real & (q != 0.0)
     first_found &= first > 0.0
     second_found &= (second > 0.0) & ~(first_found & (second == first))
-    swap = first_found & second_found & (second < first)
+    swap = first_found & second_found & (second < first)  # both found, so either order finds both
     low, high = np.where(swap, second, first), np.where(swap, first, second)
-    low_found = np.where(swap, second_found, first_found)
-    high_found = np.where(swap, first_found, second_found)
-    lone = ~low_found & high_found  # a lone second root takes the first slot
-    return (np.stack([np.where(lone, high, low), high], axis=-1),
-            np.stack([low_found | high_found, high_found & ~lone], axis=-1))
+    lone = ~first_found & second_found  # a lone second root takes the first slot
+    slots = low.shape[:-1] + (2,) + low.shape[-1:]
+    roots, found = np.empty(slots), np.empty(slots, dtype=bool)
+    roots[..., 0, :], roots[..., 1, :] = np.where(lone, high, low), high
+    found[..., 0, :], found[..., 1, :] = first_found | second_found, first_found & second_found
+    return roots, found

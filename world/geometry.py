@@ -166,7 +166,7 @@ class ConvexRegion:
 
     def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""
-        return np.all(self.heights(point) > margin, axis=-1)
+        return np.logical_and.reduce(self.heights(point) > margin, axis=-1)
 
     def require_interior(self, point: ArrayLike, field: str) -> None:
         """Raise :class:`RegionError` naming ``field`` unless ``point`` is strictly inside the region."""

@@ -83,7 +83,8 @@ def target_error(centres: ArrayLike, target: ArrayLike, squared: bool = False) -
     """``Terr`` (metres): the mean over robots (axis -2 of ``centres``, NaN rows unknown) of the
     distance from each centre to ``target``; NaN where no robot's centre is known. ``squared``: the
     mean of the squared distances instead (m^2; its root over steps is the estimates' RMSE)."""
-    distances = np.linalg.norm(np.asarray(centres, dtype=float) - np.asarray(target)[..., None, :], axis=-1)
+    offsets = np.asarray(centres, dtype=float) - np.asarray(target)[..., None, :]
+    distances = np.sqrt(np.add.reduce(offsets * offsets, axis=-1))  # np.linalg.norm's sum, without its wrapper
     if squared:
         distances = distances**2
     known = ~np.isnan(distances)
