@@ -13,6 +13,7 @@ from ringtrack.tools.output.console import err, out, show
 from ringtrack.tools.output.progress import TrialProgress
 from ringtrack.tools.studies.figures import plot_schedules
 from ringtrack.tools.studies.nemesis import LEASE_S, ScheduleRow, nemesis_study
+from ringtrack.tools.team.nemesis import parse_plan
 from ringtrack.world.scenario import load_scenario
 
 CLOCKS = {"lockstep": ("lockstep",), "realtime": ("realtime",), "both": ("lockstep", "realtime")}
@@ -36,6 +37,9 @@ def register(kinds: argparse._SubParsersAction) -> None:
     parser.add_argument("--steps", type=at_least(50), default=600, help="steps per run (default 600)")
     parser.add_argument("--settle", type=at_least(0), default=100,
                         help="tracking after the fault is averaged from this step on at the earliest (default 100)")
+    parser.add_argument("--plan", metavar="PLAN",
+                        help="run this one nemesis plan in every schedule instead of random ones, e.g. the split "
+                        "brain 'pause r3@1s:6s, restart r3@4s' (the syntax of spawn --nemesis)")
     parser.add_argument("--runs", type=Path, help="keep the run folders here (default: a scratch folder)")
     parser.add_argument("--quiet", action="store_true", help="no progress")
     add_output_arguments(parser, json="write every schedule's row and the totals", plot="draw the schedules")
@@ -44,9 +48,10 @@ def register(kinds: argparse._SubParsersAction) -> None:
 
 def run_nemesis(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario, robots=6, max_steps=args.steps)
+    fixed = None if args.plan is None else parse_plan(args.plan, scenario.robots)
     with TrialProgress("nemesis", args.schedules, quiet=args.quiet) as progress:
         study = nemesis_study(scenario, args.schedules, args.seed, CLOCKS[args.clock], args.settle,  # type: ignore[arg-type]
-                              on_row=lambda row: progress.advance(1), runs=args.runs)
+                              on_row=lambda row: progress.advance(1), runs=args.runs, fixed=fixed)
     show(schedule_table(study.rows), out)
     out.print(f"{study.schedules} schedules: overlapping lives {study.overlapping_lives}, unbalanced books "
               f"{study.unbalanced_books}, lost monitor or world noticed {study.lost_noticed}, re-formed "

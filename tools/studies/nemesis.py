@@ -78,10 +78,12 @@ def plan_for(schedule: int, seed: int, scenario: Scenario) -> list[Fault]:
     return faults
 
 
-def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, runs: Path, settle: int) -> ScheduleRow:
+def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, runs: Path, settle: int,
+                 fixed: list[Fault] | None = None) -> ScheduleRow:
     """Run one schedule as a spawned team and check it: ``scenario.max_steps`` steps in realtime, as
-    many as last as long in lockstep (:func:`lockstep_steps`)."""
-    faults = plan_for(schedule, seed, scenario)
+    many as last as long in lockstep (:func:`lockstep_steps`); its faults are ``fixed`` (every
+    schedule the same plan) or drawn (:func:`plan_for`)."""
+    faults = plan_for(schedule, seed, scenario) if fixed is None else fixed
     if clock == "lockstep":
         scenario = resolve(apply_overrides(scenario.spec, max_steps=lockstep_steps(scenario)), scenario.name)
     plan = TeamPlan(scenario=scenario, clock=clock, rate=RATE, runs=runs, dashboard=False, quiet=True,
@@ -139,14 +141,16 @@ class NemesisStudy(msgspec.Struct, frozen=True):
 
 
 def nemesis_study(scenario: Scenario, schedules: int, seed: int, clocks: tuple[Clock, ...], settle: int,
-                  on_row: Callable[[ScheduleRow], None] | None = None, runs: Path | None = None) -> NemesisStudy:
+                  on_row: Callable[[ScheduleRow], None] | None = None, runs: Path | None = None,
+                  fixed: list[Fault] | None = None) -> NemesisStudy:
     """Run ``schedules`` schedules of ``scenario.max_steps`` steps, alternating ``clocks``, schedule i
-    seeded ``seed + i``; ``runs`` keeps the run folders (None: a scratch folder)."""
+    seeded ``seed + i`` (or every one with the ``fixed`` plan); ``runs`` keeps the run folders (None:
+    a scratch folder)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="ringtrack-nemesis-") as scratch:
         for schedule in range(schedules):
             clock = clocks[schedule % len(clocks)]
-            row = run_schedule(schedule, seed + schedule, clock, scenario, runs or Path(scratch), settle)
+            row = run_schedule(schedule, seed + schedule, clock, scenario, runs or Path(scratch), settle, fixed)
             rows.append(row)
             if on_row is not None:
                 on_row(row)

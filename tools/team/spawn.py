@@ -97,6 +97,7 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
                   f"robots in {processes} processes", highlight=False)
     stop: Stop | None = None
     nemesis: Nemesis | None = None
+    critical = set(CRITICAL)
     stalled = ""
     stop_signal = signal.SIGTERM
     with Supervisor(folder) as supervisor:
@@ -105,14 +106,16 @@ def spawn_team(plan: TeamPlan) -> TeamResult:
             with terminate_as_exception(), view or contextlib.nullcontext():
                 robots = start_team(supervisor, plan, TeamLaunch(run, folder, log_path, topology, listen, start, view,
                                                                  started))
-                nemesis = unleash(plan, supervisor, folder, log_path, robots, start)
+                nemesis = unleash(plan, supervisor, folder, log_path, robots, start, critical)
                 # A robot may crash and be restarted (ringtrack robot --join); the run goes on.
                 def poll() -> None:
                     first_step()
                     if nemesis is not None:
                         nemesis.tick(first_step.since(), over=not world_running(supervisor))
 
-                supervisor.wait(critical=CRITICAL, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=poll,
+                # A nemesis that kills the world or the monitor wants to see the others notice on
+                # their own: from then on no failure ends the wait early (the stall guard remains).
+                supervisor.wait(critical=critical, stall_s=STALL_TIMEOUT_S, watched=log_path, on_poll=poll,
                                 started=lambda: first_step.after is not None,
                                 startup_s=startup_limit(len(supervisor.children)))
         except KeyboardInterrupt:
@@ -242,9 +245,10 @@ def world_running(supervisor: Supervisor) -> bool:
 
 
 def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, log_path: Path,
-            robots: list[tuple[str, list[str]]], start: str) -> Nemesis | None:
+            robots: list[tuple[str, list[str]]], start: str, critical: set[str]) -> Nemesis | None:
     """The nemesis of ``plan`` against the team just started (None: no plan). A restarted robot is a
-    new process with its first process's arguments, named ``r<i>@<n>`` for its n-th restart."""
+    new process with its first process's arguments, named ``r<i>@<n>`` for its n-th restart. Once it
+    kills one of the ``critical`` processes it empties that set: the others must notice on their own."""
     if not plan.nemesis:
         return None
     arguments = dict(robots)
@@ -270,6 +274,8 @@ def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, log_path: Path
     def spare(child: object) -> None:
         assert isinstance(child, Child)
         supervisor.spared.add(child.pid)
+        if child.name in critical:
+            critical.clear()
 
     return Nemesis(plan.nemesis, folder, find, send, restart, spare, lambda: last_logged_step(log_path))
 

@@ -22,6 +22,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -233,10 +234,11 @@ class Supervisor:
         return [child for child in self.children if child.name not in self.ended and child.pid not in self.spared
                 and child.process.returncode not in (0, None, -15, -2, 130)]
 
-    def wait(self, critical: frozenset[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
+    def wait(self, critical: AbstractSet[str] = frozenset(), poll_s: float = 0.05, stall_s: float | None = None,
              watched: Path | None = None, on_poll: Callable[[], None] | None = None,
              started: Callable[[], bool] | None = None, startup_s: float | None = None) -> None:
-        """Wait until every child has exited; return early when a ``critical`` child fails, and raise
+        """Wait until every child has exited; return early when a ``critical`` child fails (the set is
+        read at every poll: its owner may change it), and raise
         TimeoutError when ``watched`` has not grown for ``stall_s`` seconds (a hung run) once
         ``started()`` says the run is under way, or when it is not under way ``startup_s`` seconds
         after this call (a start-up that hangs); ``on_poll()`` runs at every poll."""
