@@ -62,6 +62,7 @@ def test_random_plans_are_seeded_and_restart_every_robot_they_kill() -> None:
         assert any(fault.action == "restart" and fault.target == kill.target and fault.at_s >= kill.at_s
                    for fault in plan)
     assert all(fault.for_s is not None and fault.for_s > 0 for fault in plan if fault.action == "pause")
+    assert all(fault.at_s + (fault.for_s or 0.0) <= 10.0 for fault in plan)  # every fault over within the span
     assert len({fault.target.split("-")[0] for fault in plan}) == 6  # one robot, one kind of fault
     links = [fault.target.split("-") for fault in plan if fault.action == "partition"]
     assert all(int(b[1:]) == (int(a[1:]) + 1) % 6 for a, b in links)  # a ring link

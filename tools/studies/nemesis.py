@@ -67,14 +67,14 @@ def lockstep_steps(scenario: Scenario) -> int:
 
 
 def plan_for(schedule: int, seed: int, scenario: Scenario) -> list[Fault]:
-    """The faults of schedule ``schedule``: a random plan over the first half of a realtime run of
-    ``scenario.max_steps`` steps (wall seconds), and for every :data:`FATAL_EVERY`-th a monitor or
-    world kill at three quarters."""
-    span_s = max(1.0, 0.5 * scenario.max_steps * scenario.control.dt / RATE)
-    faults = random_plan(seed, scenario.robots, span_s, lease_s=LEASE_S)
+    """The faults of schedule ``schedule``: a random plan, every fault over within the first two thirds
+    of a realtime run of ``scenario.max_steps`` steps (wall seconds), and for every
+    :data:`FATAL_EVERY`-th a monitor or world kill at three quarters of it."""
+    duration_s = scenario.max_steps * scenario.control.dt / RATE
+    faults = random_plan(seed, scenario.robots, max(1.0, 2.0 * duration_s / 3.0), lease_s=LEASE_S)
     if schedule % FATAL_EVERY == FATAL_EVERY - 1:
         victim = "monitor" if (schedule // FATAL_EVERY) % 2 == 0 else "world"
-        faults.append(Fault("kill", victim, round(1.5 * span_s, 1)))
+        faults.append(Fault("kill", victim, round(0.75 * duration_s, 1)))
     return faults
 
 

@@ -129,27 +129,28 @@ def split_brain(name: str, at_s: float, lease_s: float) -> list[Fault]:
 
 
 def random_plan(seed: int, robots: int, span_s: float, faults: int = 3, lease_s: float = 2.0) -> list[Fault]:
-    """A seeded random plan of ``faults`` robot faults in the first ``span_s`` seconds: kills followed
-    by a restart of the same robot, short pauses (below a ``lease_s`` liveliness lease), long ones
-    (past it), split brains (:func:`split_brain`) and partitions of the robot's link to its
-    counter-clockwise neighbour; each robot takes at most one of them."""
+    """A seeded random plan of ``faults`` robot faults, each begun and over (the robot restarted,
+    woken, the link healed) within the first ``span_s`` seconds: kills followed by a restart of the
+    same robot, short pauses (below a ``lease_s`` liveliness lease), long ones (past it), split
+    brains (:func:`split_brain`) and partitions of the robot's link to its counter-clockwise
+    neighbour; each robot takes at most one of them."""
     rng = random.Random(seed)
     plan: list[Fault] = []
     for robot in rng.sample(range(robots), min(faults, robots)):
         name = robot_name(robot)
-        at = round(rng.uniform(0.0, span_s), 1)
         kind = rng.choice(("kill", "pause", "pause", "split", "partition"))
-        if kind == "partition":
-            link = f"{name}-{robot_name((robot + 1) % robots)}"
-            plan.append(Fault("partition", link, at, round(rng.uniform(0.5, 1.5) * lease_s, 1)))
-        elif kind == "kill":
-            plan += [Fault("kill", name, at), Fault("restart", name, round(at + rng.uniform(0.5, 3.0), 1))]
+        if kind == "kill":
+            delay = rng.uniform(0.5, 3.0)
+            at = round(rng.uniform(0.0, max(0.0, span_s - delay)), 1)
+            plan += [Fault("kill", name, at), Fault("restart", name, round(at + delay, 1))]
         elif kind == "split":
-            plan += split_brain(name, at, lease_s)
+            plan += split_brain(name, round(rng.uniform(0.0, max(0.0, span_s - 3.0 * lease_s)), 1), lease_s)
         else:
-            long = rng.random() < 0.5
-            length = rng.uniform(1.25, 2.0) * lease_s if long else rng.uniform(0.1, 0.5) * lease_s
-            plan.append(Fault("pause", name, at, round(length, 1)))
+            long = kind == "partition" or rng.random() < 0.5
+            length = round(rng.uniform(1.25, 2.0) * lease_s if long else rng.uniform(0.1, 0.5) * lease_s, 1)
+            at = round(rng.uniform(0.0, max(0.0, span_s - length)), 1)
+            target = f"{name}-{robot_name((robot + 1) % robots)}" if kind == "partition" else name
+            plan.append(Fault(kind, target, at, length))  # type: ignore[arg-type]
     return sorted(plan, key=lambda fault: fault.at_s)
 
 
