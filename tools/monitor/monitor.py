@@ -460,8 +460,9 @@ async def _watch(
         if code and (end is not None or loop.time() - interrupted_at > END_AFTER_INTERRUPT_S):
             break  # stopped: keep what the world's End says completed, if it comes in time
         if end is not None:
-            finished = {stats.name for stats in finals.values()}
-            accounted = all(name in finished or roster.gone_for_good(name) for name in team)
+            # every sender's newest life has sent its books (an older life's do not stand for them)
+            accounted = all(life_label(name, participant.lives.get(name, 0)) in finals or roster.gone_for_good(name)
+                            for name in team)
             if (accounted and _seen_everything(participant, finals)) or (
                 loop.time() - last_event_at > FINAL_STATS_GRACE_S
             ):
