@@ -104,12 +104,14 @@ class Books:
     past the lease or was replaced) is ``in_flight``: messages counted as sent that were still
     queued in, or on their way to, a process when its links closed. On a link from a sender one of
     whose lives left no books (``silent``: killed before it could send them), the messages seen
-    beyond those counted are that life's, as the wire audit saw them (``unbooked``). Anything else
-    is ``unexplained``: (said, seen) messages."""
+    beyond those counted are that life's, as the wire audit saw them (``unbooked``). A monitor that
+    resumed the books of one that went away cannot have seen what was sent in between: its other
+    shortfalls are ``unobserved``. Anything else is ``unexplained``: (said, seen) messages."""
 
     in_flight: dict[Link, int]
     unexplained: dict[Link, tuple[int, int]]
     unbooked: dict[Link, int] = field(default_factory=dict)
+    unobserved: dict[Link, int] = field(default_factory=dict)
 
     @property
     def balanced(self) -> bool:
@@ -121,23 +123,28 @@ class Books:
                  for (kind, source, destination), count in sorted(self.in_flight.items())]
         lines += [f"{kind} {source} > {destination}: {count} of a life of {source} that left no books (killed), "
                   "as the wire audit saw them" for (kind, source, destination), count in sorted(self.unbooked.items())]
+        lines += [f"{kind} {source} > {destination}: {count} sent while the monitor was away, unseen by the monitor "
+                  "that resumed its books (unobserved)"
+                  for (kind, source, destination), count in sorted(self.unobserved.items())]
         lines += [f"{kind} {source} > {destination}: {said} sent, {seen} seen (unexplained)"
                   for (kind, source, destination), (said, seen) in sorted(self.unexplained.items())]
         return lines
 
 
 def close_books(said_rows: Iterable[Sequence[Any]], seen_rows: Iterable[Sequence[Any]], cut_off: set[str],
-                categories: tuple[str, ...], silent: frozenset[str] = frozenset()) -> Books:
+                categories: tuple[str, ...], silent: frozenset[str] = frozenset(), unobserved: bool = False) -> Books:
     """Compare, on every link of ``categories``, the messages the senders counted (``said_rows``)
     with those the monitor saw (``seen_rows``), shortfalls on links touching ``cut_off`` (participant
-    names) being in flight and excesses on links from ``silent`` senders (a life of theirs left no
-    books) unbooked (:class:`Books`). Bytes follow messages: a link whose message counts agree but
-    whose bytes differ is unexplained too."""
+    names) being in flight, other shortfalls unobserved when the monitor ``unobserved`` part of the
+    run (it resumed the books of one that went away), and excesses on links from ``silent`` senders
+    (a life of theirs left no books) unbooked (:class:`Books`). Bytes follow messages: a link whose
+    message counts agree but whose bytes differ is unexplained too."""
     said, seen = per_link(said_rows, categories), per_link(seen_rows, categories)
     none = {"messages": 0, "bytes": 0}
     in_flight: dict[Link, int] = {}
     unexplained: dict[Link, tuple[int, int]] = {}
     unbooked: dict[Link, int] = {}
+    unseen: dict[Link, int] = {}
     for link in sorted(said.keys() | seen.keys()):
         sent, got = said.get(link, none), seen.get(link, none)
         if sent == got:
@@ -145,8 +152,10 @@ def close_books(said_rows: Iterable[Sequence[Any]], seen_rows: Iterable[Sequence
         short = sent["messages"] - got["messages"]
         if short > 0 and (link[1] in cut_off or link[2] in cut_off):
             in_flight[link] = short
+        elif short > 0 and unobserved:
+            unseen[link] = short
         elif short < 0 and link[1] in silent:
             unbooked[link] = -short
         else:
             unexplained[link] = (sent["messages"], got["messages"])
-    return Books(in_flight, unexplained, unbooked)
+    return Books(in_flight, unexplained, unbooked, unseen)

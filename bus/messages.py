@@ -307,9 +307,11 @@ class Digest(Message, tag=17, frozen=True):
     """World -> monitor in lockstep unless the monitor audits every message itself: the world's own
     account of its links in the steps since its previous digest (oldest first), so the monitor need
     not receive a copy of every measurement and command, nor a tick of its own each step. At most
-    :func:`digest_entries` entries."""
+    :func:`digest_entries` entries. ``replayed``: steps the world kept while its monitor was away,
+    sent to the monitor that came back (:mod:`world.backlog`)."""
 
     entries: list[DigestEntry]
+    replayed: bool = False
     kind: ClassVar[str] = "digest"
     category: ClassVar[str] = "monitoring"
 

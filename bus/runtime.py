@@ -132,8 +132,15 @@ def write_final_counts(participant: Participant) -> None:
 
 
 # A token's withdrawal travels ahead of the data its owner sent before leaving (liveliness
-# declarations have their own priority): wait this long for, e.g., the world's End.
+# declarations have their own priority): wait this long for, e.g., the world's End; never more than
+# half the liveliness lease, so that a lost world or monitor is noticed within one lease of its loss.
 DEPARTURE_GRACE_S = 3.0
+
+
+def departure_grace_s(lease_ms: int) -> float:
+    """Seconds a departed participant's last messages are waited for: ``DEPARTURE_GRACE_S``, or half
+    the liveliness lease ``lease_ms`` (milliseconds) when that is shorter."""
+    return min(DEPARTURE_GRACE_S, lease_ms / 2000)
 
 
 @dataclass
@@ -144,6 +151,7 @@ class Roster:
     alive: set[str] = field(default_factory=set)
     ready: set[str] = field(default_factory=set)
     departed: dict[str, float] = field(default_factory=dict)
+    grace_s: float = DEPARTURE_GRACE_S  # seconds: how long a departed participant's last messages are awaited
 
     def update(self, presence: Presence) -> None:
         names = self.alive if presence.kind == "alive" else self.ready
@@ -155,9 +163,9 @@ class Roster:
                 self.departed.setdefault(presence.name, time.monotonic())
 
     def gone_for_good(self, name: str) -> bool:
-        """``name`` left more than ``DEPARTURE_GRACE_S`` ago (its last messages had time to arrive)."""
+        """``name`` left more than ``grace_s`` seconds ago (its last messages had time to arrive)."""
         since = self.departed.get(name)
-        return since is not None and time.monotonic() - since > DEPARTURE_GRACE_S
+        return since is not None and time.monotonic() - since > self.grace_s
 
 
 async def gather_until(
@@ -255,7 +263,7 @@ async def perform(role: Role, bus: BusConfig, keys: Keys, robots: int, interrupt
         participant.announce("alive")
         if role.on_joined is not None:
             role.on_joined(participant)
-        roster = Roster()
+        roster = Roster(grace_s=departure_grace_s(bus.lease_ms))
         tokens = roster.alive if role.start_on == "alive" else roster.ready
         def everyone_there() -> bool:
             if role.on_gathering is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ringtrack.bus.keys import MONITOR, Keys
 from ringtrack.bus.messages import SCHEMA, Command, Tick, decode, digest_entries, encode
+from ringtrack.world.backlog import step_entries
 from ringtrack.world.process import DIGEST_PERIOD_S, Digests
 
 RUN = 0x2000ABCD
@@ -31,8 +32,8 @@ def command(step: int, robot: int) -> tuple[Command, int]:
 
 
 def add_step(digests: Digests, step: int, commands: int = ROBOTS, now: float = 0.0) -> None:
-    digests.add(step, tick(step), [(robot, 70) for robot in range(ROBOTS)],
-                [command(step, robot % ROBOTS) for robot in range(commands)], now)
+    digests.add(step_entries(step, tick(step), [(robot, 70) for robot in range(ROBOTS)],
+                             [command(step, robot % ROBOTS) for robot in range(commands)], ROBOTS), now)
 
 
 def test_a_digest_leaves_full_and_the_rest_at_the_flush_in_step_order() -> None:

@@ -12,7 +12,15 @@ import pytest
 
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.runlog.log import read_log
-from ringtrack.tools.team.nemesis import EXAMPLE, Fault, parse_plan, random_plan, split_brain
+from ringtrack.tools.team.nemesis import (
+    EXAMPLE,
+    MONITOR_RETURN_S,
+    Fault,
+    monitor_grace_s,
+    parse_plan,
+    random_plan,
+    split_brain,
+)
 from tests.helpers import RINGTRACK, processes_mentioning
 
 
@@ -41,7 +49,11 @@ def test_a_plan_file_holds_its_faults_in_a_nemesis_table(tmp_path: Path) -> None
                               "partition r0-r2@12s:4s"),
     ("partition r1-r7@5s:1s", "--nemesis 'partition r1-r7@5s:1s': the team has robots r0..r5"),
     ("partition r1-r2@5s", "--nemesis 'partition r1-r2@5s': a partition needs its length (partition r0-r2@12s:4s)"),
-    ("restart monitor@5s", "--nemesis 'restart monitor@5s': only a robot can be restarted"),
+    ("restart world@5s", "--nemesis 'restart world@5s': only a robot or the monitor can be restarted"),
+    ("restart monitor@5s", "--nemesis 'restart monitor@5s': a monitor is restarted after it was killed: kill "
+                           "monitor@3s, restart monitor@5s"),
+    ("kill monitor@1s, restart monitor@3s, restart monitor@5s", "--nemesis 'restart monitor@5s': a monitor is "
+     "restarted after it was killed: kill monitor@3s, restart monitor@5s"),
     ("kill fusion@5s", "--nemesis 'kill fusion@5s': 'fusion' is no participant; name r0..r5, monitor or world"),
     ("kill r1 at 5", f"--nemesis 'kill r1 at 5': write a fault like 'kill r3@5s' or 'pause r1@10s:3s' (e.g. "
                      f"{EXAMPLE})"),
@@ -66,6 +78,12 @@ def test_random_plans_are_seeded_and_restart_every_robot_they_kill() -> None:
     assert len({fault.target.split("-")[0] for fault in plan}) == 6  # one robot, one kind of fault
     links = [fault.target.split("-") for fault in plan if fault.action == "partition"]
     assert all(int(b[1:]) == (int(a[1:]) + 1) % 6 for a, b in links)  # a ring link
+
+
+def test_the_world_holds_for_a_restarted_monitor_its_longest_absence_and_a_start_up() -> None:
+    plan = parse_plan("kill monitor@1s, restart monitor@3s, kill monitor@10s, restart monitor@16s", 6)
+    assert monitor_grace_s(plan) == 6.0 + MONITOR_RETURN_S
+    assert monitor_grace_s(parse_plan("kill monitor@1s, restart r3@3s", 6)) is None
 
 
 def test_a_split_brain_restarts_a_robot_frozen_past_the_lease_before_waking_it() -> None:

@@ -33,6 +33,7 @@ from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence
 from ringtrack.bus.reach import Reach, ReachTokens, ReachWatch
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
 from ringtrack.world.admission import Admission
+from ringtrack.world.backlog import Backlog, Measurements, step_entries
 from ringtrack.world.metrics import CerrSource
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.state import WorldState
@@ -59,6 +60,7 @@ class WorldOptions:
     lockstep_wait: float = 10.0  # s (--lockstep-wait); lockstep: a robot silent this long in one step is gone
     digest: bool = False  # lockstep: report to the monitor in Digests of the world's own links (no audit)
     cerr: CerrSource = "memory"  # the Cerr that decides convergence: the scenario's strategy's (Strategy.cerr)
+    monitor_grace: float = 0.0  # s (--monitor-grace); > 0: hold the run this long for a lost monitor to come back
 
 
 WAIT_NOTICE_S = 2.0  # lockstep: name the robots a step waits for once it has waited this long
@@ -93,14 +95,18 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
         start = asyncio.get_running_loop().time()
         watch = ReachWatch(participant)
         digests = Digests(participant) if options.digest else None
-        context = Context(participant, world, roster, admission, tokens[0], digests, options.expect_monitor)
+        context = Context(participant, world, roster, admission, tokens[0], digests, options.expect_monitor,
+                          options.monitor_grace, Backlog(participant) if options.monitor_grace > 0 else None)
         try:
             for index in range(options.steps):
                 context.measurements, context.commands = [], []
                 await step_once(context, start + (index + 1) * period)
+                entries = step_entries(world.step, context.tick, context.measurements, context.commands,
+                                       scenario.robots)
                 if digests is not None:
-                    digests.add(world.step, context.tick, context.measurements, context.commands,
-                                asyncio.get_running_loop().time())
+                    digests.add(entries, asyncio.get_running_loop().time())
+                if context.backlog is not None:
+                    context.backlog.add(entries)
                 admit(context)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
@@ -108,6 +114,8 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
                 if converged:
                     reason = EndReason.CONVERGED
                     break
+                if context.monitor_away_since is not None:
+                    start += await hold_for_monitor(context)  # a realtime schedule resumes where it was
         except RunStopped as stop:
             reason, code = stop.reason, STOPPED if stop.reason.interrupted else 1
         finally:
@@ -151,9 +159,6 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
             registry.close()
 
 
-Measurements = list[tuple[int, int]]  # (robot, payload bytes) of the measurements of a step
-
-
 @dataclass
 class Context:
     """What a step of the world works with: its participant, the true state, who is alive, the
@@ -165,7 +170,10 @@ class Context:
     admission: Admission
     tokens: ReachTokens
     digests: Digests | None = None  # lockstep without audit: what the world tells the monitor, in digests
-    expect_monitor: bool = False  # the run has a monitor: the world ends the run when it goes
+    expect_monitor: bool = False  # the run has a monitor: the world ends the run when it goes...
+    monitor_grace: float = 0.0  # ... unless this is > 0 (s): then it holds the run that long for it to come back
+    backlog: Backlog | None = None  # with a grace: the steps kept for a monitor that comes back
+    monitor_away_since: float | None = None  # loop time at which the monitor went away (None: it is here)
     # This step's tick, measurements published (robot, payload bytes) and commands received (with
     # their payload bytes): what a digest entry tells the monitor.
     tick: Tick | None = None
@@ -229,13 +237,9 @@ class Digests:
         self.pending: list[DigestEntry] = []
         self.due: float | None = None  # loop time by which the pending entries leave
 
-    def add(self, step: int, tick: Tick | None, measurements: Measurements, commands: list[tuple[Command, int]],
-            now: float) -> None:
-        """The entries of ``step``, ended at ``now``: at most one command per robot of the team in each."""
-        chunk = self.participant.robots
-        self.pending.append(DigestEntry(step, tick, measurements, commands[:chunk]))
-        self.pending += [DigestEntry(step, None, [], commands[first:first + chunk])
-                         for first in range(chunk, len(commands), chunk)]
+    def add(self, entries: list[DigestEntry], now: float) -> None:
+        """The entries of a step (:func:`world.backlog.step_entries`), ended at ``now``."""
+        self.pending += entries
         if self.due is None:
             self.due = now + DIGEST_PERIOD_S
         if len(self.pending) >= self.limit:
@@ -276,10 +280,8 @@ def _handle(event: object, context: Context) -> None:
         raise RunStopped(EndReason.interrupted_by(event.reason))
     elif isinstance(event, Presence) and event.kind == "alive":
         roster.update(event)
-        if event.name == MONITOR and not event.up and context.expect_monitor:
-            log.error("the monitor went away at step %d (crashed, killed or cut off): nobody keeps the run's log "
-                      "and books; ending the run", world.step)
-            raise RunStopped(EndReason.MONITOR_LOST)
+        if event.name == MONITOR and context.expect_monitor:
+            monitor_came_or_went(context, event.up)
         context.tokens.hold(alive_robots(roster, world.scenario.robots))
         robot = robot_index(event.name)
         if robot is None or robot >= world.scenario.robots:
@@ -293,6 +295,44 @@ def _handle(event: object, context: Context) -> None:
                      "another", event.name, world.step)
     elif isinstance(event, Presence):
         roster.update(event)
+
+
+def monitor_came_or_went(context: Context, up: bool) -> None:
+    """The monitor went away (``up`` False): end the run, or, with a grace, note when (the run is
+    held after this step: :func:`hold_for_monitor`). A monitor came (back): send it the steps kept
+    for it (:mod:`world.backlog`), whose entries then no ordinary digest carries again."""
+    loop = asyncio.get_running_loop()
+    if not up and context.backlog is None:
+        log.error("the monitor went away at step %d (crashed, killed or cut off): nobody keeps the run's log "
+                  "and books; ending the run", context.world.step)
+        raise RunStopped(EndReason.MONITOR_LOST)
+    if not up:
+        context.monitor_away_since = context.monitor_away_since or loop.time()
+        log.warning("the monitor went away at step %d; the run holds for up to %g s for it to come back",
+                    context.world.step, context.monitor_grace)
+    elif context.backlog is not None and context.monitor_away_since is not None:
+        if context.digests is not None:
+            context.digests.pending, context.digests.due = [], None  # in the backlog: replayed, not digested again
+        replayed = context.backlog.replay()
+        log.warning("the monitor is back after %.1f s; %d step entries replayed to it", loop.time()
+                    - context.monitor_away_since, replayed)
+        context.monitor_away_since = None
+
+
+async def hold_for_monitor(context: Context) -> float:
+    """Hold the run between two steps until the monitor is back (then return the seconds held) or
+    ``monitor_grace`` seconds after it went away (then raise :class:`RunStopped` with
+    :attr:`EndReason.MONITOR_LOST`)."""
+    loop = asyncio.get_running_loop()
+    held_from = loop.time()
+    while (away_since := context.monitor_away_since) is not None:
+        if loop.time() >= away_since + context.monitor_grace:
+            log.error("the monitor went away at step %d and did not come back within --monitor-grace %g s: nobody "
+                      "keeps the run's log and books; ending the run", context.world.step, context.monitor_grace)
+            raise RunStopped(EndReason.MONITOR_LOST)
+        for event in await context.participant.events(until=away_since + context.monitor_grace):
+            _handle(event, context)
+    return loop.time() - held_from
 
 
 async def _lockstep(context: Context, deadline: float, wait_s: float = 10.0) -> None:

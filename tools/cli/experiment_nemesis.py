@@ -23,12 +23,13 @@ def register(kinds: argparse._SubParsersAction) -> None:
     parser = kinds.add_parser(
         "nemesis",
         help="random process-fault schedules against live six-robot teams: re-formed?, tracking after, "
-        "overlapping lives, balanced books, lost monitor/world noticed",
+        "overlapping lives, balanced books, lost monitor/world noticed, restarted monitor resumed",
         description="Run seeded random nemesis schedules (robots killed and restarted as their next life, paused "
         f"below and past the {LEASE_S:g} s liveliness lease, split brains, ring links partitioned; every fifth "
-        "schedule also kills the monitor or the world) against spawned teams with the wire audit on, alternating "
-        "the clocks, and check each run: did the ring re-form and when, the tracking after it, overlapping lives "
-        "(must be 0), balanced books (must be), and whether a lost monitor or world was noticed.",
+        "schedule also kills the monitor or the world, or kills the monitor and restarts it) against spawned teams "
+        "with the wire audit on, alternating the clocks, and check each run: did the ring re-form and when, the tracking "
+        "after it, overlapping lives (must be 0), balanced books (must be), whether a lost monitor or world was "
+        "noticed and whether a restarted monitor resumed the log whole.",
     )
     parser.add_argument("scenario", nargs="?", default="authors-moving", help="scenario (default authors-moving)")
     parser.add_argument("--schedules", type=at_least(1), default=50, help="random schedules (default 50)")
@@ -54,10 +55,11 @@ def run_nemesis(args: argparse.Namespace) -> int:
                               on_row=lambda row: progress.advance(1), runs=args.runs, fixed=fixed)
     show(schedule_table(study.rows), out)
     out.print(f"{study.schedules} schedules: overlapping lives {study.overlapping_lives}, unbalanced books "
-              f"{study.unbalanced_books}, lost monitor or world noticed {study.lost_noticed}, re-formed "
-              f"{study.reformed}", highlight=False)
+              f"{study.unbalanced_books}, lost monitor or world noticed {study.lost_noticed}, restarted monitor "
+              f"resumed the log {study.monitors_resumed}, re-formed {study.reformed}", highlight=False)
     write_study(args, study, plot_schedules)
-    failed = study.overlapping_lives or study.unbalanced_books or not _all(study.lost_noticed)
+    failed = study.overlapping_lives or study.unbalanced_books or not _all(study.lost_noticed) \
+        or not _all(study.monitors_resumed)
     if failed:
         err.print("ringtrack: error: the nemesis broke something (see the table)", highlight=False)
     return 1 if failed else 0
@@ -71,7 +73,7 @@ def _all(fraction: str) -> bool:
 def schedule_table(rows: list[ScheduleRow]) -> Table:
     table = Table(title="nemesis schedules (wire audit on)", box=box.SIMPLE)
     for column in ("#", "clock", "plan", "exit", "re-formed at", "Cerr after", "Terr after", "lives fenced",
-                   "overlaps", "books", "lost noticed"):
+                   "overlaps", "books", "lost noticed", "resumed"):
         table.add_column(column, justify="left" if column == "plan" else "right")
     for row in rows:
         table.add_row(str(row.schedule), row.clock, row.plan, str(row.exit_code),
@@ -80,5 +82,6 @@ def schedule_table(rows: list[ScheduleRow]) -> Table:
                       "-" if row.terr_after_m is None else f"{row.terr_after_m:.3f} m",
                       str(row.fenced_lives), str(row.overlapping_lives),
                       "balanced" if row.books_balanced else "UNBALANCED",
-                      "-" if row.noticed is None else "yes" if row.noticed else "NO")
+                      "-" if row.noticed is None else "yes" if row.noticed else "NO",
+                      "-" if row.resumed is None else "yes" if row.resumed else "NO")
     return table

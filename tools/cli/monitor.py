@@ -44,6 +44,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     monitor.add_argument("--display-handover", type=Path, metavar="PATH",
                          help="spawn draws the start-up frame and wrote PATH: count from its time, write 'ready' "
                          "there when ready to draw, and draw once spawn has removed PATH (or after 30 s)")
+    monitor.add_argument("--resume", action="store_true",
+                         help="go on with the run log (and books) of a monitor of the same run that went away, after "
+                         "its last complete step; the world must hold the run for it (world --monitor-grace)")
     monitor.add_argument("--all-robots", action="store_true",
                          help="list every robot and link in the end-of-run report (default: above 20, "
                          "min/median/max and the 5 busiest)")
@@ -93,7 +96,7 @@ def run_monitor_role(args: argparse.Namespace) -> int:
             code, report = asyncio.run(
                 run_monitor(scenario, scenario.seed, args.run, bus_config(args, [MONITOR], scenario.robots),
                             args.log, scenario.max_steps, args.clock, model, view.refresh, args.exit_with_parent,
-                            digests(args), viewer)
+                            digests(args), viewer, resume=args.resume)
             )
     except LogWriteError as error:
         log_write_failed(error)

@@ -23,6 +23,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     world.add_argument("--rate", type=positive, default=1.0, help="realtime: simulated seconds per wall second")
     world.add_argument("--lockstep-wait", type=positive, default=10.0, metavar="S",
                        help="lockstep: treat a robot silent this many seconds in one step as gone (default 10)")
+    world.add_argument("--monitor-grace", type=positive, default=None, metavar="S",
+                       help="with --monitor: when the monitor goes away, hold the run up to S seconds for a monitor "
+                       "resuming its log (monitor --resume) instead of ending it (default: end it)")
     world.add_argument("--announce", type=Path, metavar="PATH",
                        help="write the endpoints the world listens on to PATH (JSON)")
     world.set_defaults(handler=run_world_role)
@@ -41,6 +44,7 @@ def run_world_role(args: argparse.Namespace) -> int:
         lockstep_wait=args.lockstep_wait,
         digest=args.monitor and digests(args),
         cerr=check_strategy(scenario).cerr,
+        monitor_grace=args.monitor_grace or 0.0,
     )
     config = bus_config(args, [WORLD], scenario.robots, admin_space=args.announce is not None)
     return asyncio.run(run_world(scenario, scenario.seed, args.run, config, options, args.exit_with_parent))

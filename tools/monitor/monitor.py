@@ -12,6 +12,7 @@ the senders counted, writes the end record and prints a summary.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -44,6 +45,14 @@ from ringtrack.bus.messages import (
 )
 from ringtrack.bus.participant import Delivery, Interrupt, Participant, Presence, far_ahead, peak_rss_kib
 from ringtrack.bus.runtime import STOPPED, Interrupts, Role, Roster, perform
+from ringtrack.tools.monitor.checkpoint import (
+    CHECKPOINT_PERIOD_S,
+    Checkpoint,
+    checkpoint_path,
+    read_checkpoint,
+    restore_counts,
+    write_checkpoint,
+)
 from ringtrack.tools.monitor.state import TeamModel, startup_names
 from ringtrack.tools.runlog.derived import distrust
 from ringtrack.tools.runlog.log import LogWriter, step_record
@@ -145,6 +154,7 @@ class Recorder:
         self.tick_seen_at: dict[int, float] = {}
         self.late = 0
         self.dropped_ahead = 0  # messages for steps beyond the window of open steps
+        self.digested_through = 0  # the last step whose digest entries were counted
 
     def on_delivery(self, delivery: Delivery) -> None:
         message = delivery.message
@@ -304,6 +314,7 @@ class MonitorReport:
     superseded: list[Traffic] = field(default_factory=list)  # messages of replaced lives, dropped at the door
     cut_off: set[str] = field(default_factory=set)  # participants whose alive token went during the run
     silent: frozenset[str] = frozenset()  # senders one of whose lives left no books (killed)
+    resumed: bool = False  # this monitor resumed the log of one that went away: it could not see everything
 
     def sender_rows(self) -> list[Traffic]:
         """Every traffic row of every sender's final statistics."""
@@ -321,7 +332,7 @@ class MonitorReport:
         dropped at its door as a replaced life's: ``superseded``), shortfalls on links of a process
         cut off during the run being in flight (:func:`bus.counting.close_books`)."""
         return close_books(self.sender_rows(), [*self.received, *self.superseded], self.cut_off, COMPARED,
-                           self.silent)
+                           self.silent, unobserved=self.resumed)
 
     def consistent(self) -> bool:
         """Whether the books balance (:meth:`books`)."""
@@ -348,13 +359,15 @@ async def run_monitor(
     exit_with_parent: bool = False,
     digests: bool = False,
     on_record: Callable[[dict], None] | None = None,
+    resume: bool = False,
 ) -> tuple[int, MonitorReport | None]:
     """Monitor one run, feeding every step and event record to ``model`` and calling ``refresh`` a few
     times per second, and once more with True when the log is complete; returns the exit code and
     the report (None when stopped before the start). With ``digests`` the monitor receives no copy of
     the measurements, commands and robot-to-robot messages: it counts them from the world's digests
     (:func:`digested`). ``on_record`` is handed every step, event and end record too, as written
-    (the live Foxglove view and ``--record``)."""
+    (the live Foxglove view and ``--record``). With ``resume`` the monitor goes on with the log and
+    books of a monitor of the same run that went away (:mod:`tools.monitor.checkpoint`)."""
     keys = Keys(run)
     report: MonitorReport | None = None
     if model is not None:
@@ -368,12 +381,17 @@ async def run_monitor(
 
     async def main(participant: Participant, roster: Roster, held: list) -> int:
         nonlocal report
-        with LogWriter(log_path) as writer:
-            writer.header(scenario, "emulator", run, seed, clock, steps)
+        with LogWriter(log_path, resume=resume) as writer:
             handlers = [handler for handler in (None if model is None else model.add, on_record) if handler is not None]
             recorder = Recorder(writer, scenario, _each(handlers), FORCE_AFTER_S[clock])
+            books = Tallies()
+            if resume:
+                books = resumed(participant, recorder, read_checkpoint(checkpoint_path(log_path), f"{run:08x}"))
+            else:
+                writer.header(scenario, "emulator", run, seed, clock, steps)
             participant.window = lambda message: far_ahead(message, max(recorder.latest_tick, recorder.next_step))
-            code, report = await _watch(participant, recorder, roster, held, refresh, digests)
+            code, report = await _watch(participant, recorder, roster, held, refresh, digests, books,
+                                        checkpoint_path(log_path))
             # The step the world was in when it stopped never completed: it is not written.
             recorder.flush(through=report.end.step if report.end else None)
             end = {
@@ -396,6 +414,8 @@ async def run_monitor(
                 "superseded": [list(row) for row in report.superseded],
             }
             writer.write(end)
+        with contextlib.suppress(OSError):
+            checkpoint_path(log_path).unlink()  # the log is whole: nothing to resume
         if on_record is not None:
             on_record(end)
         if model is not None:
@@ -406,10 +426,56 @@ async def run_monitor(
             refresh(True)
         return code
 
-    role = Role(name=MONITOR, needed=senders(scenario), main=main, collect=monitored_keys(keys, digests),
-                stats=lambda participant, code: None, on_gathering=show_startup)
+    # A resumed monitor starts as soon as the world is there: robots killed meanwhile may not be.
+    role = Role(name=MONITOR, needed={WORLD} if resume else senders(scenario), main=main,
+                collect=monitored_keys(keys, digests), stats=lambda participant, code: None, on_gathering=show_startup)
     code = await perform(role, bus, keys, scenario.robots, Interrupts(exit_with_parent))
     return code, report
+
+
+@dataclass
+class Tallies:
+    """What the monitor gathers besides the counts of its participant: every sender's final
+    statistics (by life label), who was cut off during the run, how many lives of each robot the log
+    has events for; ``recount_after``: a resumed monitor counts the world's replayed digest entries of
+    the steps after this one (its predecessor counted those up to it), None: not resumed."""
+
+    finals: dict[str, Stats] = field(default_factory=dict)
+    cut_off: set[str] = field(default_factory=set)
+    lives_recorded: dict[str, int] = field(default_factory=dict)
+    recount_after: int | None = None
+    replay_seen: bool = False  # a resumed monitor's: the world's replay has come (digests before it are in it)
+
+
+def resumed(participant: Participant, recorder: Recorder, checkpoint: Checkpoint | None) -> Tallies:
+    """Take up the log and books of the monitor that went away: go on after the last step its log
+    holds, with its counts as of its last ``checkpoint`` (None: it left none; from nothing)."""
+    recorder.next_step = recorder.writer.steps_written + 1
+    recorder.latest_tick = recorder.writer.steps_written
+    tallies = Tallies(recount_after=0)
+    if checkpoint is not None:
+        recorder.latest_tick = max(recorder.latest_tick, checkpoint.latest_tick)
+        recorder.late, recorder.dropped_ahead = checkpoint.late, checkpoint.dropped_ahead
+        recorder.digested_through = checkpoint.digested_through
+        restore_counts(participant.counter, checkpoint.received, checkpoint.rejected)
+        restore_counts(participant.fenced, checkpoint.fenced)
+        participant.lives.update(checkpoint.lives)
+        participant.life_history.update({name: list(lives) for name, lives in checkpoint.life_history.items()})
+        tallies = Tallies(dict(checkpoint.finals), set(checkpoint.cut_off), dict(checkpoint.lives_recorded),
+                          checkpoint.digested_through)
+    recorder.record({"type": "event", "event": "monitor", "subject": "resumed", "step": recorder.next_step - 1,
+                     "wall": time.time()})
+    return tallies
+
+
+def take_checkpoint(participant: Participant, recorder: Recorder, tallies: Tallies) -> Checkpoint:
+    """The monitor's tallies now (:mod:`tools.monitor.checkpoint`)."""
+    return Checkpoint(
+        run=f"{participant.keys.run:08x}", digested_through=recorder.digested_through,
+        latest_tick=recorder.latest_tick, late=recorder.late, dropped_ahead=recorder.dropped_ahead,
+        received=participant.counter.received_table(), rejected=dict(participant.counter.rejected),
+        fenced=participant.fenced.received_table(), finals=tallies.finals, cut_off=sorted(tallies.cut_off),
+        lives=participant.lives, life_history=participant.life_history, lives_recorded=tallies.lives_recorded)
 
 
 async def _watch(
@@ -419,24 +485,32 @@ async def _watch(
     events: list,
     refresh: Refresh | None,
     digests: bool = False,
+    tallies: Tallies | None = None,
+    checkpoint_at: Path | None = None,
 ) -> tuple[int, MonitorReport]:
     """Record until the run has ended and everything every sender says it sent has been seen (or
     nothing has arrived for ``FINAL_STATS_GRACE_S``: a sender died); with ``digests``, the world's
-    digests count for the messages the monitor does not receive (:data:`DIGESTED`)."""
-    finals: dict[str, Stats] = {}  # by life_label(sender, life)
-    cut_off: set[str] = set()
-    lives_recorded: dict[str, int] = {}
+    digests count for the messages the monitor does not receive (:data:`DIGESTED`). Every
+    ``CHECKPOINT_PERIOD_S`` the tallies go to ``checkpoint_at`` (if given)."""
+    tallies = tallies or Tallies()
+    finals, cut_off, lives_recorded = tallies.finals, tallies.cut_off, tallies.lives_recorded
     end: End | None = None
     code = 0
     interrupted_at = 0.0
-    last_view = 0.0
+    last_view = last_checkpoint = 0.0
     loop = asyncio.get_running_loop()
     last_event_at = loop.time()
     team = senders(recorder.scenario)
     while True:
         for event in events:
             if isinstance(event, Delivery) and isinstance(event.message, Digest):
-                if digests:  # else a world digesting for an auditing monitor: what it says is seen already
+                if event.message.replayed:  # the steps the world kept while the monitor was away
+                    if tallies.recount_after is not None:
+                        tallies.replay_seen = True
+                        replayed(participant, recorder, event.message, digests, tallies.recount_after)
+                elif digests and (tallies.recount_after is None or tallies.replay_seen):
+                    # (else a world digesting for an auditing monitor: what it says is seen already; or a
+                    # digest the world sent as this resumed monitor came up, which its replay holds too)
                     digested(participant, recorder, event.message)
             elif isinstance(event, Delivery):
                 message = event.message
@@ -474,6 +548,9 @@ async def _watch(
         if refresh is not None and now - last_view >= VIEW_PERIOD_S:
             refresh(False)
             last_view = now
+        if checkpoint_at is not None and now - last_checkpoint >= CHECKPOINT_PERIOD_S:
+            write_checkpoint(checkpoint_at, take_checkpoint(participant, recorder, tallies))
+            last_checkpoint = now
         await asyncio.sleep(DRAIN_PERIOD_S)
         events = participant.drain()
         record_new_lives(participant, recorder, lives_recorded)
@@ -492,6 +569,7 @@ async def _watch(
         cut_off=cut_off | {stats.name for name, stats in finals.items() if name != stats.name},
         silent=frozenset(name for name, lives in participant.life_history.items()
                          if any(life_label(name, life) not in finals for life in lives)),
+        resumed=tallies.recount_after is not None,
     )
     return code, report
 
@@ -517,23 +595,46 @@ def digested(participant: Participant, recorder: Recorder, digest: Digest) -> No
     for entry in digest.entries:
         if entry.tick is not None:
             recorder.on_tick(entry.tick)
-        _digested_entry(participant, recorder, entry)
+        _digested_entry(participant, recorder, entry, count=True, record=True)
 
 
-def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestEntry) -> None:
+def replayed(participant: Participant, recorder: Recorder, digest: Digest, digests: bool, recount_after: int) -> None:
+    """Take the steps a world replays to a resumed monitor (:mod:`world.backlog`): record those the
+    log lacks and, with ``digests``, count the messages of those after ``recount_after`` (the
+    predecessor's checkpoint counted the others); an auditing monitor counts only what it saw."""
+    for entry in digest.entries:
+        record, count = entry.step >= recorder.next_step, digests and entry.step > recount_after
+        if record and entry.tick is not None:
+            recorder.on_tick(entry.tick)
+        if record or count:
+            _digested_entry(participant, recorder, entry, count, record)
+
+
+def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestEntry, count: bool,
+                    record: bool) -> None:
+    """Count (``count``) and give the recorder (``record``) the messages ``entry`` reports."""
+    counter = participant.counter
+    if count:
+        recorder.digested_through = max(recorder.digested_through, entry.step)
     for robot, size in entry.measurements:
-        participant.counter.count_received(("measurement", WORLD, robot_name(robot)), size)
-        recorder.count_reported(entry.step, size, measured=robot)
+        if count:
+            counter.count_received(("measurement", WORLD, robot_name(robot)), size)
+        if record:
+            recorder.count_reported(entry.step, size, measured=robot)
     for command, size in entry.commands:
         source = robot_name(command.robot)
-        participant.counter.count_received(("command", source, WORLD), size)
-        recorder.on_delivery(Delivery(command, Route(WORLD, source, "command"), size))
+        if count:
+            counter.count_received(("command", source, WORLD), size)
+        if record:
+            recorder.on_delivery(Delivery(command, Route(WORLD, source, "command"), size))
         for kind, peer, copies, each in command.robot_traffic:
             sender, receiver = (peer, command.robot) if ROBOT_TRAFFIC_KINDS[kind] == "reply" else (command.robot, peer)
+            link = (ROBOT_TRAFFIC_KINDS[kind], robot_name(sender), robot_name(receiver))
             for _ in range(copies):
-                participant.counter.count_received((ROBOT_TRAFFIC_KINDS[kind], robot_name(sender),
-                                                    robot_name(receiver)), each)
-                recorder.count_reported(command.step, each, (ROBOT_TRAFFIC_KINDS[kind], sender, receiver))
+                if count:
+                    counter.count_received(link, each)
+                if record:
+                    recorder.count_reported(command.step, each, (ROBOT_TRAFFIC_KINDS[kind], sender, receiver))
 
 
 def record_new_lives(participant: Participant, recorder: Recorder, recorded: dict[str, int]) -> None:

@@ -76,15 +76,31 @@ class LogWriter:
     fails (a full disk) cuts the file back to its last complete record, so the log stays readable,
     and raises :class:`LogWriteError`; the writer then refuses further records."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, resume: bool = False) -> None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self._file: IO[bytes] | None = path.open("wb", buffering=0)
+            self._file: IO[bytes] | None = path.open("r+b" if resume else "wb", buffering=0)
         except OSError as error:
-            raise LogWriteError(f"{path}: cannot write the run log ({error.strerror or error})") from None
+            raise LogWriteError(f"{path}: cannot {'resume' if resume else 'write'} the run log "
+                                f"({error.strerror or error})") from None
         self.path = path
         self.steps_written = 0
         self._complete = 0  # bytes of complete records
+        if resume:
+            self._resume()
+
+    def _resume(self) -> None:
+        """Go on after the last complete record of the log (a torn last line, of a killed monitor, is
+        cut off)."""
+        assert self._file is not None
+        data = self._file.read()
+        self._complete = data.rfind(b"\n") + 1
+        try:
+            os.ftruncate(self._file.fileno(), self._complete)
+            self._file.seek(self._complete)
+        except OSError as error:
+            self._fail(error)
+        self.steps_written = last_logged_step(self.path)
 
     def write(self, record: dict[str, Any]) -> None:
         if self._file is None:

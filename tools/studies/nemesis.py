@@ -5,11 +5,13 @@ Every schedule is one ``spawn`` run with the wire audit on (the monitor observes
 itself) and a random nemesis plan (:func:`tools.team.nemesis.random_plan`): robots killed and
 restarted as their next life, paused below and past the liveliness lease, and split brains (a robot
 frozen past the lease, a new life of it started, the old one woken); every fifth schedule ends by
-killing the monitor or the world. The checker reads the run folder: whether the ring
+killing the monitor or the world, or kills the monitor and restarts it (the world holds the run and
+the new monitor resumes the log). The checker reads the run folder: whether the ring
 re-formed and at which step, the tracking quality after it (mean true Cerr in degrees, and Terr in
 metres for a moving target, from the step it re-formed on), overlapping lives (two processes acting
 as the same life of a robot: must be 0), whether the books balance (they must), and whether a lost
-monitor or world was noticed (every process ended on its own, and the world said why).
+monitor or world was noticed (every process ended on its own, and the world said why), and whether
+a restarted monitor resumed the log (every step written once, in order, and the run ended whole).
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ Clock = Literal["lockstep", "realtime"]
 LEASE_S = 2.0  # the teams' liveliness lease: pauses of 2.5-4 s outlast it
 RATE = 5.0  # realtime teams run five times faster than the wall clock
 LOCKSTEP_STEPS_PER_S = 250.0  # about a six-robot lockstep team's pace here: its runs last as long as realtime's
-FATAL_EVERY = 5  # every fifth schedule ends by killing the monitor or the world
+FATAL_EVERY = 5  # every fifth schedule ends by killing the monitor or the world, or restarts the monitor
+MONITOR_AWAY_S = 1.5  # s: how long a restarted monitor's schedule leaves the run without one
 
 
 class ScheduleRow(msgspec.Struct, frozen=True):
@@ -58,6 +61,7 @@ class ScheduleRow(msgspec.Struct, frozen=True):
     books_balanced: bool
     books: list[str]
     noticed: bool | None
+    resumed: bool | None = None  # None: the plan restarted no monitor
 
 
 def lockstep_steps(scenario: Scenario) -> int:
@@ -69,12 +73,15 @@ def lockstep_steps(scenario: Scenario) -> int:
 def plan_for(schedule: int, seed: int, scenario: Scenario) -> list[Fault]:
     """The faults of schedule ``schedule``: a random plan, every fault over within the first two thirds
     of a realtime run of ``scenario.max_steps`` steps (wall seconds), and for every
-    :data:`FATAL_EVERY`-th a monitor or world kill at three quarters of it."""
+    :data:`FATAL_EVERY`-th, in turn, a monitor kill, a world kill or a monitor kill and restart
+    (``MONITOR_AWAY_S`` later) at three quarters of it."""
     duration_s = scenario.max_steps * scenario.control.dt / RATE
     faults = random_plan(seed, scenario.robots, max(1.0, 2.0 * duration_s / 3.0), lease_s=LEASE_S)
     if schedule % FATAL_EVERY == FATAL_EVERY - 1:
-        victim = "monitor" if (schedule // FATAL_EVERY) % 2 == 0 else "world"
-        faults.append(Fault("kill", victim, round(0.75 * duration_s, 1)))
+        turn, at_s = (schedule // FATAL_EVERY) % 3, round(0.75 * duration_s, 1)
+        faults.append(Fault("kill", "world" if turn == 1 else "monitor", at_s))
+        if turn == 2:
+            faults.append(Fault("restart", "monitor", round(at_s + MONITOR_AWAY_S, 1)))
     return faults
 
 
@@ -92,7 +99,9 @@ def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, run
     if result.exit_code == STOPPED:  # Ctrl-C or SIGTERM: spawn ended the team; the study ends too
         raise KeyboardInterrupt
     folder = Path(result.folder)
-    fatal = next((fault.target for fault in faults if fault.target in ("monitor", "world")), None)
+    restarted = any(fault.action == "restart" and fault.target == "monitor" for fault in faults)
+    fatal = None if restarted else next((fault.target for fault in faults if fault.target in ("monitor", "world")),
+                                        None)
     log = read_log(folder / "log.jsonl") if (folder / "log.jsonl").is_file() else None
     records = [] if log is None else log.steps
     whole = [record for record in records if len(record["live"]) == scenario.robots]
@@ -112,7 +121,16 @@ def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, run
         books_balanced=fatal is not None or result.distrust is None,
         books=[] if log is None or log.end is None else log.end.get("books", []),
         noticed=None if fatal is None else noticed(folder, fatal, result.stopped),
+        resumed=None if not restarted else log is not None and resumed_whole(log.steps, log.events, log.end),
     )
+
+
+def resumed_whole(steps: list[dict], events: list[dict], end: dict | None) -> bool:
+    """Whether a restarted monitor resumed the log: it says so, every step is written once and in
+    order, and the log ends with the end record of a run that was not cut short."""
+    return any(event["event"] == "monitor" and event.get("subject") == "resumed" for event in events) and \
+        [record["step"] for record in steps] == list(range(1, len(steps) + 1)) and end is not None \
+        and end["steps"] == len(steps)
 
 
 def noticed(folder: Path, victim: str, stopped: str | None) -> bool:
@@ -137,6 +155,7 @@ class NemesisStudy(msgspec.Struct, frozen=True):
     overlapping_lives: int
     unbalanced_books: int
     lost_noticed: str  # "k/n": lost monitors or worlds noticed of those killed
+    monitors_resumed: str  # "k/n": restarted monitors that resumed the log whole
     reformed: str  # "k/n" of the schedules that killed neither
 
 
@@ -161,6 +180,8 @@ def nemesis_study(scenario: Scenario, schedules: int, seed: int, clocks: tuple[C
         overlapping_lives=sum(row.overlapping_lives for row in rows),
         unbalanced_books=sum(not row.books_balanced for row in rows),
         lost_noticed=f"{sum(bool(row.noticed) for row in fatal)}/{len(fatal)}",
+        monitors_resumed=f"{sum(bool(row.resumed) for row in rows if row.resumed is not None)}/"
+                         f"{sum(row.resumed is not None for row in rows)}",
         reformed=f"{sum(row.reformed for row in survivable)}/{len(survivable)}",
     )
 

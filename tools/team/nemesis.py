@@ -6,7 +6,9 @@ holds ``faults = [...]``)::
     kill r3@5s, restart r3@8s, pause r1@10s:3s, kill monitor@15s
 
 ``kill NAME@T`` sends SIGKILL to a robot (``r<i>``), the monitor or the world; ``restart r<i>@T``
-starts a new process for robot i (it joins as the id's next life, :mod:`bus.lives`); ``pause
+starts a new process for robot i (it joins as the id's next life, :mod:`bus.lives`); ``restart
+monitor@T``, after a ``kill monitor``, starts a monitor that resumes the run's log and books (the
+world holds the run for it meanwhile: :func:`monitor_grace_s`, :mod:`world.backlog`); ``pause
 NAME@T:D`` freezes a process with SIGSTOP for D seconds, then wakes it with SIGCONT; ``partition
 r<a>-r<b>@T:D`` cuts the link between two robots for D seconds (their fault layers drop every
 message between them as an ``outage``; :data:`bus.faults.PARTITION_FILE`). Every fault
@@ -74,8 +76,8 @@ def parse_fault(text: str, robots: int) -> Fault:
                          "monitor or world")
     if robot is not None and robot >= robots:
         raise UsageError(f"--nemesis {text.strip()!r}: the team has robots r0..r{robots - 1}")
-    if action == "restart" and robot is None:
-        raise UsageError(f"--nemesis {text.strip()!r}: only a robot can be restarted")
+    if action == "restart" and target == WORLD:
+        raise UsageError(f"--nemesis {text.strip()!r}: only a robot or the monitor can be restarted")
     lasting = float(match["for"]) if match["for"] is not None else None
     if (action == "pause") != (lasting is not None):
         raise UsageError(f"--nemesis {text.strip()!r}: a pause needs its length (pause r1@10s:3s), and only a pause "
@@ -119,7 +121,31 @@ def parse_plan(plan: str, robots: int) -> list[Fault]:
         texts = [text for text in plan.split(",") if text.strip()]
     if not texts:
         raise UsageError(f"--nemesis {plan!r}: no fault in it; e.g. {EXAMPLE}")
-    return sorted((parse_fault(text, robots) for text in texts), key=lambda fault: fault.at_s)
+    faults = sorted((parse_fault(text, robots) for text in texts), key=lambda fault: fault.at_s)
+    killed = False
+    for fault in faults:
+        if fault.target == MONITOR and fault.action == "restart" and not killed:
+            raise UsageError(f"--nemesis {str(fault)!r}: a monitor is restarted after it was killed: "
+                             f"kill monitor@{max(fault.at_s - 2, 0):g}s, {fault}")
+        if fault.target == MONITOR:
+            killed = fault.action == "kill"
+    return faults
+
+
+MONITOR_RETURN_S = 30.0  # s: how long a restarted monitor may take to come up and resume, beyond its plan
+
+
+def monitor_grace_s(faults: list[Fault]) -> float | None:
+    """How long the world must hold the run for a monitor the plan kills and then restarts (the
+    longest wait from a ``kill monitor`` to the ``restart monitor`` after it, plus
+    ``MONITOR_RETURN_S``), None when the plan restarts no monitor."""
+    waits, killed_at = [], None
+    for fault in faults:
+        if fault.target == MONITOR and fault.action == "kill":
+            killed_at = fault.at_s
+        elif fault.target == MONITOR and fault.action == "restart" and killed_at is not None:
+            waits.append(fault.at_s - killed_at)
+    return max(waits) + MONITOR_RETURN_S if waits else None
 
 
 def split_brain(name: str, at_s: float, lease_s: float) -> list[Fault]:
@@ -169,11 +195,11 @@ class Struck:
 class Nemesis:
     """Carries a plan out against a team: :meth:`tick` (called as the supervisor polls) does every
     fault that fell due. ``find(name)`` gives the newest process of a participant (None: none
-    running), ``signal(process, number)`` signals it, ``restart(robot)`` starts a new one and
+    running), ``signal(process, number)`` signals it, ``restart(name)`` starts a new one and
     ``spare(process)`` tells the supervisor that it ends by the nemesis's hand, not by failing."""
 
     def __init__(self, faults: list[Fault], folder: Path, find: Callable[[str], object | None],
-                 send: Callable[[object, int], int | None], restart: Callable[[int], int],
+                 send: Callable[[object, int], int | None], restart: Callable[[str], int],
                  spare: Callable[[object], None], step: Callable[[], int]) -> None:
         self.cuts: set[tuple[int, int]] = set()  # the robot links a partition cuts now
         pending: list[tuple[float, str, Fault]] = []
@@ -208,7 +234,7 @@ class Nemesis:
     def _carry_out(self, fault: Fault, phase: str, now_s: float) -> None:
         pid: int | None = None
         if fault.action == "restart":
-            pid = self.restart(robot_index(fault.target) or 0)
+            pid = self.restart(fault.target)
         elif fault.action == "partition":
             (self.cuts.add if phase == "start" else self.cuts.discard)(partition_ends(fault))
             self._announce_cuts(partition_ends(fault))

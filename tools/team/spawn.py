@@ -25,7 +25,7 @@ from ringtrack.agents.process import FENCED
 from ringtrack.agents.summary import summarise
 from ringtrack.bus.config import LOOPBACK_ANY_PORT
 from ringtrack.bus.counting import totals_by_category, totals_by_kind
-from ringtrack.bus.keys import new_run_id, robot_index, robot_name
+from ringtrack.bus.keys import MONITOR, new_run_id, robot_index, robot_name
 from ringtrack.bus.lives import SUPERSEDED_MARK
 from ringtrack.bus.messages import EndReason
 from ringtrack.bus.radio import EnergyReport, energy_report
@@ -35,7 +35,7 @@ from ringtrack.tools.output.console import UsageError, err, out, warn_if_thresho
 from ringtrack.tools.output.files import OutputError, write_json
 from ringtrack.tools.runlog.derived import distrust
 from ringtrack.tools.runlog.log import LogWriteError, append_records, history_from_log, last_logged_step, read_log
-from ringtrack.tools.team.nemesis import Nemesis
+from ringtrack.tools.team.nemesis import Nemesis, monitor_grace_s
 from ringtrack.tools.team.plan import Clock, Stop, TeamPlan, TeamResult
 from ringtrack.tools.team.supervisor import (
     FORK_WORKS,
@@ -181,7 +181,7 @@ class TeamLaunch:
 def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> list[tuple[str, list[str]]]:
     """Start the monitor and the world, wait for the world's endpoints, then start the fusion centre
     (centralized estimation) and the robot processes, all told to connect to the world; returns the
-    robot processes' names and arguments (of ``ringtrack``)."""
+    names and arguments (of ``ringtrack``) of the monitor and of the robot processes."""
     scenario, folder, view = plan.scenario, launch.folder, launch.view
     announce, handover = folder / "world-endpoints.json", folder / "display.handover"
     common = [str(folder / "scenario.toml"), "--run", f"{launch.run:08x}", "--monitor", "--exit-with-parent",
@@ -192,19 +192,21 @@ def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> li
     if launch.start == "fork":
         supervisor.preload()  # it imports while the world and the monitor come up
     stop_rule = [] if plan.until_converged else ["--steps", str(scenario.max_steps)]
+    grace = monitor_grace_s(plan.nemesis) if plan.nemesis else None
     world = ["world", *common, *world_mode, "--clock", plan.clock, "--rate", str(plan.rate), "--listen", launch.listen,
-             "--announce", str(announce), "--lockstep-wait", str(plan.lockstep_wait), *stop_rule]
+             "--announce", str(announce), "--lockstep-wait", str(plan.lockstep_wait), *stop_rule,
+             *([] if grace is None else ["--monitor-grace", f"{grace:g}"])]
     monitor_flags = {True: ["--dashboard"], False: ["--no-dashboard"], None: []}[plan.dashboard]
     monitor_flags += ["--all-robots"] if plan.all_robots else []
     monitor_flags += [] if view is None else ["--display-handover", str(handover)]
     monitor_flags += [] if plan.foxglove is None else ["--foxglove", f"[{plan.foxglove[0]}]:{plan.foxglove[1]}"]
     monitor_flags += [] if plan.record is None else ["--record", str(plan.record.resolve())]
     say(view, "starting the world and the monitor")
+    monitor = ["monitor", *common, *others_mode, "--connect-from", str(announce), "--log", str(launch.log_path),
+               "--clock", plan.clock, *monitor_flags]
     with (folder / "monitor.stdout").open("wb") if plan.quiet else contextlib.nullcontext() as display:
         # Started at once: it comes up (and takes the start-up frame over) while the world does.
-        supervisor.start("monitor", [*ROLE_COMMAND, "monitor", *common, *others_mode, "--connect-from",
-                                     str(announce), "--log", str(launch.log_path), "--clock", plan.clock,
-                                     *monitor_flags], stdout=display)
+        supervisor.start("monitor", [*ROLE_COMMAND, *monitor], stdout=display)
     if launch.start == "fork":  # the launcher's imports are those of the world too
         supervisor.fork([("world", world)])
     else:
@@ -236,7 +238,7 @@ def start_team(supervisor: Supervisor, plan: TeamPlan, launch: TeamLaunch) -> li
     if view is not None:
         say(view, "every process started; the monitor takes over this screen once it is up")
         view.started_all()
-    return robots
+    return [("monitor", monitor), *robots]
 
 
 def world_running(supervisor: Supervisor) -> bool:
@@ -245,13 +247,20 @@ def world_running(supervisor: Supervisor) -> bool:
 
 
 def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, log_path: Path,
-            robots: list[tuple[str, list[str]]], start: str, critical: set[str]) -> Nemesis | None:
-    """The nemesis of ``plan`` against the team just started (None: no plan). A restarted robot is a
-    new process with its first process's arguments, named ``r<i>@<n>`` for its n-th restart. Once it
-    kills one of the ``critical`` processes it empties that set: the others must notice on their own."""
+            started: list[tuple[str, list[str]]], start: str, critical: set[str]) -> Nemesis | None:
+    """The nemesis of ``plan`` against the team just ``started`` (the monitor's and the robot
+    processes' names and arguments; None: no plan). A restarted robot or monitor is a new process
+    with its first process's arguments, named ``<name>@<n>`` for its n-th restart; a monitor's
+    resumes the log (``--resume``) and draws no start-up frame. Once the nemesis kills one of the
+    ``critical`` processes it empties that set: the others must notice on their own."""
     if not plan.nemesis:
         return None
-    arguments = dict(robots)
+    arguments = dict(started)
+    handover = arguments["monitor"].index("--display-handover") if "--display-handover" in arguments["monitor"] \
+        else None
+    if handover is not None:
+        del arguments["monitor"][handover:handover + 2]
+    arguments["monitor"] = [*arguments["monitor"], "--resume"]
     restarts: dict[str, int] = {}
 
     def find(name: str) -> Child | None:
@@ -264,10 +273,12 @@ def unleash(plan: TeamPlan, supervisor: Supervisor, folder: Path, log_path: Path
             child.process.send_signal(number)
         return child.pid
 
-    def restart(robot: int) -> int:
-        name = robot_name(robot)
+    def restart(name: str) -> int:
         restarts[name] = restarts.get(name, 0) + 1
         role = (f"{name}@{restarts[name]}", arguments[name])
+        if name == MONITOR:  # it prints its report where the first one would have
+            with (folder / "monitor.stdout").open("ab") if plan.quiet else contextlib.nullcontext() as display:
+                return supervisor.start(role[0], [*ROLE_COMMAND, *role[1]], stdout=display).pid
         child = supervisor.fork([role])[0] if start == "fork" else supervisor.start(role[0], [*ROLE_COMMAND, *role[1]])
         return child.pid
 
