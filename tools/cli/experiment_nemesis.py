@@ -27,9 +27,9 @@ def register(kinds: argparse._SubParsersAction) -> None:
         description="Run seeded random nemesis schedules (robots killed and restarted as their next life, paused "
         f"below and past the {LEASE_S:g} s liveliness lease, split brains, ring links partitioned; every fifth "
         "schedule also kills the monitor or the world, or kills the monitor and restarts it) against spawned teams "
-        "with the wire audit on, alternating the clocks, and check each run: did the ring re-form and when, the tracking "
-        "after it, overlapping lives (must be 0), balanced books (must be), whether a lost monitor or world was "
-        "noticed and whether a restarted monitor resumed the log whole.",
+        "with the wire audit on, alternating the clocks, and check each run: did the ring re-form and when, the "
+        "tracking after it, overlapping lives (must be 0), balanced books (must be), whether a lost monitor or world "
+        "was noticed and whether a restarted monitor resumed the log whole.",
     )
     parser.add_argument("scenario", nargs="?", default="authors-moving", help="scenario (default authors-moving)")
     parser.add_argument("--schedules", type=at_least(1), default=50, help="random schedules (default 50)")
