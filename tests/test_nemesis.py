@@ -5,13 +5,16 @@ team itself."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 from pathlib import Path
 
 import pytest
 
+from ringtrack.bus.lives import SUPERSEDED_MARK
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.runlog.log import read_log
+from ringtrack.tools.studies.nemesis import fenced_after_s
 from ringtrack.tools.team.nemesis import (
     EXAMPLE,
     MONITOR_RETURN_S,
@@ -84,6 +87,15 @@ def test_the_world_holds_for_a_restarted_monitor_its_longest_absence_and_a_start
     plan = parse_plan("kill monitor@1s, restart monitor@3s, kill monitor@10s, restart monitor@16s", 6)
     assert monitor_grace_s(plan) == 6.0 + MONITOR_RETURN_S
     assert monitor_grace_s(parse_plan("kill monitor@1s, restart r3@3s", 6)) is None
+
+
+def test_a_fenced_life_is_timed_from_its_waking_to_the_line_that_says_it_stops(tmp_path: Path) -> None:
+    (tmp_path / "r3.stderr").write_text(f"ringtrack: error: r3 (life 1) of run 1 {SUPERSEDED_MARK} 2 of r3\n")
+    (tmp_path / "r3@1.stderr").write_text("")
+    (tmp_path / "r1.stderr").write_text(f"{SUPERSEDED_MARK}\n")  # never woken by the nemesis: not timed
+    os.utime(tmp_path / "r3.stderr", (1000.0, 1001.25))
+    struck = [{"fault": "pause r3@1s:6s", "wall": 990.0}, {"fault": "wake r3", "wall": 1000.0}]
+    assert fenced_after_s(tmp_path, struck) == [1.25]
 
 
 def test_a_split_brain_restarts_a_robot_frozen_past_the_lease_before_waking_it() -> None:

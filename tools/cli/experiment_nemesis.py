@@ -57,6 +57,9 @@ def run_nemesis(args: argparse.Namespace) -> int:
     out.print(f"{study.schedules} schedules: overlapping lives {study.overlapping_lives}, unbalanced books "
               f"{study.unbalanced_books}, lost monitor or world noticed {study.lost_noticed}, restarted monitor "
               f"resumed the log {study.monitors_resumed}, re-formed {study.reformed}", highlight=False)
+    if study.fenced_within_s is not None:
+        out.print(f"every replaced life stopped within {study.fenced_within_s:.1f} s of its waking "
+                  f"(lease {LEASE_S:g} s)", highlight=False)
     write_study(args, study, plot_schedules)
     failed = study.overlapping_lives or study.unbalanced_books or not _all(study.lost_noticed) \
         or not _all(study.monitors_resumed)
@@ -80,7 +83,8 @@ def schedule_table(rows: list[ScheduleRow]) -> Table:
                       "-" if row.reformed_at_step is None else f"step {row.reformed_at_step}",
                       "-" if row.cerr_after_deg is None else f"{row.cerr_after_deg:.1f} deg",
                       "-" if row.terr_after_m is None else f"{row.terr_after_m:.3f} m",
-                      str(row.fenced_lives), str(row.overlapping_lives),
+                      str(row.fenced_lives) + (f" ({max(row.fenced_after_s):.1f} s)" if row.fenced_after_s else ""),
+                      str(row.overlapping_lives),
                       "balanced" if row.books_balanced else "UNBALANCED",
                       "-" if row.noticed is None else "yes" if row.noticed else "NO",
                       "-" if row.resumed is None else "yes" if row.resumed else "NO")

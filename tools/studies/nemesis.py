@@ -25,6 +25,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 
+from ringtrack.bus.lives import SUPERSEDED_MARK
 from ringtrack.bus.runtime import STOPPED
 from ringtrack.tools.runlog.derived import step_errors
 from ringtrack.tools.runlog.log import read_log
@@ -62,6 +63,7 @@ class ScheduleRow(msgspec.Struct, frozen=True):
     books: list[str]
     noticed: bool | None
     resumed: bool | None = None  # None: the plan restarted no monitor
+    fenced_after_s: list[float] = []  # per fenced life: wall seconds from its waking to its line saying it stops
 
 
 def lockstep_steps(scenario: Scenario) -> int:
@@ -122,7 +124,22 @@ def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, run
         books=[] if log is None or log.end is None else log.end.get("books", []),
         noticed=None if fatal is None else noticed(folder, fatal, result.stopped),
         resumed=None if not restarted else log is not None and resumed_whole(log.steps, log.events, log.end),
+        fenced_after_s=fenced_after_s(folder, result.nemesis),
     )
+
+
+def fenced_after_s(folder: Path, struck: list[dict]) -> list[float]:
+    """For every robot process of the run folder that stopped as a replaced life, the wall seconds
+    from the nemesis waking it (its ``wake`` in ``struck``) to the line that says it stops (the last
+    its standard error holds: the file's modification time)."""
+    woken = {entry["fault"].removeprefix("wake "): entry["wall"] for entry in struck
+             if entry["fault"].startswith("wake ")}
+    stops = []
+    for path in sorted(folder.glob("r*.stderr")):
+        name = path.stem.split("@")[0]
+        if name in woken and SUPERSEDED_MARK in path.read_text(errors="replace"):
+            stops.append(round(path.stat().st_mtime - woken[name], 2))
+    return stops
 
 
 def resumed_whole(steps: list[dict], events: list[dict], end: dict | None) -> bool:
@@ -156,6 +173,7 @@ class NemesisStudy(msgspec.Struct, frozen=True):
     unbalanced_books: int
     lost_noticed: str  # "k/n": lost monitors or worlds noticed of those killed
     monitors_resumed: str  # "k/n": restarted monitors that resumed the log whole
+    fenced_within_s: float | None  # the longest a replaced life took from its waking to stop (None: none fenced)
     reformed: str  # "k/n" of the schedules that killed neither
 
 
@@ -183,6 +201,7 @@ def nemesis_study(scenario: Scenario, schedules: int, seed: int, clocks: tuple[C
         monitors_resumed=f"{sum(bool(row.resumed) for row in rows if row.resumed is not None)}/"
                          f"{sum(row.resumed is not None for row in rows)}",
         reformed=f"{sum(row.reformed for row in survivable)}/{len(survivable)}",
+        fenced_within_s=max((stop for row in rows for stop in row.fenced_after_s), default=None),
     )
 
 
