@@ -37,15 +37,18 @@ from ringtrack.world.scenario import Scenario, apply_overrides, resolve
 Clock = Literal["lockstep", "realtime"]
 LEASE_S = 2.0  # the teams' liveliness lease: pauses of 2.5-4 s outlast it
 RATE = 5.0  # realtime teams run five times faster than the wall clock
-LOCKSTEP_STEPS_PER_S = 250.0  # about a six-robot lockstep team's pace here: its runs last as long as realtime's
+# At least a six-robot lockstep team's pace on an idle 2-core machine: a lockstep run lasts at least
+# as long as a realtime one, so that every fault of the plan falls within it.
+LOCKSTEP_STEPS_PER_S = 500.0
 FATAL_EVERY = 5  # every fifth schedule ends by killing the monitor or the world, or restarts the monitor
 MONITOR_AWAY_S = 1.5  # s: how long a restarted monitor's schedule leaves the run without one
 
 
 class ScheduleRow(msgspec.Struct, frozen=True):
-    """What one schedule came to (see the module's text); ``noticed`` is None when the plan killed
-    neither the monitor nor the world, ``reformed_at_step`` (the first step from which the whole team
-    was in the ring to the end) None when it did (the run ended early) or the ring never re-formed."""
+    """What one schedule came to (see the module's text); ``noticed`` is None when no monitor or world
+    was killed for good (none in the plan, or the run was over before the kill fell due),
+    ``reformed_at_step`` (the first step from which the whole team was in the ring to the end) None
+    when one was (the run ended early) or the ring never re-formed."""
 
     schedule: int
     seed: int
@@ -67,7 +70,7 @@ class ScheduleRow(msgspec.Struct, frozen=True):
 
 
 def lockstep_steps(scenario: Scenario) -> int:
-    """The steps of a lockstep schedule: as many as make it last about as long (wall seconds) as a
+    """The steps of a lockstep schedule: as many as make it last at least as long (wall seconds) as a
     realtime schedule of ``scenario.max_steps`` steps, so that the same faults fit into both."""
     return round(scenario.max_steps * scenario.control.dt / RATE * LOCKSTEP_STEPS_PER_S)
 
@@ -102,8 +105,11 @@ def run_schedule(schedule: int, seed: int, clock: Clock, scenario: Scenario, run
         raise KeyboardInterrupt
     folder = Path(result.folder)
     restarted = any(fault.action == "restart" and fault.target == "monitor" for fault in faults)
-    fatal = None if restarted else next((fault.target for fault in faults if fault.target in ("monitor", "world")),
-                                        None)
+    # a kill carried out (a run may be over before a late one falls due: it then tests nothing)
+    killed = {entry["fault"].removeprefix("kill ").split("@")[0] for entry in result.nemesis
+              if entry["fault"].startswith("kill ")}
+    fatal = None if restarted else next((fault.target for fault in faults if fault.target in ("monitor", "world")
+                                         and fault.target in killed), None)
     log = read_log(folder / "log.jsonl") if (folder / "log.jsonl").is_file() else None
     records = [] if log is None else log.steps
     whole = [record for record in records if len(record["live"]) == scenario.robots]
