@@ -230,12 +230,15 @@ class Recorder:
         return entry
 
     def flush(self, through: int | None = None) -> None:
-        """Write complete steps in order and overdue ones as they are; with ``through``, also every
-        step up to that one (the last step the world completed) whatever is missing."""
+        """Write complete steps in order and overdue ones as they are (also, once half of
+        ``PENDING_LIMIT`` steps are open, the oldest: a step that waits long must not crowd later
+        ones out); with ``through``, also every step up to that one (the last step the world
+        completed) whatever is missing."""
         now = time.monotonic()
         while self.next_step in self.pending:
             entry = self.pending[self.next_step]
-            overdue = self.latest_tick > self.next_step and now - self.tick_seen_at[self.next_step] > self.force_after_s
+            overdue = self.latest_tick > self.next_step and (
+                now - self.tick_seen_at[self.next_step] > self.force_after_s or len(self.pending) >= PENDING_LIMIT // 2)
             final = through is not None and self.next_step <= through
             if entry.tick is None or not (entry.complete() or overdue or final):
                 return
@@ -608,6 +611,8 @@ def replayed(participant: Participant, recorder: Recorder, digest: Digest, diges
             recorder.on_tick(entry.tick)
         if record or count:
             _digested_entry(participant, recorder, entry, count, record)
+    if digest.entries:  # the world completed these steps: what they lack now, they lack for good
+        recorder.flush(through=digest.entries[-1].step)
 
 
 def _digested_entry(participant: Participant, recorder: Recorder, entry: DigestEntry, count: bool,

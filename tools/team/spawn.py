@@ -401,7 +401,14 @@ class FirstStep:
         self.after: float | None = None
 
     def __call__(self) -> None:
-        if self.after is None and self.log_path.exists() and b'"type":"step"' in self.log_path.read_bytes()[:65536]:
+        if self.after is not None:
+            return
+        try:
+            with self.log_path.open("rb") as log:
+                head = log.read(65536)
+        except OSError:  # not written yet (or gone: the run is over)
+            return
+        if b'"type":"step"' in head:
             self.after = time.perf_counter() - self.started
 
     def since(self) -> float | None:
