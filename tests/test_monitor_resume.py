@@ -7,15 +7,19 @@ from __future__ import annotations
 import json
 import subprocess
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
-from ringtrack.bus.counting import close_books
-from ringtrack.bus.messages import Stats
+from ringtrack.bus.counting import TrafficCounter, close_books
+from ringtrack.bus.messages import SCHEMA, Digest, DigestEntry, Stats, Tick
 from ringtrack.tools.monitor.checkpoint import Checkpoint, checkpoint_path, read_checkpoint, write_checkpoint
+from ringtrack.tools.monitor.monitor import PENDING_LIMIT, Recorder, replayed
 from ringtrack.tools.runlog.log import LogWriter, read_log
 from ringtrack.world.backlog import step_entries
-from tests.helpers import RINGTRACK, assert_equals_engine, processes_mentioning
+from tests.helpers import RINGTRACK, assert_equals_engine, processes_mentioning, scenario
+
+RUN = 0x2000ABCD
 
 
 def test_a_resumed_log_goes_on_after_its_last_whole_record(tmp_path: Path) -> None:
@@ -109,3 +113,26 @@ def test_a_restarted_auditing_monitor_resumes_the_log_and_names_what_it_could_no
     assert all(line.endswith("(unobserved)") for line in end["books"]), end["books"]
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["distrust"] is None and summary["failures"] == {}
+
+
+def tick(step: int) -> Tick:
+    return Tick(SCHEMA, RUN, step, 0.1 * step, [(0.0, 0.0)] * 6, (1.0, 1.0), list(range(6)))
+
+
+def test_a_step_that_waits_long_is_written_before_it_crowds_later_ones_out(tmp_path: Path) -> None:
+    with LogWriter(tmp_path / "log.jsonl") as writer:
+        recorder = Recorder(writer, scenario(), force_after_s=1e9)  # never overdue by time
+        for step in range(1, PENDING_LIMIT // 2 + 1):  # ticks without commands: no step is complete
+            recorder.on_tick(tick(step))
+        recorder.flush()
+    assert writer.steps_written == 1 and recorder.next_step == 2 and len(recorder.pending) == PENDING_LIMIT // 2 - 1
+
+
+def test_a_resumed_monitor_writes_the_replayed_steps_at_once_whatever_they_lack(tmp_path: Path) -> None:
+    with LogWriter(tmp_path / "log.jsonl") as writer:
+        recorder = Recorder(writer, scenario(), force_after_s=1e9)
+        digest = Digest(SCHEMA, RUN, [DigestEntry(step, tick(step), [], []) for step in (1, 2, 3)], replayed=True)
+        participant = SimpleNamespace(counter=TrafficCounter())
+        replayed(participant, recorder, digest, digests=True, recount_after=2)  # type: ignore[arg-type]
+    assert writer.steps_written == 3 and recorder.next_step == 4
+    assert recorder.digested_through == 3  # counted: the steps after the predecessor's checkpoint
