@@ -44,6 +44,10 @@ from ringtrack.world.scenario import Scenario
 # centre's estimate, leaving the rest of the step to poll and command about the last estimate.
 ESTIMATE_SHARE = 0.5
 FENCED = 2  # the exit code of a life replaced by a newer one of its robot id
+# After the End a robot still takes in the robot-to-robot messages on their way to it (a neighbour's
+# push of the last step travels on another link than the End) until none has come for this long...
+LATE_QUIET_S = 0.1
+LATE_LIMIT_S = 1.0  # ... and at most this long
 
 
 @dataclass(frozen=True)
@@ -95,7 +99,10 @@ async def run_robot(
             loop.add_signal_handler(signal.SIGUSR1, lambda: setattr(shim, "cut", cut_peers(Path(folder), robot)))
         try:
             assert claim is not None
-            return await _serve(link, roster, events, FenceCheck(bus, claim))
+            code = await _serve(link, roster, events, FenceCheck(bus, claim))
+            if code == 0:
+                await take_late_arrivals(link)
+            return code
         finally:
             if folder:
                 loop.remove_signal_handler(signal.SIGUSR1)
@@ -321,15 +328,38 @@ class FenceCheck:
         row_out(self.voyage(encode(stats)))
 
 
+def count_arrivals(link: RobotLink, events: list) -> None:
+    """Take the robot-to-robot messages among ``events`` through the fault layer, counted as
+    delivered or dropped by their fates, without handing them to the node (the run is over)."""
+    for event in events:
+        if isinstance(event, Delivery) and isinstance(event.message, (Request, Reply, Push)):
+            link.shim.receive(event)
+
+
+async def take_late_arrivals(link: RobotLink) -> None:
+    """After the End, count (:func:`count_arrivals`) what still arrives until nothing has come for
+    ``LATE_QUIET_S`` seconds, at most ``LATE_LIMIT_S``: a message put on the bus before the End
+    counts as the engine counts it, not as lost because its receiver stopped first."""
+    loop = asyncio.get_running_loop()
+    until = loop.time() + LATE_LIMIT_S
+    while loop.time() < until:
+        events = await link.participant.events(timeout=min(LATE_QUIET_S, max(0.0, until - loop.time())))
+        if not events:
+            return
+        count_arrivals(link, events)
+
+
 async def _serve(link: RobotLink, roster: Roster, events: list, fence: FenceCheck) -> int:
     node = link.node
     reach_may_change = True  # shown once at the start
     while True:
-        for event in _newest_measurement_only(events):
+        batch = _newest_measurement_only(events)
+        for index, event in enumerate(batch):
             reach_may_change = reach_may_change or _may_change_reach(event)
             if isinstance(event, Delivery):
                 link.deliver(event)
                 if isinstance(event.message, End):
+                    count_arrivals(link, batch[index + 1:])
                     return 0
             elif isinstance(event, Deadline):
                 link.deadline(event)
