@@ -101,12 +101,13 @@ async def run_world(scenario: Scenario, seed: int, run: int, bus: BusConfig, opt
             for index in range(options.steps):
                 context.measurements, context.commands = [], []
                 await step_once(context, start + (index + 1) * period)
-                entries = step_entries(world.step, context.tick, context.measurements, context.commands,
-                                       scenario.robots)
-                if digests is not None:
-                    digests.add(entries, asyncio.get_running_loop().time())
-                if context.backlog is not None:
-                    context.backlog.add(entries)
+                if digests is not None or context.backlog is not None:  # else no step leaves an entry
+                    entries = step_entries(world.step, context.tick, context.measurements, context.commands,
+                                           scenario.robots)
+                    if digests is not None:
+                        digests.add(entries, asyncio.get_running_loop().time())
+                    if context.backlog is not None:
+                        context.backlog.add(entries)
                 admit(context)
                 refuse_empty_ring(world)
                 converged = options.until_converged and world.converged()
