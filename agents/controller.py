@@ -19,7 +19,7 @@ moving estimate. Ages are integer step counts.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,6 +30,16 @@ from ringtrack.world.elementwise import choose, scalar
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
+
+
+class CentreUncertainty(NamedTuple):
+    """How well robots know the centre they steer about (a trigger rule may read it,
+    :attr:`agents.strategy.Strategy.reads_uncertainty`): the ``covariance`` (m^2, ``S + (2, 2)``) of
+    each robot's estimate, and ``steady_variance`` (m^2 per axis) what a filter taking every robot's
+    range every step settles to (:func:`world.target.steady_variance`)."""
+
+    covariance: FloatArray
+    steady_variance: float
 
 
 def self_triggered_rule(controller: MidpointController) -> Mask:
@@ -78,10 +88,12 @@ class MidpointController:
         self.theta: FloatArray = scalar(np.zeros(shape))
         self.m_minus: FloatArray = scalar(np.zeros(shape))
         self.m_plus: FloatArray = scalar(np.zeros(shape))
+        self.uncertainty: CentreUncertainty | None = None
         self.step = 0
 
     def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike,
-                reach: tuple[ArrayLike, ArrayLike] = (True, True)) -> Mask:
+                reach: tuple[ArrayLike, ArrayLike] = (True, True),
+                uncertainty: CentreUncertainty | None = None) -> Mask:
         """Start step ``step`` (1-based) at ``own_position`` seen from ``centre``: age the memory and
         return the :class:`Trigger` mask.
 
@@ -89,7 +101,10 @@ class MidpointController:
         (:meth:`agents.strategy.Strategy.triggers`: the constant strategy every step, ``SCHEDULE``;
         the self-triggered one where T1, T2 or T3 holds); any strategy polls while nothing is
         known of a neighbour that is within ``reach`` (predecessor, successor) (``UNKNOWN``).
+        ``uncertainty`` is what the rule may know of the estimate of ``centre`` (kept as
+        :attr:`uncertainty` until the next step).
         """
+        self.uncertainty = uncertainty
         reasons = self._reasons(step, own_position, centre)
         unknown = self._unknown(*reach)
         return choose(unknown & ((reasons & START_BIT) == 0), reasons | UNKNOWN_BIT, reasons)

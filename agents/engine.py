@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.agents.estimation import Estimators, Told
+from ringtrack.agents.controller import CentreUncertainty
+from ringtrack.agents.estimation import Estimators, Told, team_steady_variance
 from ringtrack.agents.relay import VELOCITY_WINDOW_S, RangeRelay
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
@@ -504,6 +505,8 @@ def run(
     plan_seeds = fault_seeds(scenario, seeds)
     groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)
     belief = scenario.estimation.mode == "decentralized"
+    reads_uncertainty = strategy.reads_uncertainty and belief
+    steady_variance = team_steady_variance(scenario.estimation, robots) if reads_uncertainty else None
     limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
@@ -525,7 +528,10 @@ def run(
         neighbours = _to_sides(positions)
         lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
         reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
-        reasons = np.asarray(controller.observe(k, positions, centres, reach))  # a team: an array
+        uncertainty = (None if steady_variance is None
+                       else CentreUncertainty(team.beliefs()[1], steady_variance))
+        # a team: an array
+        reasons = np.asarray(controller.observe(k, positions, centres, reach, uncertainty=uncertainty))
         triggers[row] = reasons
         ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
         if watch is not None:

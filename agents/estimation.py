@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from ringtrack.agents.fusion import identity, intersect, intersect_in_order, sequential_sum
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import EstimationParams
+from ringtrack.world.target import steady_variance
 
 SINGULAR_DISTANCE = 1e-9  # m: a robot this close to the estimate gives no usable bearing (0/0 Jacobian)
 # Robots whose spread across their line is below this fraction of their spread along it are on one
@@ -213,6 +214,13 @@ def trilaterate(positions: ArrayLike, ranges: ArrayLike, range_sigma: float, ref
 
 
 # ---------------------------------------------------------------------------- configured estimators
+
+
+def team_steady_variance(params: EstimationParams, robots: int) -> float:
+    """The per-axis variance (m^2) the team's filters would settle to if each took every one of the
+    ``robots`` ranges every step, the robots spread uniformly (:func:`world.target.steady_variance`
+    of ``params.range_sigma`` and ``params.process_noise``)."""
+    return steady_variance(robots, params.range_sigma, params.process_noise)
 
 
 def prior_belief(

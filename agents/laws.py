@@ -78,6 +78,7 @@ def trigger_reasons(
     c_minus: Values,
     c_plus: Values,
     params: ControlParams,
+    tolerance: Values | None = None,
 ) -> Mask:
     """Evaluate the self-triggered rule at the start of a step, before moving.
 
@@ -86,12 +87,14 @@ def trigger_reasons(
     comparison is tie-robust: sides within ``TIE_RAD`` count as equal, so equality (which the
     inequalities include) is decided as in exact arithmetic, not by rounding error. Ties are frequent
     at coarse settings (e.g. dt 0.5 s, omega_max 1 deg/s, sigma 0.1 deg: every quantity is a multiple
-    of 1/8 degree, exact in degrees but not in radians).
+    of 1/8 degree, exact in degrees but not in radians). ``tolerance`` (radians, per robot) stands
+    for ``sigma`` where a strategy widens it (default ``params.sigma``).
     """
     reach_minus = params.omega_max * c_minus * params.dt
     reach_plus = params.omega_max * c_plus * params.dt
     ubd = uncertainty_bound(c_minus, c_plus, params)
-    return set_trigger_reasons(theta, m_minus, m_plus, reach_minus, reach_plus, ubd, params.sigma)
+    sigma = params.sigma if tolerance is None else tolerance
+    return set_trigger_reasons(theta, m_minus, m_plus, reach_minus, reach_plus, ubd, sigma)
 
 
 def set_trigger_reasons(
@@ -101,7 +104,7 @@ def set_trigger_reasons(
     phi_minus: Values,
     phi_plus: Values,
     ubd: Values,
-    sigma: float,
+    sigma: Values,
 ) -> Mask:
     """T1-T3 of :func:`trigger_reasons` for neighbours known to lie in the prediction sets
     ``[m_- - phi_-, m_- + phi_-]`` and ``[m_+ - phi_+, m_+ + phi_+]`` (radians, robot-local frame),

@@ -31,7 +31,8 @@ from collections.abc import Set as AbstractSet
 
 import numpy as np
 
-from ringtrack.agents.estimation import Estimator, Told, prior_belief
+from ringtrack.agents.controller import CentreUncertainty
+from ringtrack.agents.estimation import Estimator, Told, prior_belief, team_steady_variance
 from ringtrack.agents.relay import SNAPSHOT_STEPS, VELOCITY_WINDOW_S, RobotRanges
 from ringtrack.agents.strategy import Controller, Received, check_strategy
 from ringtrack.bus.keys import FUSION, WORLD, robot_name
@@ -115,6 +116,8 @@ class RobotNode:
         # The relay strategy: the ranges this robot holds of every robot's (agents.relay).
         self.relay = (RobotRanges(robot, scenario.robots, round(VELOCITY_WINDOW_S / scenario.control.dt))
                       if self.estimator is not None and self.strategy.relays else None)
+        self.steady_variance = (team_steady_variance(scenario.estimation, scenario.robots)
+                                if self.estimator is not None and self.strategy.reads_uncertainty else None)
         self.centre: FloatArray = scenario.target.copy()
         if self.mode == "centralized":  # until the first estimate (late, in realtime): the centre's prior
             prior, _ = prior_belief(scenario.estimation, scenario.region, scenario.target)
@@ -416,7 +419,10 @@ class RobotNode:
             self.trigger = 0  # no ring to spread on: hold position until robots come back
             return [self._command(hold=True)]
         reach = (self.reachable(self.predecessor), self.reachable(self.successor))
-        self.trigger = int(self.controller.observe(self.step, self.position, self.centre, reach))
+        uncertainty = (None if self.steady_variance is None or self.estimator is None
+                       else CentreUncertainty(self.estimator.belief[1], self.steady_variance))
+        self.trigger = int(self.controller.observe(self.step, self.position, self.centre, reach,
+                                                   uncertainty=uncertainty))
         self.ages = (int(self.controller.predecessor_age), int(self.controller.successor_age))
         answers: Outgoing = []
         if self.strategy.reply_fields:  # replies describe the robot once it has observed the step

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ringtrack.agents.controller import CentreUncertainty
 from ringtrack.agents.laws import Trigger, fresh_step, guarded_step, set_trigger_reasons
 from ringtrack.agents.strategy import Controller, Received, Strategy, StrategyError, StrategyParameter
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
@@ -179,11 +180,12 @@ class PlanController:
 
     # ------------------------------------------------------------------ the step
     def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike,
-                reach: tuple[ArrayLike, ArrayLike] = (True, True)) -> IntArray:
+                reach: tuple[ArrayLike, ArrayLike] = (True, True),
+                uncertainty: CentreUncertainty | None = None) -> IntArray:
         """Start step ``step`` at ``own_position`` seen from ``centre`` (the known target) and return
         the :class:`Trigger` mask: ``START`` at step 1, else the committed course's decision.
-        ``reach`` is accepted for the shape of :class:`MidpointController` only: the plan strategy
-        runs without a communication range."""
+        ``reach`` and ``uncertainty`` are accepted for the shape of :class:`MidpointController` only:
+        the plan strategy runs without a communication range, about the known target."""
         self.step = step
         self.own_position = np.asarray(own_position, dtype=float)
         self.recentre(centre)

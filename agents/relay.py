@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.bus.messages import MAX_RELAYED, relay_message_bytes, uint_bytes
+from ringtrack.world.elementwise import Values
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.ring import predecessor_values, successor_values
 
@@ -38,6 +39,28 @@ def late_variance(range_sigma: float, process_noise: float, age: NDArray[np.int6
     line of sight. The motion since is treated as noise of that range alone (it is shared by every
     late range and the prior): exact for a range of this step, an approximation for older ones."""
     return np.asarray(range_sigma**2 + process_noise * age, dtype=float)
+
+
+def bearing_sd(own_position: FloatArray, centre: FloatArray, covariance: FloatArray) -> Values:
+    """The standard deviation (radians) of the bearing from ``centre`` (metres, ``S + (2,)``) to
+    ``own_position`` (metres) that the covariance of the centre (m^2, ``S + (2, 2)``) implies, to
+    first order: ``sqrt(d_perp^T P d_perp) / |d|^2`` with ``d`` the offset from the centre and
+    ``d_perp`` it turned a quarter counter-clockwise. Plain arithmetic on the components, so a
+    robot's scalars and a batch's arrays give the same bits."""
+    dx = own_position[..., 0] - centre[..., 0]
+    dy = own_position[..., 1] - centre[..., 1]
+    across = (covariance[..., 0, 0] * dy * dy - 2.0 * covariance[..., 0, 1] * dx * dy
+              + covariance[..., 1, 1] * dx * dx)
+    return np.sqrt(across) / (dx * dx + dy * dy)
+
+
+def ranges_wanted(covariance: FloatArray, steady_variance: float, terr_ratio: float) -> Values:
+    """Whether an estimate's covariance (m^2, ``S + (2, 2)``) is wider than ``terr_ratio^2`` times
+    the ``2 steady_variance`` (m^2, both axes) of a filter taking every robot's range every step:
+    its expected squared error exceeds what a Terr ``terr_ratio`` times that filter's allows. Never
+    for a target with no steady state (``steady_variance`` 0: a stationary target's)."""
+    trace = covariance[..., 0, 0] + covariance[..., 1, 1]
+    return (trace > terr_ratio * terr_ratio * 2.0 * steady_variance) & (steady_variance > 0.0)
 
 
 class Drift:

@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ringtrack.agents.controller import MidpointController, self_triggered_rule
+from ringtrack.agents.controller import CentreUncertainty, MidpointController, self_triggered_rule
 from ringtrack.agents.laws import Mask, Trigger
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.metrics import CerrSource
@@ -82,7 +82,8 @@ class Controller(Protocol):
     offset_known: NDArray[np.bool_]
 
     def observe(self, step: int, own_position: ArrayLike, centre: ArrayLike,
-                reach: tuple[ArrayLike, ArrayLike] = (True, True)) -> Reasons: ...
+                reach: tuple[ArrayLike, ArrayLike] = (True, True),
+                uncertainty: CentreUncertainty | None = None) -> Reasons: ...
 
     def receive(self, predecessor_position: ArrayLike, successor_position: ArrayLike,
                 predecessor_fresh: ArrayLike = True, successor_fresh: ArrayLike = True,
@@ -228,6 +229,9 @@ class Strategy:
     pushes: ClassVar[bool] = False
     # Requests and replies carry the ranges their sender holds (:mod:`agents.relay`).
     relays: ClassVar[bool] = False
+    # The trigger rule reads how well each robot knows the centre (``controller.uncertainty``, a
+    # :class:`agents.controller.CentreUncertainty`), which engine and robot processes then provide.
+    reads_uncertainty: ClassVar[bool] = False
     # Floats a reply carries beyond position and belief (:meth:`reply_content`).
     reply_fields: ClassVar[int] = 0
 

@@ -209,13 +209,14 @@ def test_every_declared_parameter_has_a_flag_that_sets_it_where_its_strategy_run
     """The flags come from the declarations (``plan_horizon``: ``--plan-horizon``): each sets its
     strategy's parameter, checked by the declaration before any work; another strategy ignores it."""
     declared = {parameter.name: name for name in REGISTRY for parameter in strategy_class(name).parameters}
-    assert declared == {"plan_horizon": "plan", "push_gate": "belief"}
+    assert declared == {"plan_horizon": "plan", "push_gate": "belief", "terr_ratio": "relay"}
 
     def parsed(*flags: str) -> Scenario:
         return scenario_from_arguments(build_parser(["simulate"]).parse_args(["simulate", *flags]))
 
     assert check_strategy(parsed("authors-moving", "--strategy", "belief", "--push-gate", "3.5")).push_gate == 3.5
     assert check_strategy(parsed("--strategy", "plan", "--plan-horizon", "4")).plan_horizon == 4
+    assert check_strategy(parsed("authors-moving", "--strategy", "relay", "--terr-ratio", "1.5")).terr_ratio == 1.5
     assert parsed("--strategy", "self", "--plan-horizon", "4").strategy.table("plan") == {"plan_horizon": 4}
     parser = build_parser(["simulate"])
     with pytest.raises(SystemExit):

@@ -13,7 +13,13 @@ import pytest
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
 from ringtrack.tools.studies.runner import Execution
-from ringtrack.tools.studies.tracking import decentralized_strategies, tracking_experiment
+from ringtrack.tools.studies.tracking import (
+    TrackingRow,
+    decentralized_strategies,
+    tracking_experiment,
+    tracking_verdict,
+    with_ratios,
+)
 from ringtrack.world.bounds import random_walk_bound
 from ringtrack.world.scenario import load_scenario
 from ringtrack.world.scenario_generator import file_name, scenario_text
@@ -43,7 +49,7 @@ def test_rows_against_the_engine_and_the_bound(walk: Path):
         ("gen-0001", "self", "decentralized"), ("gen-0001", "self", "centralized"),
         ("authors-moving", "self", "decentralized"), ("authors-moving", "self", "centralized")]
     walked, central = study.rows[0], study.rows[1]
-    scenario = load_scenario(str(walk), estimation="decentralized", max_steps=STEPS)
+    scenario = load_scenario(str(walk), strategy="self", estimation="decentralized", max_steps=STEPS)
     history = engine.run(scenario, [3])
     error = np.linalg.norm(history.estimates - history.targets[:, :, None, :], axis=-1)[SETTLE:, 0]
     assert walked.terr_mean == pytest.approx(error.mean(), rel=1e-9)
@@ -103,3 +109,25 @@ def test_bad_input_gets_one_line(arguments: list[str], error: str, tmp_path: Pat
     error = error.replace("EMPTY", str(tmp_path / "EMPTY"))
     assert main(["experiment", "tracking", *arguments, "--trials", "1", "--quiet", "--workers", "1"]) == 2
     assert capsys.readouterr().err.startswith(f"ringtrack: error: {error}")
+
+
+def test_a_verdict_counts_the_scenarios_that_meet_the_goal_and_names_the_worst() -> None:
+    """tracking_verdict: Terr at most 1.2x the centralized on at most its messages per robot-step,
+    true Cerr within 1 degree; the worst of each with its scenario."""
+
+    def row(scenario: str, estimation: str, terr: float, cerr: float, messages: float) -> TrackingRow:
+        return TrackingRow(scenario=scenario, motion="circle", robots=6, strategy="relay" if estimation ==
+                           "decentralized" else "self", estimation=estimation, trials=1, steps=10, settle=0,
+                           terr_mean=terr, cerr_mean_deg=cerr, robot_messages_per_robot_step=messages, rmse=terr,
+                           terr_ratio=None, crb_rmse=None, terr_over_crb=None, rmse_over_crb=None)
+
+    rows = with_ratios([
+        row("a", "decentralized", 0.12, 2.5, 0.5), row("a", "centralized", 0.10, 2.0, 1.0),  # meets it
+        row("b", "decentralized", 0.13, 3.5, 0.9), row("b", "centralized", 0.10, 2.0, 1.0),  # Terr 1.3x, Cerr +1.5
+        row("c", "decentralized", 0.10, 2.0, 1.2), row("c", "centralized", 0.10, 2.0, 1.0),  # messages 1.2x
+    ])
+    verdict = tracking_verdict(rows, "relay")
+    assert (verdict.scenarios, verdict.met, verdict.cerr_met) == (3, 1, 2)
+    assert (verdict.worst_terr_ratio, verdict.worst_terr_scenario) == (pytest.approx(1.3), "b")
+    assert (verdict.worst_message_ratio, verdict.worst_message_scenario) == (pytest.approx(1.2), "c")
+    assert (verdict.worst_cerr_excess_deg, verdict.worst_cerr_scenario) == (pytest.approx(1.5), "b")

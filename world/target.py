@@ -133,8 +133,24 @@ def matched_process_noise(target: TargetSpec, dt: float, robots: int, range_sigm
     if isinstance(target, Stationary):
         return 0.0
     drift = target.speed * dt
-    information = robots / (2.0 * range_sigma**2)
-    return float(drift ** (4.0 / 3.0) * information ** (-1.0 / 3.0))
+    return float(drift ** (4.0 / 3.0) * ring_information(robots, range_sigma) ** (-1.0 / 3.0))
+
+
+def ring_information(robots: int, range_sigma: float) -> float:
+    """``J = N / (2 sigma_z^2)`` (m^-2 per axis): the information a step's ranges (``range_sigma``
+    metres each) of ``robots`` robots spread uniformly around the target give along any axis (the
+    sum of ``u u^T / sigma_z^2`` over N unit bearings spread evenly is ``N / (2 sigma_z^2) I``)."""
+    return robots / (2.0 * range_sigma**2)
+
+
+def steady_variance(robots: int, range_sigma: float, process_noise: float) -> float:
+    """The per-axis variance (m^2) a random-walk filter (``q = process_noise`` m^2 per step and
+    axis) settles to when it takes every step the ranges of ``robots`` robots spread uniformly
+    around the target: the fixed point of ``P = (P + q) / (1 + J (P + q))`` with ``J`` of
+    :func:`ring_information`, ``P = (sqrt(q^2 + 4 q / J) - q) / 2`` (0 for a stationary target's
+    ``q = 0``): what the centralized filter of a spread team reaches."""
+    information = ring_information(robots, range_sigma)
+    return (math.sqrt(process_noise**2 + 4.0 * process_noise / information) - process_noise) / 2.0
 
 
 def _require_inside(region: ConvexRegion, point: Point, field: str, margin: float) -> None:

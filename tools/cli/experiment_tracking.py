@@ -18,9 +18,12 @@ from ringtrack.tools.cli.options import (
 from ringtrack.tools.output.console import show
 from ringtrack.tools.studies.experiment import run_label
 from ringtrack.tools.studies.tracking import (
+    CERR_GOAL_DEG,
     SETTLE,
+    TERR_GOAL,
     TRACKING_COLUMNS,
     TrackingStudy,
+    TrackingVerdict,
     decentralized_strategies,
     plot_tracking,
     tracking_experiment,
@@ -59,6 +62,8 @@ def run_tracking(args: argparse.Namespace) -> int:
     result = tracking_experiment(args.scenarios, args.trials, args.seed, args.strategies, args.steps, args.settle,
                                  execution_of(args, args.json, args.csv))
     show(tracking_table(result))
+    for verdict in result.verdicts:
+        show(verdict_line(verdict, result.labels[verdict.strategy]))
     write_study(args, result, plot_tracking, result.rows, TRACKING_COLUMNS)
     return 0
 
@@ -82,3 +87,12 @@ def tracking_table(result: TrackingStudy) -> Table:
                       f"{row.robot_messages_per_robot_step:.3f}", _figure(row.rmse, ".3f"),
                       _figure(row.crb_rmse, ".3f"), _figure(row.rmse_over_crb, ".2f"))
     return table
+
+
+def verdict_line(verdict: TrackingVerdict, label: str) -> str:
+    """One line on how a decentralized strategy fared against the centralized filter."""
+    return (f"{label}: Terr <= {TERR_GOAL}x centralized on no more messages on {verdict.met} of {verdict.scenarios} "
+            f"scenarios, true Cerr within {CERR_GOAL_DEG:g} deg on {verdict.cerr_met}; worst Terr "
+            f"{_figure(verdict.worst_terr_ratio, '.2f')}x ({verdict.worst_terr_scenario}), messages "
+            f"{_figure(verdict.worst_message_ratio, '.2f')}x ({verdict.worst_message_scenario}), Cerr "
+            f"{_figure(verdict.worst_cerr_excess_deg, '+.2f')} deg ({verdict.worst_cerr_scenario})")

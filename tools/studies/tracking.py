@@ -85,6 +85,30 @@ class TrackingRow(msgspec.Struct, frozen=True, kw_only=True):
     rmse_over_crb: float | None
 
 
+TERR_GOAL = 1.2  # a decentralized run meets the goal at most this many times the centralized Terr ...
+# ... on at most the centralized team's robot-to-robot messages per robot-step, true Cerr within:
+CERR_GOAL_DEG = 1.0  # degrees of the centralized team's
+
+
+class TrackingVerdict(msgspec.Struct, frozen=True, kw_only=True):
+    """How one decentralized strategy fared over the study's scenarios: on how many of them
+    (``met``) its Terr is at most ``TERR_GOAL`` times the centralized filter's on at most the
+    centralized team's messages per robot-step, on how many its true Cerr is within ``CERR_GOAL_DEG``
+    of that team's (``cerr_met``), and the worst Terr ratio, message ratio and Cerr excess (degrees)
+    with the scenarios where they fell."""
+
+    strategy: str
+    scenarios: int
+    met: int
+    cerr_met: int
+    worst_terr_ratio: float | None
+    worst_terr_scenario: str
+    worst_message_ratio: float | None
+    worst_message_scenario: str
+    worst_cerr_excess_deg: float | None
+    worst_cerr_scenario: str
+
+
 class TrackingStudy(msgspec.Struct, frozen=True, kw_only=True):
     """What ``experiment tracking`` came to (its JSON): the ``scenarios`` (as given, folders opened
     into their files), the decentralized ``strategies`` and ``labels`` naming them, on seeds ``seed ..
@@ -101,6 +125,7 @@ class TrackingStudy(msgspec.Struct, frozen=True, kw_only=True):
     labels: dict[str, str]
     wall_s: float
     rows: list[TrackingRow]
+    verdicts: list[TrackingVerdict]
 
 
 TRACKING_COLUMNS = struct_columns(TrackingRow)
@@ -211,10 +236,44 @@ def tracking_experiment(sources: Sequence[str], trials: int, seed: int, strategi
     results = run_study(Study("tracking", parameters, tasks, tracking_task, TrackingPart), execution)
     rows = [tracking_row(name, scenario, strategy, mode, settled, results[index * len(parts):(index + 1) * len(parts)])
             for index, (name, scenario, strategy, mode, settled) in enumerate(runs)]
+    rows = with_ratios(rows)
+    names = [strategy_name(s) for s in compared]
     return TrackingStudy(scenarios=given, trials=trials, seed=seed, steps=steps,
-                         settle=SETTLE if settle is None else settle, strategies=[strategy_name(s) for s in compared],
+                         settle=SETTLE if settle is None else settle, strategies=names,
                          labels=strategy_labels(list(dict.fromkeys(strategy for _, _, strategy, _, _ in runs))),
-                         wall_s=time.perf_counter() - started, rows=with_ratios(rows))
+                         wall_s=time.perf_counter() - started, rows=rows,
+                         verdicts=[tracking_verdict(rows, name) for name in names])
+
+
+def tracking_verdict(rows: Sequence[TrackingRow], strategy: str) -> TrackingVerdict:
+    """The :class:`TrackingVerdict` of ``strategy``'s decentralized rows against each scenario's
+    centralized row."""
+    central = {row.scenario: row for row in rows if row.estimation == "centralized"}
+    terrs: list[tuple[float | None, str]] = []
+    messages: list[tuple[float | None, str]] = []
+    excesses: list[tuple[float | None, str]] = []  # true Cerr over the centralized team's, degrees
+    for row in rows:
+        if row.strategy != strategy or row.estimation != "decentralized":
+            continue
+        reference = central[row.scenario]
+        terrs.append((row.terr_ratio, row.scenario))
+        messages.append((_ratio(row.robot_messages_per_robot_step, reference.robot_messages_per_robot_step),
+                         row.scenario))
+        excesses.append((None if row.cerr_mean_deg is None or reference.cerr_mean_deg is None
+                         else row.cerr_mean_deg - reference.cerr_mean_deg, row.scenario))
+
+    def worst(judged: list[tuple[float | None, str]]) -> tuple[float | None, str]:
+        known = [(value, scenario) for value, scenario in judged if value is not None]
+        return max(known) if known else (None, "")
+
+    met = sum(terr is not None and terr <= TERR_GOAL and (sent is None or sent <= 1.0)
+              for (terr, _), (sent, _) in zip(terrs, messages, strict=True))
+    cerr_met = sum(excess is not None and excess <= CERR_GOAL_DEG for excess, _ in excesses)
+    (terr, terr_at), (message, messages_at), (excess, excess_at) = worst(terrs), worst(messages), worst(excesses)
+    return TrackingVerdict(strategy=strategy, scenarios=len(terrs), met=met, cerr_met=cerr_met,
+                           worst_terr_ratio=terr, worst_terr_scenario=terr_at, worst_message_ratio=message,
+                           worst_message_scenario=messages_at, worst_cerr_excess_deg=excess,
+                           worst_cerr_scenario=excess_at)
 
 
 def _root_mean(sums: list[int], trials: int, settle: int) -> float | None:
