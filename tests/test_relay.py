@@ -301,13 +301,13 @@ def test_ringtrack_spawn_runs_the_relay_strategy(tmp_path: Path, capsys) -> None
 @pytest.mark.parametrize(("scenario", "drop"), [("generated", 0.0), ("authors-moving", 0.2)])
 def test_a_lockstep_team_relays_ranges_like_the_engine(tmp_path: Path, scenario: str, drop: float) -> None:
     """Robots that relay ranges in their requests and replies (RangeRequest, RangeReply) equal the
-    engine trigger for trigger, estimate for estimate, byte for byte and joule for joule over 300
-    steps: on a generated scenario (a slow circle, where the tolerance from the estimate silences many
-    of the paper's polls) and with lost messages on authors-moving."""
+    engine trigger for trigger, estimate for estimate, byte for byte and joule for joule: over 1 300
+    steps of a generated scenario (a slow circle, where the tolerance from the estimate silences many
+    of the paper's polls) and 300 with lost messages on authors-moving."""
     steps = 300
     if scenario == "generated":
         (tmp_path / "gen.toml").write_bytes(scenario_text(0, 0))
-        scenario = str(tmp_path / "gen.toml")
+        scenario, steps = str(tmp_path / "gen.toml"), 1300
     team = load_scenario(scenario, strategy="relay", estimation="decentralized", max_steps=steps, drop=drop)
     result, log = lockstep_run(team, tmp_path)
     logged, twin = history_from_log(log), engine_twin(log)
@@ -328,7 +328,7 @@ def test_a_lockstep_team_relays_ranges_like_the_engine(tmp_path: Path, scenario:
     polls = int((logged.triggers != 0).sum())
     if drop == 0.0:
         assert kinds["request"]["messages"] == kinds["reply"]["messages"] == 2 * polls
-        paper = engine.run(load_scenario(scenario, estimation="decentralized", max_steps=steps),
+        paper = engine.run(load_scenario(scenario, strategy="self", estimation="decentralized", max_steps=steps),
                            seeds=log.header["seed"], steps=steps)
         assert 0 < polls < 0.6 * int((paper.triggers != 0).sum())  # the paper's rule polls far more
     else:

@@ -25,6 +25,7 @@ from ringtrack.tools.cli import build_parser, main
 from ringtrack.tools.cli.options import scenario_from_arguments
 from ringtrack.world.metrics import converged, strategy_cerr, true_cerr
 from ringtrack.world.scenario import Scenario, ScenarioError, apply_overrides, load_scenario, parse_scenario, resolve
+from ringtrack.world.scenario_files import shipped_scenarios
 from ringtrack.world.state import WorldState
 from tests.test_strategy import example
 
@@ -152,9 +153,17 @@ def test_the_strategy_section_round_trips_through_a_run_logs_toml(tmp_path: Path
     assert check_strategy(again).plan_horizon == 4  # type: ignore[attr-defined]
 
 
+def test_no_shipped_scenario_sets_a_strategy_parameter() -> None:
+    """Every shipped scenario runs each registered strategy with its defaults (nothing tuned by hand
+    per scenario)."""
+    for name in shipped_scenarios():
+        choice = load_scenario(name).strategy
+        assert not choice.values and not choice.tables, name
+
+
 def test_overrides_set_the_parameters_of_the_strategy_that_runs() -> None:
-    gazebo = load_scenario("gazebo-moving", strategy="belief")  # [strategy.belief] push_gate = 1.5
-    assert check_strategy(gazebo).push_gate == 1.5  # type: ignore[attr-defined]
+    gazebo = load_scenario("gazebo-moving", strategy="belief")
+    assert check_strategy(gazebo).push_gate == 2.0  # type: ignore[attr-defined]  # the default
     swept = load_scenario("gazebo-moving", strategy="belief", strategy_parameters={"belief": {"push_gate": 3.0}})
     assert check_strategy(swept).push_gate == 3.0  # type: ignore[attr-defined]  # a gate sweep wins over the file
     planned = load_scenario("paper-stationary", strategy="plan", strategy_parameters={"plan_horizon": 4})
