@@ -319,27 +319,40 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
                 else _pair(distance_minus, distance_plus))
     robot, neighbour = _ring_sides(robots)
-    seed = None if seeds is None else np.asarray(seeds)[:, None, None]
     groups = [(plan, np.arange(trials))] if isinstance(plan, FaultPlan) else plan
-    request = _group_fates(groups, "request", robot, neighbour, step, distance, seed, reach.shape)
-    reply = _group_fates(groups, "reply", neighbour, robot, step, distance, seed, reach.shape)
-    lost = ~reach | request.dropped  # out of range: dropped before sending, as the fault layer does
-    requests = np.where(requested, published_copies(lost, request.copies), 0)  # each answered by one reply
-    of_requests = fate_counts(lost, request.copies, request.delay_s, requested)
-    of_replies = reply.counts(requests)
-    pushes = np.zeros(reach.shape, np.int64) if pushed is None else pushed.astype(np.int64)
-    pushing = bool(pushes.any())
-    push = (_group_fates(groups, "push", robot, neighbour, step, distance, seed, reach.shape) if pushing
-            else _undisturbed(reach.shape))
-    counts = {name: of_requests[name] + of_replies[name] for name in (*FAULTS, "delivered")}
-    if pushing:
-        of_pushes = push.counts(pushes)
-        counts = {name: counts[name] + of_pushes[name] for name in counts}
-    counts["sent"] = requested.astype(np.int64) + requests + pushes
-    counts["published"] = ring_traffic(requests) + pushes.sum(axis=-1)
-    per_message = np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1).sum(axis=(1, 2))  # (T, 5)
-    faults = np.concatenate([per_message, counts["published"].sum(axis=1)[:, None]], axis=1)
-    fresh = (requests > 0) & ~reply.dropped
+    pushing = pushed is not None and bool(pushed.any())
+    if not pushing and not any(group.active for group, _ in groups) and bool(reach.all()):
+        # No fault, no push, every neighbour in reach: each request is delivered once and answered by
+        # one delivered reply, so every message sent is delivered and published (fate_counts' rule).
+        requests = requested.astype(np.int64)
+        sent = 2 * requests.sum(axis=(1, 2))
+        faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
+        for column in ("sent", "delivered", "published"):
+            faults[:, FAULT_COLUMNS.index(column)] = sent
+        fresh, replies_delivered, on_air = requested, requests, requests
+        pushes, push_delivered = np.zeros(reach.shape, np.int64), np.zeros(reach.shape, dtype=bool)
+    else:
+        seed = None if seeds is None else np.asarray(seeds)[:, None, None]
+        request = _group_fates(groups, "request", robot, neighbour, step, distance, seed, reach.shape)
+        reply = _group_fates(groups, "reply", neighbour, robot, step, distance, seed, reach.shape)
+        lost = ~reach | request.dropped  # out of range: dropped before sending, as the fault layer does
+        requests = np.where(requested, published_copies(lost, request.copies), 0)  # each answered by one reply
+        of_requests = fate_counts(lost, request.copies, request.delay_s, requested)
+        of_replies = reply.counts(requests)
+        pushes = np.zeros(reach.shape, np.int64) if pushed is None else pushed.astype(np.int64)
+        push = (_group_fates(groups, "push", robot, neighbour, step, distance, seed, reach.shape) if pushing
+                else _undisturbed(reach.shape))
+        counts = {name: of_requests[name] + of_replies[name] for name in (*FAULTS, "delivered")}
+        if pushing:
+            of_pushes = push.counts(pushes)
+            counts = {name: counts[name] + of_pushes[name] for name in counts}
+        counts["sent"] = requested.astype(np.int64) + requests + pushes
+        counts["published"] = ring_traffic(requests) + pushes.sum(axis=-1)
+        per_message = np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1).sum(axis=(1, 2))  # (T, 5)
+        faults = np.concatenate([per_message, counts["published"].sum(axis=1)[:, None]], axis=1)
+        fresh = (requests > 0) & ~reply.dropped
+        replies_delivered, on_air = of_replies["delivered"], np.where(requested, np.maximum(requests, 1), 0)
+        push_delivered = (pushes > 0) & ~push.dropped
     radio = groups[0][0].radio
     request_bytes = _ring_message_bytes("request", step, robots, request_belief)
     sides = None if content is None else _sides_of(content)  # what (predecessor, successor) carry
@@ -348,10 +361,9 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     if relayed is not None:
         request_bytes, reply_bytes = relayed
     request_bits, reply_bits = message_bits(radio, request_bytes), message_bits(radio, reply_bytes)
-    on_air = np.where(requested, np.maximum(requests, 1), 0)
     # Per side of each robot: what it sends and receives itself, and what its neighbour on that side does.
     own = np.stack([requests * request_bytes, on_air * transmit_energy(radio, request_bits, distance),
-                    of_replies["delivered"] * receive_energy(radio, reply_bits)])
+                    replies_delivered * receive_energy(radio, reply_bits)])
     other = np.stack([requests * reply_bytes, requests * transmit_energy(radio, reply_bits, distance),
                       requests * receive_energy(radio, request_bits)])
     if pushing:
@@ -363,8 +375,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
                                   of_pushes["delivered"] * receive_energy(radio, push_bits)])
     totals = own.sum(axis=-1) + _to_neighbours(other)
     return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
-                    totals[0].astype(np.int64), _pair(totals[1], totals[2]), pushes,
-                    (pushes > 0) & ~push.dropped)
+                    totals[0].astype(np.int64), _pair(totals[1], totals[2]), pushes, push_delivered)
 
 
 def _silent(shape: tuple[int, int, int]) -> Exchange:

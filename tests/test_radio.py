@@ -131,6 +131,29 @@ def test_the_batch_exchange_counts_every_message_as_a_robot_fault_layer_does() -
             assert counter.counts["published"] == published == int(engine.ring_traffic(outcome.requests[trial]).sum())
 
 
+def test_a_step_without_faults_is_settled_as_the_fault_layer_settles_it() -> None:
+    """engine.exchange's shortcut for a step no fault can touch (a clean plan, every neighbour in
+    reach, no push) gives what the full settlement gives under a plan that is active but touches
+    nothing (an outage of a step long past): the same polls, counts, bytes and joules, bit for bit."""
+    clean = FaultPlan()
+    idle = FaultPlan(outages=(Outage(frozenset({link(0, 1)}), 1, 1),))
+    assert not clean.active and idle.active
+    rng = np.random.default_rng(5)
+    trials, robots = 3, 6
+    every = np.ones((trials, robots), dtype=bool)
+    for step in range(2, 40):
+        polled = rng.random((trials, robots)) < 0.4
+        distance_minus = rng.uniform(2.0, 14.0, (trials, robots))
+        distance_plus = np.roll(distance_minus, -1, axis=1)
+        for belief in (False, True):
+            fast, full = (engine.exchange(plan, step, polled, every, every, distance_minus, distance_plus,
+                                          belief=belief) for plan in (clean, idle))
+            for name in ("fresh_minus", "fresh_plus", "requests", "faults", "probes", "sent_bytes", "energy",
+                         "pushes", "push_delivered"):
+                assert np.array_equal(getattr(fast, name), getattr(full, name)), name
+                assert getattr(fast, name).dtype == getattr(full, name).dtype, name
+
+
 @pytest.mark.parametrize("step", [1, 127, 128, 255, 256, 65535, 65536])
 def test_wire_sizes_are_exact(step: int) -> None:
     for sender, receiver in ((0, 1), (127, 128), (300, 70000)):
