@@ -120,6 +120,17 @@ def test_moving_experiment_json_and_figures(tmp_path: Path) -> None:
         assert run["robot_messages_per_step"] == pytest.approx(4 * 6 * run["poll_rate"])
     constant = comparison[0]
     assert constant["poll_rate"] == 1.0 and constant["estimation_messages_per_step"] == 7
+    # the fields of experiment tracking's rows: Terr over the scenario's own strategy's centralized
+    # run at the same velocity, else the first centralized run there
+    reference: dict[tuple[float, float], float] = {}
+    for run in sorted(result["runs"], key=lambda run: run["strategy"] != "self"):
+        if run["estimation"] == "centralized":
+            reference.setdefault((run["speed"], run["angular_speed"]), run["terr_mean"])
+    assert reference[1.0, 0.6] == comparison[1]["terr_mean"]
+    for run in result["runs"]:
+        assert run["scenario"] == "gazebo-moving"
+        assert run["terr_ratio"] == pytest.approx(run["terr_mean"] / reference[run["speed"], run["angular_speed"]])
+        assert run["robot_messages_per_robot_step"] >= 0
     for path in (figure, tmp_path / "m-velocities.png"):
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -172,9 +172,11 @@ def run_moving(args: argparse.Namespace) -> int:
 def moving_table(result: MovingStudy) -> Table:
     """Means from step ``settle`` on, per run (the velocity setting equal to the main one is shown once)."""
     table = Table(title=f"moving target, {result.trials} trials, means from step {result.settle} of "
-                  f"{result.steps}; msg and B: robot-to-robot traffic (per step: over all steps)",
+                  f"{result.steps}; ÷ central: Terr over the centralized reference's; msg and B: robot-to-robot "
+                  "traffic (per step: over all steps)",
                   title_justify="left", box=box.SIMPLE_HEAD)
-    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "polls", "msg/step", "msg/rs", "B/step"):
+    for column in ("v, w", "strategy, EKF", "Cerr deg", "Terr m", "÷ central", "polls", "msg/step", "msg/rs",
+                   "B/step"):
         table.add_column(column, justify="right", no_wrap=True)
     main = {(run.speed, run.angular_speed) for run in result.runs if run.group == "comparison"}
     for run in result.runs:
@@ -185,6 +187,7 @@ def moving_table(result: MovingStudy) -> Table:
             run_label(run.strategy, run.estimation),
             f"{run.cerr_mean_deg:.1f}",
             f"{run.terr_mean:.3f}",
+            "-" if run.terr_ratio is None else f"{run.terr_ratio:.2f}",
             f"{run.poll_rate:.3f}",
             f"{run.robot_messages_per_step:.2f}",
             f"{run.robot_messages_per_robot_step:.3f}",

@@ -146,9 +146,13 @@ class MovingTrial(MovingSetting, frozen=True):
 
 
 class MovingRun(MovingSetting, frozen=True, kw_only=True):
-    """One run of the moving-target study, its figures over every trial, and the trial-mean true
-    Cerr (degrees) and Terr (metres) every ``series_stride`` steps."""
+    """One run of the moving-target study on the ``scenario`` (its name), its figures over every
+    trial, ``terr_ratio`` its Terr over that of the study's centralized reference at the same target
+    velocity (:func:`centralized_ratios`; None without one; as ``experiment tracking``'s), and the trial-mean true Cerr
+    (degrees) and Terr (metres) every ``series_stride`` steps."""
 
+    scenario: str
+    terr_ratio: float | None
     cerr_series_deg: list[float]
     terr_series: list[float]
 
@@ -519,19 +523,49 @@ def moving_experiment(
         series_stride=SERIES_STRIDE,
         labels=strategy_labels([strategy for strategy, _ in compared]),
         wall_s=time.perf_counter() - started,
-        runs=[moving_run(setting, combined(by_run[key]), any_scenario.robots, settle) for setting, key in runs],
+        runs=centralized_ratios([moving_run(any_scenario.name, setting, combined(by_run[key]), any_scenario.robots,
+                                            settle) for setting, key in runs],
+                                strategy_name(reference_strategy(resolve(parse_scenario(*read_scenario_text(base)))))),
         rows=[row for part in parts for row in part.rows],
     )
 
 
-def moving_run(setting: dict[str, Any], totals: StepTotals, robots: int, settle: int) -> MovingRun:
-    """A run of the moving-target study from its setting and its trials' totals."""
+def moving_run(scenario: str, setting: dict[str, Any], totals: StepTotals, robots: int, settle: int) -> MovingRun:
+    """A run of the moving-target study on ``scenario`` from its setting and its trials' totals (its
+    ``terr_ratio`` set by :func:`centralized_ratios`)."""
     return MovingRun(
         **setting,
         **msgspec.structs.asdict(moving_figures(totals, robots, settle, setting["estimation"])),
+        scenario=scenario,
+        terr_ratio=None,
         cerr_series_deg=totals.mean("cerr_deg")[::SERIES_STRIDE].tolist(),
         terr_series=totals.mean("terr")[::SERIES_STRIDE].tolist(),
     )
+
+
+REFERENCE = "self"  # the centralized reference's strategy where the scenario's own needs decentralized estimation
+
+
+def reference_strategy(scenario: Scenario) -> str:
+    """The centralized reference's strategy: the scenario's own, or ``self`` where that needs
+    decentralized estimation."""
+    own = scenario.strategy.name
+    return own if strategy_for(own).estimation in (None, "centralized") else REFERENCE
+
+
+def centralized_ratios(runs: list[MovingRun], reference: str) -> list[MovingRun]:
+    """The runs with ``terr_ratio``: Terr over that of the centralized run of strategy ``reference``
+    (else the first centralized run) at the same target velocity."""
+    centrals: dict[tuple[float, float], float | None] = {}
+    for run in sorted(runs, key=lambda run: run.strategy != reference):  # the reference's first
+        if run.estimation == "centralized":
+            centrals.setdefault((run.speed, run.angular_speed), run.terr_mean)
+    ratios = []
+    for run in runs:
+        central = centrals.get((run.speed, run.angular_speed))
+        ratio = None if run.terr_mean is None or not central else run.terr_mean / central
+        ratios.append(msgspec.structs.replace(run, terr_ratio=ratio))
+    return ratios
 
 
 def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:

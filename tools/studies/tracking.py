@@ -24,7 +24,7 @@ import msgspec
 import numpy as np
 
 from ringtrack.agents import engine
-from ringtrack.agents.strategy import REGISTRY, StrategyError, check_strategy, strategy_class, strategy_for
+from ringtrack.agents.strategy import REGISTRY, StrategyError, check_strategy, strategy_class
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.studies.experiment import (
@@ -34,6 +34,7 @@ from ringtrack.tools.studies.experiment import (
     exact_sum,
     fixed_point_sums,
     moving_figures,
+    reference_strategy,
     step_totals,
     strategy_labels,
     strategy_name,
@@ -47,7 +48,6 @@ from ringtrack.world.scenario import Scenario, load_scenario
 from ringtrack.world.target import RandomWalk
 
 SETTLE = 300  # steps left out of the means unless --settle says otherwise (capped below a run's length)
-REFERENCE = "self"  # the centralized reference's strategy where the scenario's own needs decentralized estimation
 
 
 def decentralized_strategies() -> list[str]:
@@ -193,13 +193,6 @@ def run_scenario(source: str, strategy: str, mode: str, steps: int | None) -> Sc
     except StrategyError as error:
         raise UsageError(f"--strategies: {error}") from None
     return scenario
-
-
-def reference_strategy(scenario: Scenario) -> str:
-    """The centralized reference's strategy: the scenario's own, or ``self`` where that needs
-    decentralized estimation."""
-    own = scenario.strategy.name
-    return own if strategy_for(own).estimation in (None, "centralized") else REFERENCE
 
 
 def tracking_experiment(sources: Sequence[str], trials: int, seed: int, strategies: Sequence[str] | None = None,
