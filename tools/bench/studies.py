@@ -165,8 +165,10 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
     cells = [Cell(drop, 0, None) for drop in FAULT_DROPS]
     every_core = Execution(workers=cores)  # as the commands run by default
     stationary = scenario_of(STATIONARY, "self", None, sizes)
-    one, two = (trials_per_s(stationary, sizes.speedup_trials, max(1, sizes.speedup_trials // 10), workers)
-                for workers in (1, 2))
+    # the best of two runs each, alternating (a busy machine only ever slows a run down)
+    runs = [(workers, trials_per_s(stationary, sizes.speedup_trials, max(1, sizes.speedup_trials // 10), workers))
+            for _ in range(2) for workers in (1, 2)]
+    one, two = (max(rate for count, rate in runs if count == workers) for workers in (1, 2))
     return {
         "benchmark": "studies",
         "machine": machine(),
