@@ -189,3 +189,22 @@ def test_a_step_is_written_only_once_the_measurements_behind_its_commands_are_in
         deliver(Measurement(SCHEMA, 1, 1, 0.0, robot, (0.0, 0.0), 1.0), "world", "measurement")
     (record,) = written
     assert record["traffic"]["world"] == [6, 6 * 50] and recorder.late == 0
+
+
+def test_a_robot_the_world_takes_out_of_its_live_set_is_cut_off_for_the_books() -> None:
+    """A robot silent past the lockstep wait leaves the world's live set without losing its alive
+    token: the recorder notes it from the ticks, and a reply it sends its neighbour after that
+    neighbour stopped waiting (counted by the sender, never by the requester) is in flight, not
+    unexplained."""
+    from ringtrack.bus.counting import close_books
+    from ringtrack.bus.messages import Tick
+
+    scenario = load_scenario("paper-stationary", robots=4)
+    recorder = Recorder(Written(), scenario)  # type: ignore[arg-type]
+    for step, live in ((1, [0, 1, 2, 3]), (2, [0, 1, 2]), (3, [0, 1, 2, 3])):
+        recorder.on_tick(Tick(SCHEMA, 1, step, 0.1 * step, [(0.0, 0.0)] * 4, (1.0, 1.0), live))
+    assert recorder.left_live == {"r3"}
+    said, seen = [("reply", "r3", "r2", 5, 195)], [("reply", "r3", "r2", 4, 156)]
+    books = close_books(said, seen, recorder.left_live, ("robot",))
+    assert books.balanced and books.in_flight == {("reply", "r3", "r2"): 1}
+    assert not close_books(said, seen, set(), ("robot",)).balanced

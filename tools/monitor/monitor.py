@@ -155,6 +155,10 @@ class Recorder:
         self.late = 0
         self.dropped_ahead = 0  # messages for steps beyond the window of open steps
         self.digested_through = 0  # the last step whose digest entries were counted
+        # Robots the world took out of its live set during the run (silent past the lockstep wait,
+        # or left): cut off for the books, as robots whose alive token went.
+        self.left_live: set[str] = set()
+        self._live: set[int] | None = None
 
     def on_delivery(self, delivery: Delivery) -> None:
         message = delivery.message
@@ -190,6 +194,10 @@ class Recorder:
 
     def _tick(self, entry: PendingStep, tick: Tick) -> None:
         entry.tick = tick
+        live = set(tick.live)
+        if self._live is not None:
+            self.left_live.update(robot_name(robot) for robot in self._live - live)
+        self._live = live
         self.tick_seen_at[tick.step] = time.monotonic()
         self.latest_tick = max(self.latest_tick, tick.step)
 
@@ -315,7 +323,8 @@ class MonitorReport:
     rejected_by: dict[str, dict[str, int]] = field(default_factory=dict)  # payloads senders rejected
     energy_j: dict[str, list[float]] = field(default_factory=dict)  # robot -> radio energy [transmit, receive], J
     superseded: list[Traffic] = field(default_factory=list)  # messages of replaced lives, dropped at the door
-    cut_off: set[str] = field(default_factory=set)  # participants whose alive token went during the run
+    # participants whose alive token went, or that left the world's live set, during the run
+    cut_off: set[str] = field(default_factory=set)
     silent: frozenset[str] = frozenset()  # senders one of whose lives left no books (killed)
     resumed: bool = False  # this monitor resumed the log of one that went away: it could not see everything
 
@@ -477,7 +486,8 @@ def take_checkpoint(participant: Participant, recorder: Recorder, tallies: Talli
         run=f"{participant.keys.run:08x}", digested_through=recorder.digested_through,
         latest_tick=recorder.latest_tick, late=recorder.late, dropped_ahead=recorder.dropped_ahead,
         received=participant.counter.received_table(), rejected=dict(participant.counter.rejected),
-        fenced=participant.fenced.received_table(), finals=tallies.finals, cut_off=sorted(tallies.cut_off),
+        fenced=participant.fenced.received_table(), finals=tallies.finals,
+        cut_off=sorted(tallies.cut_off | recorder.left_live),
         lives=participant.lives, life_history=participant.life_history, lives_recorded=tallies.lives_recorded)
 
 
@@ -569,7 +579,7 @@ async def _watch(
         rejected_by={name: stats.rejected for name, stats in finals.items() if stats.rejected},
         energy_j={name: list(stats.energy_j) for name, stats in finals.items() if stats.energy_j is not None},
         superseded=participant.fenced.received_table(),
-        cut_off=cut_off | {stats.name for name, stats in finals.items() if name != stats.name},
+        cut_off=cut_off | recorder.left_live | {stats.name for name, stats in finals.items() if name != stats.name},
         silent=frozenset(name for name, lives in participant.life_history.items()
                          if any(life_label(name, life) not in finals for life in lives)),
         resumed=tallies.recount_after is not None,
