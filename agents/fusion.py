@@ -61,14 +61,10 @@ class Fused:
     weights: FloatArray
 
 
-def inverse_2x2(matrices: FloatArray) -> FloatArray:
-    """The inverses of symmetric 2x2 ``matrices`` (..., 2, 2), by the adjugate, exactly symmetric."""
-    a, b, d = matrices[..., 0, 0], 0.5 * (matrices[..., 0, 1] + matrices[..., 1, 0]), matrices[..., 1, 1]
-    determinant = a * d - b * b
-    inverse = np.empty(np.shape(matrices))
-    inverse[..., 0, 0], inverse[..., 1, 1] = d / determinant, a / determinant
-    inverse[..., 0, 1] = inverse[..., 1, 0] = -b / determinant
-    return inverse
+def _inverse_entries(xx: FloatArray, xy: FloatArray, yy: FloatArray) -> FloatArray:
+    """The entries ``(xx, xy, yy)`` of the inverses of the symmetric 2x2 matrices with entries ``xx``,
+    ``xy``, ``yy`` (any one shape ``S``), by the adjugate, as one array (3,) + S."""
+    return np.array([yy, -xy, xx]) / (xx * yy - xy * xy)
 
 
 def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | None = None,
@@ -80,32 +76,39 @@ def intersect(means: ArrayLike, covariances: ArrayLike, present: ArrayLike | Non
     means = np.asarray(means, dtype=float)
     rows, count = means.shape[:2]
     present = np.ones((rows, count), dtype=bool) if present is None else np.asarray(present, dtype=bool)
-    covariances = np.where(present[..., None, None], np.asarray(covariances, dtype=float), identity(2))
-    information = inverse_2x2(covariances)
+    information = _information(np.where(present[..., None, None], np.asarray(covariances, dtype=float), identity(2)))
     if count == 1:
-        return _intersect(means, information, np.ones((rows, 1)))
-    return _intersect(means, information, _optimal_weights(information, present, criterion))
+        return _intersect(means, information, np.ones((1, rows)))
+    return _intersect(means, information, _optimal_weights(information, present.T, criterion))
+
+
+def _information(covariances: FloatArray) -> FloatArray:
+    """The entries ``(xx, xy, yy)`` (3, k, B) of the information matrices ``P_k^{-1}`` of
+    ``covariances`` (B, k, 2, 2), the batch last (each array operation then runs along whole rows of
+    the batch)."""
+    entries = covariances.transpose(2, 3, 1, 0)  # (2, 2, k, B)
+    return _inverse_entries(entries[0, 0], 0.5 * (entries[0, 1] + entries[1, 0]), entries[1, 1])
 
 
 def _optimal_weights(information: FloatArray, present: NDArray[np.bool_], criterion: Criterion) -> FloatArray:
-    """The optimal CI weights (B, k) of each row, from the information matrices (B, k, 2, 2) of its
-    ``present`` (B, k) estimates. Worked with the batch on the last axis (each array operation then
-    runs along whole rows of the batch) and returned with the batch first."""
-    rows, count = present.shape
-    entries = np.ascontiguousarray(information.transpose(2, 3, 1, 0))  # (2, 2, k, B)
-    traces = entries[0, 0] + entries[1, 1]
-    determinants = _determinant_form(entries, traces)
-    on_batch = np.ascontiguousarray(present.T)
-    face_weights, face_feasible = _face_candidates(traces, determinants, criterion, on_batch)
-    candidates = np.empty((count, count + face_weights.shape[1], rows))  # (k, C, B): the vertices, then the faces'
-    candidates[:, :count], candidates[:, count:] = identity(count)[..., None], face_weights
-    feasible = np.concatenate([on_batch, face_feasible], axis=0)
-    values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
+    """The optimal CI weights (k, B) of each row of the batch, from the entries of the information
+    matrices (3, k, B) of its ``present`` (k, B) estimates."""
+    count, rows = present.shape
+    traces = information[0] + information[2]
+    determinants = _determinant_form(information, traces)
+    # singular faces and fused information are found and ruled out on the way (their divisions by
+    # zero are expected)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        face_weights, face_feasible = _face_candidates(traces, determinants, criterion, present)
+        candidates = np.empty((count, count + face_weights.shape[1], rows))  # (k, C, B): the vertices, then the faces'
+        candidates[:, :count], candidates[:, count:] = identity(count)[..., None], face_weights
+        feasible = np.concatenate([present, face_feasible], axis=0)
+        values = np.where(feasible, _objective(candidates, traces, determinants, criterion), np.inf)
     # Ties (equal covariances make every weight optimal): the objective is convex in the weights, so
     # the mean of the tied optima is optimal too, and it does not depend on the order of the inputs.
     chosen = values <= np.minimum.reduce(values, axis=0, keepdims=True) * (1.0 + TIE_TOLERANCE)
     total = sequential_sum(np.where(chosen, candidates, 0.0), axis=1)
-    return np.ascontiguousarray((total / np.add.reduce(chosen, axis=0)).T)
+    return total / np.add.reduce(chosen, axis=0)
 
 
 def sequential_sum(values: FloatArray, axis: int) -> FloatArray:
@@ -182,10 +185,12 @@ def identity(size: int) -> FloatArray:
 
 class Faces(NamedTuple):
     """The faces of the simplex of ``k`` weights with two or more vertices, read-only: which weights
-    each holds (``across``, (k, F, 1)), their sizes (F, 1) and which entries of a k x k system
-    each spans (``inside``, (k, k, F, 1)); the trailing axes broadcast along a batch."""
+    each holds (``across``, (k, F, 1)) and which not (``outside``), their sizes (F, 1) and which
+    entries of a k x k system each spans (``inside``, (k, k, F, 1)); the trailing axes broadcast
+    along a batch."""
 
     across: NDArray[np.bool_]
+    outside: NDArray[np.bool_]
     sizes: NDArray[np.int64]
     inside: NDArray[np.bool_]
 
@@ -197,7 +202,8 @@ def _faces(count: int) -> Faces:
     members = np.zeros((count, len(faces)), dtype=bool)
     for index, face in enumerate(faces):
         members[list(face), index] = True
-    shared = Faces(members[:, :, None], members.sum(axis=0)[:, None], (members[:, None] & members[None])[..., None])
+    shared = Faces(members[:, :, None], ~members[:, :, None], members.sum(axis=0)[:, None],
+                   (members[:, None] & members[None])[..., None])
     for array in shared:
         array.setflags(write=False)
     return shared
@@ -215,9 +221,8 @@ def intersect_at(means: ArrayLike, covariances: ArrayLike, weights: ArrayLike) -
     """The CI of ``k`` estimates at given ``weights`` (k,) on the simplex, optimal or not:
     ``P_c = (sum_k w_k P_k^{-1})^{-1}``, ``x_c = P_c sum_k w_k P_k^{-1} x_k`` (P_c symmetric).
     :func:`covariance_intersection` is this at its optimal weights."""
-    information = inverse_2x2(np.asarray(covariances, dtype=float))
-    fused = _intersect(np.asarray(means, dtype=float)[None], information[None],
-                       np.asarray(weights, dtype=float)[None])
+    information = _information(np.asarray(covariances, dtype=float)[None])
+    fused = _intersect(np.asarray(means, dtype=float)[None], information, np.asarray(weights, dtype=float)[:, None])
     return Fused(fused.mean[0], fused.covariance[0], fused.weights[0])
 
 
@@ -251,29 +256,26 @@ def intersect_in_order(means: FloatArray, covariances: FloatArray, present: NDAr
 
 
 def _intersect(means: FloatArray, information: FloatArray, weights: FloatArray) -> Fused:
-    """The CI of every row at its ``weights`` (B, k), from the information matrices ``P_k^{-1}``
-    (B, k, 2, 2); absent estimates have weight 0."""
-    fused_information = sequential_sum(weights[:, :, None, None] * information, axis=1)
-    informed = _times(information, means)  # P_k^{-1} x_k, (B, k, 2)
-    covariance = inverse_2x2(fused_information)
-    return Fused(mean=_times(covariance, sequential_sum(weights[:, :, None] * informed, axis=1)),
-                 covariance=covariance, weights=weights)
+    """The CI of every row at its ``weights`` (k, B), from the means (B, k, 2) and the entries of the
+    information matrices ``P_k^{-1}`` (3, k, B); absent estimates have weight 0. Every product is
+    written out entry by entry (no BLAS: the same bits whatever the batch)."""
+    fused = sequential_sum(weights * information, axis=1)  # (xx, xy, yy) of sum w_k P_k^{-1}, (3, B)
+    coordinates = means.transpose(2, 1, 0)  # (2, k, B)
+    informed = information[:2] * coordinates[0] + information[1:] * coordinates[1]  # P_k^{-1} x_k, (2, k, B)
+    summed = sequential_sum(weights * informed, axis=1)  # (2, B)
+    covariance = _inverse_entries(*fused)  # (xx, xy, yy) of P_c, (3, B)
+    mean = covariance[:2] * summed[0] + covariance[1:] * summed[1]  # P_c sum w_k P_k^{-1} x_k, (2, B)
+    return Fused(mean=mean.T, covariance=covariance[[0, 1, 1, 2]].T.reshape(-1, 2, 2), weights=weights.T)
 
 
-def _times(matrices: FloatArray, vectors: FloatArray) -> FloatArray:
-    """``M v`` of 2x2 matrices (..., 2, 2) and vectors (..., 2), elementwise (no BLAS: the same bits
-    whatever the batch)."""
-    return matrices[..., 0] * vectors[..., None, 0] + matrices[..., 1] * vectors[..., None, 1]
-
-
-def _determinant_form(entries: FloatArray, traces: FloatArray) -> FloatArray:
+def _determinant_form(information: FloatArray, traces: FloatArray) -> FloatArray:
     """``D`` (k, k, B): ``det(sum_k w_k I_k) = w^T D w`` (the module docstring), from the entries of
-    the information matrices (2, 2, k, B) and their traces (k, B)."""
-    a, b, d = entries[0, 0], entries[0, 1], entries[1, 1]
-    products = a[:, None] * a[None] + 2.0 * b[:, None] * b[None] + d[:, None] * d[None]
-    form = 0.5 * (traces[:, None] * traces[None] - products)
+    the information matrices (3, k, B) and their traces (k, B)."""
+    products = information[:, :, None] * information[:, None]  # (3, k, k, B)
+    form = 0.5 * (traces[:, None] * traces[None] - (products[0] + 2.0 * products[1] + products[2]))
     count = len(traces)
-    form.reshape((count * count,) + traces.shape[1:])[:: count + 1] = a * d - b * b  # the diagonal (form is fresh)
+    diagonal = form.reshape((count * count,) + traces.shape[1:])[:: count + 1]  # form is fresh: a view
+    diagonal[...] = information[0] * information[2] - information[1] * information[1]
     return form
 
 
@@ -283,8 +285,7 @@ def _objective(weights: FloatArray, traces: FloatArray, determinants: FloatArray
     form = sequential_sum(determinants[:, :, None] * weights[None], axis=1)  # D w, (k, C, B)
     determinant = sequential_sum(weights * form, axis=0)
     trace = sequential_sum(traces[:, None] * weights, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        value = trace / determinant if criterion == "trace" else 1.0 / determinant
+    value = trace / determinant if criterion == "trace" else 1.0 / determinant
     return np.where(determinant > 0.0, value, np.inf)
 
 
@@ -295,10 +296,11 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     ``present`` (k, B): the candidates' ``weights`` (k, C, B) and whether each is ``feasible`` (C, B);
     one candidate per face for "det", one per root (two) for "trace", face by face. Each face's
     system is solved as a k x k system with the identity outside the face, so all faces are one
-    batched solve."""
+    batched solve. Singular faces divide by zero: call under ``np.errstate`` (as
+    :func:`_optimal_weights` does)."""
     count, rows = traces.shape
-    across, sizes, inside = _faces(count)
-    on_face = ~np.logical_or.reduce(across & ~present[:, None], axis=0)  # (F, B)
+    across, outside, sizes, inside = _faces(count)
+    on_face = np.logical_and.reduce(present[:, None] | outside, axis=0)  # (F, B)
     sub = np.where(inside, determinants[:, :, None], identity(count)[:, :, None, None])  # (k, k, F, B)
     scale = np.maximum.reduce(np.where(inside, np.abs(sub), 0.0), axis=(0, 1))
     right = np.empty((count, 2, across.shape[1], rows))  # (k, 2, F, B): the face's traces, and its ones
@@ -310,15 +312,14 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
     solved = np.where(usable, solved, 0.0)
     a, b = solved[:, 0], solved[:, 1]  # (k, F, B)
     a_sum, b_sum = sequential_sum(solved, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if criterion == "det":
-            local, solvable = (b / b_sum)[:, :, None], (usable & (b_sum != 0))[:, None]
-        else:
-            traced_a, traced_b = sequential_sum(face_traces[:, None] * solved, axis=0)  # t . a, t . b
-            roots, found = _positive_roots(b_sum, a_sum - traced_b, -traced_a)  # (F, 2, B)
-            total = a_sum[:, None] + roots * b_sum[:, None]
-            local = (a[:, :, None] + roots * b[:, :, None]) / total
-            solvable = usable[:, None] & found & (total != 0)
+    if criterion == "det":
+        local, solvable = (b / b_sum)[:, :, None], (usable & (b_sum != 0))[:, None]
+    else:
+        traced_a, traced_b = sequential_sum(face_traces[:, None] * solved, axis=0)  # t . a, t . b
+        roots, found = _positive_roots(b_sum, a_sum - traced_b, -traced_a)  # (F, 2, B)
+        total = a_sum[:, None] + roots * b_sum[:, None]
+        local = (a[:, :, None] + roots * b[:, :, None]) / total
+        solvable = usable[:, None] & found & (total != 0)
     # local (k, F, R, B): R candidates per face, 0 off the face
     feasible = solvable & np.logical_and.reduce(local >= FEASIBLE, axis=0)
     clipped = np.maximum(np.where(feasible, local, across[..., None]), 0.0)
@@ -329,26 +330,20 @@ def _face_candidates(traces: FloatArray, determinants: FloatArray, criterion: Cr
 def _positive_roots(quadratic: FloatArray, linear: FloatArray, constant: FloatArray) -> tuple[FloatArray,
                                                                                            NDArray[np.bool_]]:
     """The distinct positive real roots ``L`` of ``quadratic L^2 + linear L + constant = 0``
-    elementwise (a vanishing leading coefficient leaves the linear equation), in the
+    elementwise (coefficients (F, B)) (a vanishing leading coefficient leaves the linear equation), in the
     cancellation-free form ``q = -(linear + sign(linear) sqrt(disc)) / 2``, roots ``q / quadratic``
-    and ``constant / q``: ``(roots, found)`` with two slots on a new axis before the last, the
-    smaller root first."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        discriminant = linear * linear - 4.0 * quadratic * constant
-        q = -0.5 * (linear + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), linear))
-        linear_only = quadratic == 0.0
-        first = np.where(linear_only, -constant / linear, q / quadratic)
-        real = discriminant >= 0.0
-        first_found = np.where(linear_only, linear != 0.0, real)
-        second = constant / q
-        second_found = ~linear_only & real & (q != 0.0)
-    first_found &= first > 0.0
-    second_found &= (second > 0.0) & ~(first_found & (second == first))
-    swap = first_found & second_found & (second < first)  # both found, so either order finds both
-    low, high = np.where(swap, second, first), np.where(swap, first, second)
-    lone = ~first_found & second_found  # a lone second root takes the first slot
-    slots = low.shape[:-1] + (2,) + low.shape[-1:]
-    roots, found = np.empty(slots), np.empty(slots, dtype=bool)
-    roots[..., 0, :], roots[..., 1, :] = np.where(lone, high, low), high
-    found[..., 0, :], found[..., 1, :] = first_found | second_found, first_found & second_found
-    return roots, found
+    and ``constant / q``: ``(roots, found)`` (F, 2, B), two slots per equation,
+    the smaller root first (a lone root in the first slot)."""
+    discriminant = linear * linear - 4.0 * quadratic * constant
+    q = -0.5 * (linear + np.copysign(np.sqrt(np.maximum(discriminant, 0.0)), linear))
+    linear_only = quadratic == 0.0
+    first = np.where(linear_only, -constant / linear, q / quadratic)
+    real = discriminant >= 0.0
+    first_found = np.where(linear_only, linear != 0.0, real) & (first > 0.0)
+    second = constant / q
+    second_found = ~linear_only & real & (q != 0.0) & (second > 0.0) & ~(first_found & (second == first))
+    # a root not found is +inf here, so the smaller found root comes first
+    first, second = np.where(first_found, first, np.inf), np.where(second_found, second, np.inf)
+    roots = np.array([np.minimum(first, second), np.maximum(first, second)])
+    found = np.array([first_found | second_found, first_found & second_found])
+    return roots.swapaxes(0, 1), found.swapaxes(0, 1)
