@@ -223,7 +223,7 @@ def ring_traffic(requests: NDArray[np.int64]) -> NDArray[np.int64]:
     its requests, and one reply to each request copy its neighbours sent it
     (:func:`bus.faults.request_traffic`). By symmetry each robot also receives exactly as many."""
     requests = requests.astype(np.int64)
-    return requests.sum(axis=-1) + _to_neighbours(requests)
+    return requests[..., 0] + requests[..., 1] + _to_neighbours(requests)
 
 
 def _to_neighbours(per_side: NDArray) -> NDArray:
@@ -347,7 +347,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
             of_pushes = push.counts(pushes)
             counts = {name: counts[name] + of_pushes[name] for name in counts}
         counts["sent"] = requested.astype(np.int64) + requests + pushes
-        counts["published"] = ring_traffic(requests) + pushes.sum(axis=-1)
+        counts["published"] = ring_traffic(requests) + pushes[..., 0] + pushes[..., 1]
         per_message = np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1).sum(axis=(1, 2))  # (T, 5)
         faults = np.concatenate([per_message, counts["published"].sum(axis=1)[:, None]], axis=1)
         fresh = (requests > 0) & ~reply.dropped
@@ -373,7 +373,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
                               np.zeros(reach.shape)])
         other = other + np.stack([np.zeros(reach.shape), np.zeros(reach.shape),
                                   of_pushes["delivered"] * receive_energy(radio, push_bits)])
-    totals = own.sum(axis=-1) + _to_neighbours(other)
+    totals = own[..., 0] + own[..., 1] + _to_neighbours(other)  # both sides
     return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
                     totals[0].astype(np.int64), _pair(totals[1], totals[2]), pushes, push_delivered)
 
@@ -598,7 +598,7 @@ def run(
         targets=np.swapaxes(paths[:, :steps], 0, 1),
         terr=terr[:steps],
         estimates=None if estimates is None else estimates[:steps],
-        sent=ring_traffic(requests[:steps]) + pushes[:steps].sum(axis=-1),
+        sent=ring_traffic(requests[:steps]) + pushes[:steps, ..., 0] + pushes[:steps, ..., 1],
         received=ring_traffic(requests[:steps]) + _to_neighbours(pushes[:steps]),
         requests=requests[:steps],
         faults=faults[:steps],

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ringtrack.world.elementwise import reduce_last
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.ring import successor_values
 
@@ -45,7 +46,7 @@ def boundary_stretch(region: ConvexRegion, centre: ArrayLike) -> FloatArray:
     heights = region.heights(centre)
     reach = np.linalg.norm(region.vertices - centre[..., None, :], axis=-1)
     farther = np.maximum(reach, successor_values(reach))
-    return np.max(farther**2 / heights, axis=-1)
+    return reduce_last(np.maximum, farther**2 / heights)
 
 
 def clip_to_range(

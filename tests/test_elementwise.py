@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.laws import angular_step, fresh_step, guarded_step, trigger_reasons
-from ringtrack.world.elementwise import choose, clip, scalar
+from ringtrack.world.elementwise import choose, clip, reduce_last, scalar
 from ringtrack.world.geometry import ConvexRegion, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint, wrap
@@ -32,6 +32,21 @@ def same(one: object, team: np.ndarray, index: int) -> bool:
 
 def params(law: str = "prop", omega_deg: float = 1.0, dt: float = 0.1, sigma_deg: float = 0.1) -> ControlParams:
     return ControlParams(law=law, omega_max=np.deg2rad(omega_deg), dt=dt, sigma=np.deg2rad(sigma_deg))
+
+
+@given(st.lists(st.integers(1, 9), min_size=1, max_size=4), st.sampled_from(["minimum", "maximum", "and", "or"]),
+       st.integers(0, 2**32 - 1))
+def test_reduce_last_is_numpys_reduction_along_the_last_axis(shape: list[int], name: str, seed: int) -> None:
+    """Small and large arrays (either side of SHORT_REDUCTION), NaN and signed zeros included: the
+    same values and the same shape as ``ufunc.reduce(values, axis=-1)``."""
+    rng = np.random.default_rng(seed)
+    values = rng.choice([-1.5, -0.0, 0.0, 2.0, np.nan, -np.inf], size=shape) * rng.random(shape)
+    if name in ("and", "or"):
+        values = values > 0
+    ufunc = {"minimum": np.minimum, "maximum": np.maximum, "and": np.logical_and, "or": np.logical_or}[name]
+    expected, reduced = ufunc.reduce(values, axis=-1), reduce_last(ufunc, values)
+    assert reduced.shape == expected.shape and reduced.dtype == expected.dtype
+    assert reduced.tobytes() == expected.tobytes()
 
 
 def test_helpers_choose_and_clip_like_numpy() -> None:

@@ -40,6 +40,22 @@ def clip(value: Any, low: Any, high: Any = None) -> Any:
     return np.maximum(value, low) if high is None else np.minimum(np.maximum(value, low), high)
 
 
+# Up to this many elements a reduction along the last axis is left to numpy as it is (see reduce_last).
+SHORT_REDUCTION = 64
+
+
+def reduce_last(ufunc: np.ufunc, values: NDArray[Any]) -> NDArray[Any]:
+    """``ufunc.reduce(values, axis=-1)`` for an order-free ``ufunc`` (``np.minimum``, ``np.maximum``,
+    ``np.logical_and``, ``np.logical_or``: the same values whatever order it meets them in). numpy
+    reduces along a short last axis (a robot's sides, a region's edges) row by row, at many times the
+    cost of whole-array operations, so a larger array is reduced along its first axis after a copy
+    that puts the last axis first."""
+    if values.size <= SHORT_REDUCTION:
+        return ufunc.reduce(values, axis=-1)
+    leading = np.ascontiguousarray(values.transpose((values.ndim - 1, *range(values.ndim - 1))))
+    return ufunc.reduce(leading, axis=0)
+
+
 def scalar(values: Any) -> Any:
     """A 0-d array's one element as a numpy scalar (arithmetic on it skips numpy's per-call cost);
     any other array unchanged."""

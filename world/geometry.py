@@ -20,6 +20,8 @@ from itertools import combinations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ringtrack.world.elementwise import reduce_last
+
 TWO_PI = 2.0 * np.pi
 
 FloatArray = NDArray[np.float64]
@@ -156,7 +158,8 @@ class ConvexRegion:
             edge_heights = [offset - (x * normal_x + y * normal_y) for offset, normal_x, normal_y in lines]
             return np.bool_(min(edge_heights) >= -tolerance and min(map(abs, edge_heights)) <= tolerance)
         heights = self.heights(point)
-        return (heights.min(axis=-1) >= -tolerance) & (np.abs(heights).min(axis=-1) <= tolerance)
+        nearest = reduce_last(np.minimum, heights), reduce_last(np.minimum, np.abs(heights))
+        return (nearest[0] >= -tolerance) & (nearest[1] <= tolerance)
 
     @cached_property
     def _edge_lines(self) -> list[tuple[float, float, float]]:
@@ -166,7 +169,7 @@ class ConvexRegion:
 
     def is_interior(self, point: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether ``point`` lies in the interior, at least ``margin`` metres from every edge line."""
-        return np.logical_and.reduce(self.heights(point) > margin, axis=-1)
+        return reduce_last(np.logical_and, self.heights(point) > margin)
 
     def require_interior(self, point: ArrayLike, field: str) -> None:
         """Raise :class:`RegionError` naming ``field`` unless ``point`` is strictly inside the region."""
@@ -190,7 +193,7 @@ class ConvexRegion:
         room = self.offsets - margin - dot_rows(centre, self.normals)
         with np.errstate(divide="ignore", invalid="ignore"):
             limits = np.where(reach > 0, room / reach, np.inf)
-        fraction = np.minimum(limits.min(axis=-1), 1.0)
+        fraction = np.minimum(reduce_last(np.minimum, limits), 1.0)
         return centre + fraction[..., None] * outward
 
     # ------------------------------------------------------------------ boundary map
@@ -215,7 +218,7 @@ class ConvexRegion:
         heights = self.heights(centre)
         with np.errstate(divide="ignore", over="ignore"):
             reach = np.where(approach > 0, heights / approach, np.inf)
-        return np.asarray(centre, dtype=float) + reach.min(axis=-1)[..., None] * direction
+        return np.asarray(centre, dtype=float) + reduce_last(np.minimum, reach)[..., None] * direction
 
     def _boundary_point_of_one(self, theta: float, centre: FloatArray) -> FloatArray:
         """:meth:`boundary_point` of one angle (radians) about one centre (metres, ``(2,)``)."""

@@ -84,7 +84,7 @@ def target_error(centres: ArrayLike, target: ArrayLike, squared: bool = False) -
     distance from each centre to ``target``; NaN where no robot's centre is known. ``squared``: the
     mean of the squared distances instead (m^2; its root over steps is the estimates' RMSE)."""
     offsets = np.asarray(centres, dtype=float) - np.asarray(target)[..., None, :]
-    distances = np.sqrt(np.add.reduce(offsets * offsets, axis=-1))  # np.linalg.norm's sum, without its wrapper
+    distances = np.sqrt(offsets[..., 0] * offsets[..., 0] + offsets[..., 1] * offsets[..., 1])  # np.linalg.norm's sum
     if squared:
         distances = distances**2
     known = ~np.isnan(distances)
