@@ -16,6 +16,7 @@ from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
+from ringtrack.tools.cli.options import team_sizes
 from ringtrack.tools.output.console import show
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
@@ -73,6 +74,29 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path, capsys: pytest.Ca
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.parametrize(("text", "sizes"), [
+    ("6", [6]), ("3,6,10,20", [3, 6, 10, 20]), ("3-6", [3, 4, 5, 6]), ("3-30:9", [3, 12, 21, 30]),
+    (" 3, 5-8 ", [3, 5, 6, 7, 8]), ("4-4", [4]),
+])
+def test_team_sizes_are_numbers_lists_and_ranges(text: str, sizes: list[int]) -> None:
+    assert team_sizes(text) == sizes
+
+
+@pytest.mark.parametrize(("text", "problem"), [
+    ("3..6", "give team sizes like 6, 3,6,10,20, 3-30 or 3-30:3"),
+    ("six", "give team sizes like 6, 3,6,10,20, 3-30 or 3-30:3"),
+    ("6-3", "6-3 is no range; give FIRST-LAST[:STEP], FIRST <= LAST, STEP >= 1, e.g. 3-30:3"),
+    ("3-9:0", "3-9:0 is no range; give FIRST-LAST[:STEP], FIRST <= LAST, STEP >= 1, e.g. 3-30:3"),
+    ("2-5", "every team needs at least 3 robots"),
+    ("", "every team needs at least 3 robots"),
+    ("3,4-6,5", "5 is given twice; give each team size once"),
+])
+def test_bad_team_sizes_say_what_to_give(text: str, problem: str) -> None:
+    with pytest.raises(ValueError) as raised:
+        team_sizes(text)
+    assert str(raised.value) == problem
+
+
 @pytest.mark.processes
 @pytest.mark.parametrize(
     ("arguments", "message"),
@@ -94,6 +118,8 @@ def test_stationary_experiment_json_and_figure(tmp_path: Path, capsys: pytest.Ca
         (["spawn", "--robots-per-process", "0"], "ringtrack: error: argument --robots-per-process: 0 is below 1"),
         (["bench", "latency", "--rounds", "0"], "ringtrack: error: argument --rounds: 0 is below 1"),
         (["bench", "engine", "--sweep", "2-5"], "ringtrack: error: --sweep '2-5': every team needs at least 3"),
+        (["experiment", "stationary", "--robots", "6-3"], "ringtrack: error: argument --robots: --robots '6-3': 6-3 "
+         "is no range; give FIRST-LAST[:STEP], FIRST <= LAST, STEP >= 1, e.g. 3-30:3"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_code_2(arguments: list[str], message: str) -> None:

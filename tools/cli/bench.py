@@ -23,7 +23,7 @@ from ringtrack.tools.bench.bench import (
 from ringtrack.tools.bench.record import record_cost
 from ringtrack.tools.bench.studies import FULL, QUICK, TARGETS, THROUGHPUT, studies_results, targets_met
 from ringtrack.tools.cli.experiment import robot_list
-from ringtrack.tools.cli.options import JSON_FILE, at_least
+from ringtrack.tools.cli.options import JSON_FILE, at_least, team_sizes
 from ringtrack.tools.output.console import UsageError, err, out, show
 from ringtrack.tools.output.files import write_json
 from ringtrack.tools.viz.extra import require_sdk
@@ -111,15 +111,11 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 
 def parse_range(text: str) -> list[int]:
-    """``3-30`` or ``6``: the team sizes of a sweep."""
+    """``--sweep``: the team sizes of a sweep (:func:`tools.cli.options.team_sizes`)."""
     try:
-        first, _, last = text.partition("-")
-        sizes = list(range(int(first), int(last or first) + 1))
-    except ValueError:
-        raise UsageError(f"--sweep {text!r}: give team sizes like 3-30 or 6") from None
-    if not sizes or sizes[0] < 3:
-        raise UsageError(f"--sweep {text!r}: every team needs at least 3 robots")
-    return sizes
+        return team_sizes(text)
+    except ValueError as error:
+        raise UsageError(f"--sweep {text!r}: {error}") from None
 
 
 def engine_table(results: dict, cores: object) -> Table:

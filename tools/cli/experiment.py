@@ -11,6 +11,7 @@ from rich.table import Table
 from ringtrack.agents.strategy import StrategyError, strategy_for
 from ringtrack.tools.cli import experiment_faults, experiment_gates, experiment_nemesis, experiment_tracking
 from ringtrack.tools.cli.options import (
+    TEAM_SIZES_EXAMPLE,
     add_output_arguments,
     add_strategy_parameter_arguments,
     add_study_arguments,
@@ -18,6 +19,7 @@ from ringtrack.tools.cli.options import (
     execution_of,
     strategy_argument,
     strategy_parameters,
+    team_sizes,
     write_study,
 )
 from ringtrack.tools.output.console import err, show
@@ -41,11 +43,12 @@ def register(commands: argparse._SubParsersAction) -> None:
         "stationary",
         help="constant vs self-triggered (or --strategies) on the same random starts (Ctime, Com-bar)",
         description="Run the strategies on the same seeded random starts (trial t uses seed S + t) "
-        "and compare Ctime and Com-bar; --robots 3,6,10,20 sweeps team sizes; --strategies self,plan compares "
-        "others (ratios against the first).",
+        "and compare Ctime and Com-bar; --robots 3,6,10,20 (or 3-30, 3-30:3) sweeps team sizes; "
+        "--strategies self,plan compares others (ratios against the first).",
     )
     stationary.add_argument("scenario", nargs="?", default="paper-stationary", help="base scenario")
-    stationary.add_argument("--robots", type=robot_list, default=[6], help="team size or list, e.g. 3,6,10,20")
+    stationary.add_argument("--robots", type=robot_list, default=[6],
+                            help=f"team size, list or range, e.g. {TEAM_SIZES_EXAMPLE}")
     stationary.add_argument("--strategies", type=strategy_list, default=list(STRATEGIES), metavar="A,B",
                             help="strategies to compare, registered names or .py files, the first the ratios' "
                             "baseline (default constant,self; e.g. self,plan)")
@@ -104,14 +107,11 @@ def strategy_list(text: str) -> list[str]:
 
 
 def robot_list(text: str) -> list[int]:
-    """Parse ``6`` or ``3,6,10,20`` into team sizes of at least 3."""
+    """``--robots``: team sizes (:func:`tools.cli.options.team_sizes`)."""
     try:
-        sizes = [int(part) for part in text.split(",") if part.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--robots {text!r}: give integers like 6 or 3,6,10,20") from None
-    if not sizes or min(sizes) < 3:
-        raise argparse.ArgumentTypeError(f"--robots {text!r}: every team needs at least 3 robots")
-    return sizes
+        return team_sizes(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"--robots {text!r}: {error}") from None
 
 
 def run_stationary(args: argparse.Namespace) -> int:

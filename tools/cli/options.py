@@ -195,6 +195,34 @@ def positive(text: str) -> float:
     return value
 
 
+TEAM_SIZES_EXAMPLE = "6, 3,6,10,20, 3-30 or 3-30:3"
+
+
+def team_sizes(text: str) -> list[int]:
+    """Team sizes from ``6``, a list ``3,6,10,20``, an inclusive range ``3-30``, a range with a step
+    ``3-30:3``, or a list of these (``3,5-8``): each at least 3 and given once. A ``ValueError``
+    says what is wrong (the flag's parser names the flag)."""
+    sizes: list[int] = []
+    for part in (part.strip() for part in text.split(",")):
+        if not part:
+            continue
+        first, dash, rest = part.partition("-")
+        last, colon, step = rest.partition(":")
+        try:
+            numbers = [int(first)] if not dash else [int(first), int(last), int(step) if colon else 1]
+        except ValueError:
+            raise ValueError(f"give team sizes like {TEAM_SIZES_EXAMPLE}") from None
+        if dash and (numbers[1] < numbers[0] or numbers[2] < 1):
+            raise ValueError(f"{part} is no range; give FIRST-LAST[:STEP], FIRST <= LAST, STEP >= 1, e.g. 3-30:3")
+        sizes.extend(numbers if not dash else range(numbers[0], numbers[1] + 1, numbers[2]))
+    if not sizes or min(sizes) < 3:
+        raise ValueError("every team needs at least 3 robots")
+    twice = next((size for index, size in enumerate(sizes) if size in sizes[:index]), None)
+    if twice is not None:
+        raise ValueError(f"{twice} is given twice; give each team size once")
+    return sizes
+
+
 def at_least(minimum: int) -> Callable[[str], int]:
     """An argparse type: an integer >= ``minimum`` (a count of steps, trials, rounds; a seed)."""
 
