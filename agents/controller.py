@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.laws import START_BIT, UNKNOWN_BIT, Mask, angular_step, trigger_reasons
 from ringtrack.agents.limits import boundary_stretch, clip_to_range, range_limited_step
-from ringtrack.world.elementwise import choose, scalar
+from ringtrack.world.elementwise import anywhere, choose, scalar
 from ringtrack.world.geometry import ConvexRegion, FloatArray, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint
@@ -172,7 +172,7 @@ class MidpointController:
             setattr(self, f"{side}_position", np.where(fresh[..., None], position, getattr(self, f"{side}_position")))
             setattr(self, f"{side}_age", np.where(fresh, age, getattr(self, f"{side}_age")))
             setattr(self, f"{side}_known", getattr(self, f"{side}_known") | fresh)
-            came = came or bool(fresh.any())
+            came = came or anywhere(fresh)
         if came:
             self._remembered_angles()
 

@@ -24,6 +24,7 @@ from ringtrack.agents.strategy import Received, Strategy, check_strategy, strate
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
 from ringtrack.bus.messages import robot_message_bytes, uint_bytes
 from ringtrack.bus.radio import message_bits, receive_energy, transmit_energy
+from ringtrack.world.elementwise import anywhere, everywhere
 from ringtrack.world.geometry import FloatArray, angle_of
 from ringtrack.world.metrics import (
     converged,
@@ -207,7 +208,8 @@ class TeamEstimate:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
         as they were before anyone fused this step) and steer by the result; ``centres`` is updated
         in place. Whether any robot fused (else every centre is as it was)."""
-        if self.mode != "decentralized" or self.relay is not None or not (fresh_minus.any() or fresh_plus.any()):
+        fusing = self.mode == "decentralized" and self.relay is None
+        if not (fusing and (anywhere(fresh_minus) or anywhere(fresh_plus))):
             return False
         self.estimators.fuse(self._told((fresh_minus, fresh_plus), self.beliefs()))
         centres[...] = self.estimators.centre.reshape(centres.shape)
@@ -314,14 +316,14 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     trials, robots = polled.shape
     reach = _pair(reach_minus, reach_plus)
     requested = polled[..., None] | ~reach
-    if not requested.any() and (pushed is None or not pushed.any()):
+    if not anywhere(requested) and (pushed is None or not anywhere(pushed)):
         return _silent(reach.shape)
     distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
                 else _pair(distance_minus, distance_plus))
     robot, neighbour = _ring_sides(robots)
     groups = [(plan, np.arange(trials))] if isinstance(plan, FaultPlan) else plan
-    pushing = pushed is not None and bool(pushed.any())
-    if not pushing and not any(group.active for group, _ in groups) and bool(reach.all()):
+    pushing = pushed is not None and anywhere(pushed)
+    if not pushing and not any(group.active for group, _ in groups) and everywhere(reach):
         # No fault, no push, every neighbour in reach: each request is delivered once and answered by
         # one delivered reply, so every message sent is delivered and published (fate_counts' rule).
         requests = requested.astype(np.int64)
@@ -582,7 +584,7 @@ def run(
         if on_step is not None:
             on_step(k)
         done |= converged(strategy_cerr(strategy.cerr, memory_cerr(offsets[row]), cerr_true[row]), threshold_deg)
-        if until_converged and done.all():
+        if until_converged and everywhere(done):
             steps = k
             break
 

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.fusion import identity, intersect, intersect_in_order, sequential_sum
+from ringtrack.world.elementwise import anywhere, everywhere
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import EstimationParams
 from ringtrack.world.target import steady_variance
@@ -84,7 +85,7 @@ class RangeFilters:
     def adopt(self, mean: ArrayLike, covariance: ArrayLike, rows: NDArray[np.bool_] | None = None) -> None:
         """Replace the estimates (of the ``rows`` given, default all) by ``mean``, ``covariance``
         (a prior, or the result of fusing with neighbours' beliefs)."""
-        if rows is None or rows.all():
+        if rows is None or everywhere(rows):
             self.mean = np.array(mean, dtype=float).reshape(self.mean.shape)
             self.covariance = np.array(covariance, dtype=float).reshape(self.covariance.shape)
         else:
@@ -109,7 +110,7 @@ class RangeFilters:
         offsets = self.mean[:, :, None] - points.transpose(0, 2, 1)  # x - p_j, (B, 2, m)
         distances = np.hypot(offsets[:, 0], offsets[:, 1])
         usable = np.isfinite(measured) & (distances > SINGULAR_DISTANCE)
-        if not usable.any():
+        if not anywhere(usable):
             return
         safe = np.where(usable, distances, 1.0)
         rows = np.where(usable[:, None], offsets / safe[:, None], 0.0)  # H^T, (B, 2, m)
@@ -143,7 +144,7 @@ class RangeFilters:
         dx, dy = self.mean[:, 0, None] - positions[..., 0], self.mean[:, 1, None] - positions[..., 1]
         distances = np.hypot(dx, dy)
         usable = np.isfinite(ranges) & (distances > SINGULAR_DISTANCE)
-        if not usable.any():
+        if not anywhere(usable):
             return
         # h h^T / v = (dx, dy)^T (dx, dy) / (d^2 v); h (z - d) / v = (dx, dy) (z - d) d / (d^2 v)
         weight = np.where(usable, 1.0 / np.where(usable, distances**2 * variances, 1.0), 0.0)
@@ -283,7 +284,7 @@ class Estimators:
         outside = ~self.region.is_interior(mean, self.params.margin * (1.0 - MARGIN_ROUNDING))
         if rows is not None:
             outside &= rows
-        if outside.any():
+        if anywhere(outside):
             self.filters.mean = np.where(outside[:, None], self.region.clamp_interior(mean, self.params.margin), mean)
 
     def measure(self, positions: ArrayLike, ranges: ArrayLike, told: Told | None = None,
@@ -325,7 +326,7 @@ class Estimators:
         """Covariance-intersect each filter's belief with the neighbours' ``told`` it and adopt the
         result; a filter told nothing is left as it is."""
         fusing: NDArray[np.bool_] = np.asarray(told.present.any(axis=1))
-        if not fusing.any():
+        if not anywhere(fusing):
             return
         means = np.concatenate([self.filters.mean[:, None], told.means], axis=1)
         covariances = np.concatenate([self.filters.covariance[:, None], told.covariances], axis=1)

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from ringtrack.agents.controller import MidpointController
 from ringtrack.agents.laws import angular_step, fresh_step, guarded_step, trigger_reasons
-from ringtrack.world.elementwise import choose, clip, reduce_last, scalar
+from ringtrack.world.elementwise import anywhere, choose, clip, everywhere, reduce_last, scalar
 from ringtrack.world.geometry import ConvexRegion, angle_of
 from ringtrack.world.params import ControlParams
 from ringtrack.world.ring import local_frame, midpoint, wrap
@@ -47,6 +47,14 @@ def test_reduce_last_is_numpys_reduction_along_the_last_axis(shape: list[int], n
     expected, reduced = ufunc.reduce(values, axis=-1), reduce_last(ufunc, values)
     assert reduced.shape == expected.shape and reduced.dtype == expected.dtype
     assert reduced.tobytes() == expected.tobytes()
+
+
+@given(st.lists(st.integers(0, 5), max_size=3), st.integers(0, 2**32 - 1), st.booleans())
+def test_anywhere_and_everywhere_are_any_and_all(shape: list[int], seed: int, floats: bool) -> None:
+    rng = np.random.default_rng(seed)
+    values = rng.choice([0.0, -0.0, 1.5, np.nan], size=shape) if floats else rng.random(shape) < 0.7
+    assert anywhere(values) is bool(values.any()) and everywhere(values) is bool(values.all())
+    assert anywhere(np.True_) and not anywhere(False) and everywhere(True) and not everywhere(np.False_)
 
 
 def test_helpers_choose_and_clip_like_numpy() -> None:

@@ -40,6 +40,17 @@ def clip(value: Any, low: Any, high: Any = None) -> Any:
     return np.maximum(value, low) if high is None else np.minimum(np.maximum(value, low), high)
 
 
+def anywhere(values: Any) -> bool:
+    """``bool(values.any())``, counted by ``np.count_nonzero`` (one C call: about a third of the cost
+    of ``ndarray.any``, which a step asks several times to skip work no robot needs)."""
+    return bool(np.count_nonzero(values))
+
+
+def everywhere(values: Any) -> bool:
+    """``bool(values.all())``, by ``np.count_nonzero`` (see :func:`anywhere`)."""
+    return bool(np.count_nonzero(values) == np.size(values))
+
+
 # Up to this many elements a reduction along the last axis is left to numpy as it is (see reduce_last).
 SHORT_REDUCTION = 64
 
