@@ -34,7 +34,7 @@ CERR_SOURCES: tuple[CerrSource, ...] = ("memory", "true")
 
 def convergence_error(offsets: ArrayLike) -> FloatArray:
     """``sum_i |offset_i|`` over the last axis, offsets in radians, result in degrees."""
-    return np.rad2deg(np.sum(np.abs(offsets), axis=-1))
+    return np.rad2deg(np.add.reduce(np.abs(offsets), axis=-1))  # np.sum's reduction, without its wrapper
 
 
 def true_offsets(positions: ArrayLike, target: ArrayLike) -> FloatArray:
@@ -88,8 +88,8 @@ def target_error(centres: ArrayLike, target: ArrayLike, squared: bool = False) -
     if squared:
         distances = distances**2
     known = ~np.isnan(distances)
-    count = known.sum(axis=-1)
-    total = np.where(known, distances, 0.0).sum(axis=-1)
+    count = np.add.reduce(known, axis=-1, dtype=np.int64)  # the sums of ndarray.sum, without its wrapper
+    total = np.add.reduce(np.where(known, distances, 0.0), axis=-1)
     return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
 
 
