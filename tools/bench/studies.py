@@ -50,7 +50,8 @@ THROUGHPUT: dict[str, tuple[str, str, str | None]] = {
 class Sizes:
     """How much a benchmark runs: moving-target steps (None: the scenario's 1300), throughput
     trials and their batch, the stationary step limit (None: the scenario's), the sweep's team sizes
-    and trials, the faults study's trials and the trials of the speed-up study."""
+    and trials, the faults study's trials, the trials of the speed-up study, and the rounds whose
+    best a timing is (the per-trial timings; the faults study and the sweep take at most two)."""
 
     moving_steps: int | None
     throughput_trials: int
@@ -60,10 +61,11 @@ class Sizes:
     sweep_trials: int
     fault_trials: int
     speedup_trials: int
+    repeats: int
 
 
-FULL = Sizes(None, 20, 5, None, range(3, 31), 30, 10, 100)
-QUICK = Sizes(20, 2, 1, 60, range(3, 5), 1, 1, 4)
+FULL = Sizes(None, 20, 5, None, range(3, 31), 30, 10, 100, 3)
+QUICK = Sizes(20, 2, 1, 60, range(3, 5), 1, 1, 4, 1)
 
 
 @dataclass(frozen=True)
@@ -103,11 +105,19 @@ def trials_per_s(scenario: Scenario, trials: int, batch: int, workers: int) -> f
     return trials / (time.perf_counter() - started)
 
 
-def seconds_per_trial(scenario: Scenario, trials: int, repeats: int = 2) -> float:
-    """Seconds per trial of one engine batch of ``trials`` trials of ``scenario``, the best of
-    ``repeats`` runs (a busy machine only ever slows a run down)."""
-    return min(timed(lambda: engine.run(scenario, list(range(trials)), record_positions=False))
-               for _ in range(repeats)) / trials
+def engine_batch(scenario: Scenario, trials: int) -> Callable[[], object]:
+    """One engine batch of ``trials`` trials of ``scenario``, to time."""
+    return lambda: engine.run(scenario, list(range(trials)), record_positions=False)
+
+
+def best_seconds(calls: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
+    """The least wall seconds of each call over ``repeats`` rounds, the calls taking turns (a busy
+    machine only ever slows a run down, and taking turns spreads its load over all of them)."""
+    seconds: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, call in calls.items():
+            seconds[name].append(timed(call))
+    return {name: min(values) for name, values in seconds.items()}
 
 
 # A launcher's work, timed: import what it preloads, fork, and in the child build a decentralized
@@ -158,12 +168,21 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
                             for workers in dict.fromkeys((1, cores))}
     err.print("bench studies: per-trial seconds alone and in batches of 10 and 100", highlight=False)
     decentralized = scenario_of(MOVING, "self", "decentralized", sizes)
-    per_trial = {f"{label}_s_per_trial": seconds_per_trial(decentralized, trials)
-                 for label, trials in (("alone", 1), ("batch_10", 10), ("batch_100", 100))}
-    centralized = seconds_per_trial(scenario_of(MOVING, "self", "centralized", sizes), 10)
+    batches = {"alone": 1, "batch_10": 10, "batch_100": 100}
+    per_batch = best_seconds({**{label: engine_batch(decentralized, trials) for label, trials in batches.items()},
+                              "centralized": engine_batch(scenario_of(MOVING, "self", "centralized", sizes), 10)},
+                             sizes.repeats)
+    per_trial = {f"{label}_s_per_trial": per_batch[label] / trials for label, trials in batches.items()}
+    centralized = per_batch["centralized"] / 10
     err.print("bench studies: the faults study, the stationary sweep and the speed-up of 2 workers", highlight=False)
     cells = [Cell(drop, 0, None) for drop in FAULT_DROPS]
     every_core = Execution(workers=cores)  # as the commands run by default
+    studies = best_seconds({
+        "faults": lambda: faults_experiment(MOVING, cells, sizes.fault_trials, 0, sizes.moving_steps,
+                                            settle=min(300, decentralized.max_steps - 1), execution=every_core),
+        "sweep": lambda: stationary_experiment(STATIONARY, list(sizes.sweep), sizes.sweep_trials, 0,
+                                               execution=every_core, max_steps=sizes.stationary_steps),
+    }, min(2, sizes.repeats))
     stationary = scenario_of(STATIONARY, "self", None, sizes)
     # the best of two runs each, alternating (a busy machine only ever slows a run down)
     runs = [(workers, trials_per_s(stationary, sizes.speedup_trials, max(1, sizes.speedup_trials // 10), workers))
@@ -176,12 +195,8 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
         "throughput_trials_per_s": throughput,
         **per_trial,
         "decentralized_over_centralized": per_trial["batch_10_s_per_trial"] / centralized,
-        "faults_study_s": timed(lambda: faults_experiment(MOVING, cells, sizes.fault_trials, 0, sizes.moving_steps,
-                                                          settle=min(300, decentralized.max_steps - 1),
-                                                          execution=every_core)),
-        "stationary_sweep_s": timed(lambda: stationary_experiment(
-            STATIONARY, list(sizes.sweep), sizes.sweep_trials, 0, execution=every_core,
-            max_steps=sizes.stationary_steps)),
+        "faults_study_s": studies["faults"],
+        "stationary_sweep_s": studies["sweep"],
         "workers_2_speedup": two / one,
         "speedup_trials": sizes.speedup_trials,
         "robot_start_s": min(robot_start_s() for _ in range(3)),
