@@ -57,10 +57,11 @@ SHORT_REDUCTION = 64
 
 def reduce_last(ufunc: np.ufunc, values: NDArray[Any]) -> NDArray[Any]:
     """``ufunc.reduce(values, axis=-1)`` for an order-free ``ufunc`` (``np.minimum``, ``np.maximum``,
-    ``np.logical_and``, ``np.logical_or``: the same values whatever order it meets them in). numpy
-    reduces along a short last axis (a robot's sides, a region's edges) row by row, at many times the
-    cost of whole-array operations, so a larger array is reduced along its first axis after a copy
-    that puts the last axis first."""
+    ``np.logical_and``, ``np.logical_or``: the same values whatever order it meets them in; only
+    the sign of a zero tied with a zero of the other sign may differ, as it does between numpy's own
+    loops, which meet elements in different orders). numpy reduces along a short last axis (a
+    robot's sides, a region's edges) row by row, at many times the cost of whole-array operations,
+    so a larger array is reduced along its first axis after a copy that puts the last axis first."""
     if values.size <= SHORT_REDUCTION:
         return ufunc.reduce(values, axis=-1)
     leading = np.ascontiguousarray(values.transpose((values.ndim - 1, *range(values.ndim - 1))))
