@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.bus.messages import MAX_RELAYED, relay_message_bytes, uint_bytes
+from ringtrack.bus.messages import MAX_RELAYED, known_steps_bytes, relay_message_bytes, uint_bytes
 from ringtrack.world.elementwise import Values
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.ring import predecessor_values, successor_values
@@ -99,6 +99,12 @@ class RangeRelay:
         # successor (s = 1) hold, from their messages (what r's requests need not carry again)
         self.told = np.zeros((trials, robots, 2, robots), dtype=np.int64)
         self.measured = np.zeros((steps + 1, trials, robots), dtype=np.int64)  # ranges measured up to each step
+        # indices of every (trial, robot, source) and, per side, each robot's neighbour there
+        self._trial = np.arange(trials)[:, None, None]
+        self._source = np.arange(robots)[None, None, :]
+        robot = np.arange(robots)
+        self._neighbours = ((robot - 1) % robots, (robot + 1) % robots)
+        self._entry_base = 19 + uint_bytes(self._source)  # bytes of a relayed range bar its step's and range's
 
     def take(
         self, step: int, means: FloatArray, range_sigma: float, process_noise: float
@@ -152,32 +158,33 @@ class RangeRelay:
         (:func:`bus.messages.relay_message_bytes`), as the robot processes build them (call after
         :meth:`record`): a request carries the ranges ``(told, known]`` of each source (none of its
         receiver's own), a reply those of ``(requester's known, replier's known]``."""
-        trials, robots, _ = self.known.shape
         known = self.known
-        robot = np.arange(robots)
-        neighbours = ((robot - 1) % robots, (robot + 1) % robots)
-        requests, replies = [], []
-        for side, neighbour in enumerate(neighbours):
-            receiver_is = neighbour[None, :, None] == robot[None, None, :]  # (1, N, N): source j is the receiver
-            requests.append(self._bytes("request", step, robot, neighbour, known, self.told[:, :, side], receiver_is))
-            replier = known[:, neighbour]  # the neighbour's known, per robot it answers
-            replies.append(self._bytes("reply", step, neighbour, robot, replier, known, self._own))
-        return np.stack(requests, axis=-1), np.stack(replies, axis=-1)
+        robot = self._source[0, 0]
+        known_bytes = known_steps_bytes(known)  # (T, N): each robot's known list, in its requests and replies
+        requests = np.empty(known.shape[:2] + (2,), dtype=np.int64)
+        replies = np.empty(known.shape[:2] + (2,), dtype=np.int64)
+        for side, neighbour in enumerate(self._neighbours):
+            receiver_is = neighbour[None, :, None] == self._source  # (1, N, N): source j is the receiver
+            requests[..., side] = self._bytes("request", step, robot, neighbour, known, known_bytes,
+                                              self.told[:, :, side], receiver_is)
+            replies[..., side] = self._bytes("reply", step, neighbour, robot, known[:, neighbour],
+                                             known_bytes[:, neighbour], known, self._own)
+        return requests, replies
 
     def _bytes(self, kind: str, step: int, sender: NDArray[np.int64], receiver: NDArray[np.int64],
-               known: NDArray[np.int64], base: NDArray[np.int64], skipped: NDArray[np.bool_]) -> NDArray[np.int64]:
+               known: NDArray[np.int64], known_bytes: NDArray[np.int64], base: NDArray[np.int64],
+               skipped: NDArray[np.bool_]) -> NDArray[np.int64]:
         """Sizes (T, N) of ``kind`` messages from ``sender`` to ``receiver`` (N,) carrying the sender's
-        ``known`` (T, N, N) and the ranges ``(base, known]`` of each source not ``skipped``."""
-        trials, robots, _ = known.shape
+        ``known`` (T, N, N), a list of ``known_bytes`` (T, N), and the ranges ``(base, known]`` of
+        each source not ``skipped``."""
         low = np.minimum(base, known)
         high = np.where(skipped, low, known)
         count = high - low
-        trial = np.arange(trials)[:, None, None]
-        source = np.arange(robots)[None, None, :]
-        measured = self.measured[high, trial, source] - self.measured[low, trial, source]
-        entry = (count * (19 + uint_bytes(source)) + _step_bytes(high) - _step_bytes(low) + 9 * measured
-                 + (count - measured)).sum(axis=-1)
-        return relay_message_bytes(kind, step, sender[None], receiver[None], known, count.sum(axis=-1), entry)
+        measured = self.measured[high, self._trial, self._source] - self.measured[low, self._trial, self._source]
+        entry = np.add.reduce(count * self._entry_base + _step_bytes(high) - _step_bytes(low) + 9 * measured
+                              + (count - measured), axis=-1)
+        return relay_message_bytes(kind, step, sender[None], receiver[None], known_bytes,
+                                   np.add.reduce(count, axis=-1), entry)
 
 
 def _step_bytes(steps: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -629,14 +629,19 @@ def relayed_range_bytes(source: ArrayLike, step: ArrayLike, measured: ArrayLike)
     return (1 + uint_bytes(source) + uint_bytes(step) + 18 + np.where(measured, 9, 1)).astype(np.int64)
 
 
-def relay_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike, known: ArrayLike,
+def known_steps_bytes(known: ArrayLike) -> NDArray[np.int64]:
+    """Bytes of the ``known`` list a relay message carries (the last step of each robot's ranges its
+    sender holds, one per robot on the last axis) beyond those of an empty list."""
+    known = np.asarray(known)
+    return array_header_bytes(known.shape[-1]) - 1 + uint_bytes(known).sum(axis=-1)
+
+
+def relay_message_bytes(kind: str, step: ArrayLike, sender: ArrayLike, receiver: ArrayLike, known_bytes: ArrayLike,
                         count: ArrayLike, entry_bytes: ArrayLike) -> NDArray[np.int64]:
     """The exact encoded size of :class:`RangeRequest` (``kind`` "request") or :class:`RangeReply`
-    ("reply") messages of ``step`` from ``sender`` to ``receiver``, carrying the ``known`` steps (one
-    per robot, last axis) and ``count`` ranges of ``entry_bytes`` bytes in all
+    ("reply") messages of ``step`` from ``sender`` to ``receiver``, carrying a known list of
+    ``known_bytes`` (:func:`known_steps_bytes`) and ``count`` ranges of ``entry_bytes`` bytes in all
     (:func:`relayed_range_bytes`), broadcast over arrays. Nonces and run ids take 5 bytes."""
-    known = np.asarray(known)
     extra = uint_bytes(step) + uint_bytes(sender) + uint_bytes(receiver) - 3
-    known_bytes = array_header_bytes(known.shape[-1]) - 1 + uint_bytes(known).sum(axis=-1)
     ranges_bytes = array_header_bytes(count) - 1 + np.asarray(entry_bytes, dtype=np.int64)
-    return (_relay_message_base(kind) + extra + known_bytes + ranges_bytes).astype(np.int64)
+    return (_relay_message_base(kind) + extra + np.asarray(known_bytes, dtype=np.int64) + ranges_bytes).astype(np.int64)

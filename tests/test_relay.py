@@ -24,6 +24,7 @@ from ringtrack.bus.messages import (
     RangeReply,
     RangeRequest,
     encode,
+    known_steps_bytes,
     relay_message_bytes,
     relayed_range_bytes,
 )
@@ -238,7 +239,7 @@ def test_relay_messages_are_counted_exactly(step: int, sender: int, receiver: in
     reply = RangeReply(SCHEMA, NONCE_BASE, step, sender, receiver, NONCE_BASE + 7, (0.5, 1.5), None, None, known,
                        entries)
     for kind, message in (("request", request), ("reply", reply)):
-        assert relay_message_bytes(kind, step, sender, receiver, np.array(known), len(entries),
+        assert relay_message_bytes(kind, step, sender, receiver, known_steps_bytes(np.array(known)), len(entries),
                                    entry_bytes) == len(encode(message))
 
 
