@@ -86,6 +86,16 @@ class Hosts:
         self.processes.append(process)
         return process
 
+    def wait_listening(self, host: str, address: str, port: int, limit_s: float = 120.0) -> None:
+        """Wait until something on ``host`` accepts TCP connections on ``address``:``port`` (a client
+        that connects before its router listens exits at once), at most ``limit_s`` seconds."""
+        probe = f"import socket; socket.create_connection(({address!r}, {port}), 1).close()"
+        deadline = time.monotonic() + limit_s
+        while subprocess.run(["ip", "netns", "exec", self.names[host], sys.executable, "-c", probe],
+                             capture_output=True).returncode != 0:
+            assert time.monotonic() < deadline, f"nothing listens on {address}:{port} of host {host} after {limit_s} s"
+            time.sleep(0.2)
+
     def errors(self) -> list[str]:
         return [process.stderr.read().decode()[-500:] for process in self.processes
                 if process.poll() not in (None, 0) and process.stderr is not None]
@@ -121,13 +131,14 @@ def run_team(hosts: Hosts, log: Path, via_router: bool, steps: int | None = None
     hub = [f"{protocol}/{address}:{PORT}" for address in hosts.addresses["a"]]
     world_listen = [flag for endpoint in hub for flag in ("--listen", endpoint)]
     started = time.monotonic()
+    # on a loaded machine a hub can take seconds to listen, and a client that finds nobody there exits
     if via_router:
         hosts.start("a", "router", *world_listen, *protection)
-        time.sleep(0.5)
+        hosts.wait_listening("a", hosts.addresses["a"][0], PORT)
         world = hosts.start("a", "world", *common, "--mode", "client", "--connect", hub[0])
     else:
         world = hosts.start("a", "world", *common, *world_listen)
-    time.sleep(0.5)
+        hosts.wait_listening("a", hosts.addresses["a"][0], PORT)
     joining = ["--mode", "client"] if via_router else []
     reachable = [] if via_router else ["--listen", f"{protocol}/{hosts.addresses['a'][0]}:0"]
     monitor = hosts.start("a", "monitor", *common, *joining, *reachable, "--connect", hub[0],
