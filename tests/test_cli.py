@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import os
@@ -16,7 +17,7 @@ from rich.table import Table
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
-from ringtrack.tools.cli.options import team_sizes
+from ringtrack.tools.cli.options import scheduler_address, team_sizes
 from ringtrack.tools.output.console import show
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.world.scenario import load_scenario
@@ -97,6 +98,21 @@ def test_bad_team_sizes_say_what_to_give(text: str, problem: str) -> None:
     assert str(raised.value) == problem
 
 
+@pytest.mark.parametrize("text", ["tcp://10.0.0.5:8786", "10.0.0.5:8786", "tls://scheduler.lab:443",
+                                  "tcp://[::1]:8786", "localhost:1"])
+def test_scheduler_addresses_are_dask_addresses(text: str) -> None:
+    assert scheduler_address(text) == text
+
+
+@pytest.mark.parametrize("text", ["bogus", "tcp://host", "tcp://:8786", "http://host:8786", "host:0", "host:65536",
+                                  "host:port", ""])
+def test_bad_scheduler_addresses_say_what_to_give(text: str) -> None:
+    with pytest.raises(argparse.ArgumentTypeError) as raised:
+        scheduler_address(text)
+    assert str(raised.value) == (f"{text!r}: give the scheduler's address as [tcp|tls|ws|wss|ucx://]HOST:PORT "
+                                 "with a port 1-65535, e.g. tcp://10.0.0.5:8786")
+
+
 @pytest.mark.processes
 @pytest.mark.parametrize(
     ("arguments", "message"),
@@ -118,6 +134,8 @@ def test_bad_team_sizes_say_what_to_give(text: str, problem: str) -> None:
         (["spawn", "--robots-per-process", "0"], "ringtrack: error: argument --robots-per-process: 0 is below 1"),
         (["bench", "latency", "--rounds", "0"], "ringtrack: error: argument --rounds: 0 is below 1"),
         (["bench", "engine", "--sweep", "2-5"], "ringtrack: error: --sweep '2-5': every team needs at least 3"),
+        (["experiment", "moving", "--cluster", "bogus"], "ringtrack: error: argument --cluster: 'bogus': give the "
+         "scheduler's address as [tcp|tls|ws|wss|ucx://]HOST:PORT"),
         (["experiment", "stationary", "--robots", "6-3"], "ringtrack: error: argument --robots: --robots '6-3': 6-3 "
          "is no range; give FIRST-LAST[:STEP], FIRST <= LAST, STEP >= 1, e.g. 3-30:3"),
     ],

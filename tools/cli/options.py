@@ -270,6 +270,21 @@ def foxglove_address(text: str) -> tuple[str, int]:
     return host.strip("[]") or "127.0.0.1", number
 
 
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")  # Dask's network protocols
+
+
+def scheduler_address(text: str) -> str:
+    """An argparse type: a Dask scheduler's ``[SCHEME://]HOST:PORT`` (SCHEME one of
+    :data:`SCHEDULER_SCHEMES`, Dask's default tcp when left out; an IPv6 HOST in brackets)."""
+    scheme, separator, location = text.rpartition("://")
+    host, _, port = location.rpartition(":")
+    if (separator and scheme not in SCHEDULER_SCHEMES) or not host.strip("[]") or not port.isdigit() \
+            or not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: give the scheduler's address as [{'|'.join(SCHEDULER_SCHEMES)}://]"
+                                         "HOST:PORT with a port 1-65535, e.g. tcp://10.0.0.5:8786")
+    return text
+
+
 JSON_FILE = output_path((".json",))  # summaries and results
 LOG_FILE = output_path((".jsonl",))  # run logs (JSON lines)
 CSV_FILE = output_path((".csv",))  # tables of trials and summaries
@@ -280,7 +295,7 @@ def add_study_arguments(parser: argparse.ArgumentParser) -> None:
     """``--workers --cluster --batch --resume --quiet``: how a study's tasks run (tools/studies/runner.py)."""
     parser.add_argument("--workers", type=at_least(1), metavar="N",
                         help="run the tasks in N processes (default: every core this process may use)")
-    parser.add_argument("--cluster", metavar="ADDRESS",
+    parser.add_argument("--cluster", type=scheduler_address, metavar="ADDRESS",
                         help=f"run the tasks on the Dask scheduler at ADDRESS, e.g. tcp://host:8786 ({CLUSTER_EXTRA})")
     parser.add_argument("--batch", type=at_least(1), default=BATCH, metavar="TRIALS",
                         help=f"trials per task, run as one engine batch (default {BATCH}); a stationary batch stops "
