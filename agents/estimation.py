@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ringtrack.agents.fusion import identity, intersect, intersect_in_order, sequential_sum
+from ringtrack.agents.fusion_rows import few, intersect_rows
 from ringtrack.world.elementwise import anywhere, everywhere
 from ringtrack.world.geometry import ConvexRegion, FloatArray
 from ringtrack.world.params import EstimationParams
@@ -331,8 +332,12 @@ class Estimators:
         means = np.concatenate([self.filters.mean[:, None], told.means], axis=1)
         covariances = np.concatenate([self.filters.covariance[:, None], told.covariances], axis=1)
         present = np.concatenate([np.ones((len(means), 1), dtype=bool), told.present], axis=1)
-        combine = intersect if self.params.fusion == "ci" else intersect_in_order
-        fused = combine(means[fusing], covariances[fusing], present[fusing], self.params.criterion)
+        means, covariances, present = means[fusing], covariances[fusing], present[fusing]
+        if self.params.fusion != "ci":
+            combine = intersect_in_order
+        else:  # the same bits either way: floats for a few rows, arrays for many
+            combine = intersect_rows if few(means) else intersect
+        fused = combine(means, covariances, present, self.params.criterion)
         mean, covariance = self.belief
         mean[fusing], covariance[fusing] = fused.mean, fused.covariance
         self.filters.adopt(mean, covariance)

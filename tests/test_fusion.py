@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from scipy.optimize import minimize, minimize_scalar
 
 from ringtrack.agents.fusion import covariance_intersection, intersect, intersect_at, sequential_intersection
+from ringtrack.agents.fusion_rows import intersect_rows
 
 CRITERIA = ["trace", "det"]
 
@@ -449,3 +450,34 @@ def test_a_row_of_a_batch_fuses_as_it_would_alone(rows, criterion):
                                    atol=1e-12 * np.trace(only.covariance))
         np.testing.assert_allclose(fused.weights[index, there], only.weights, atol=1e-9)
         assert np.all(fused.weights[index, ~there] == 0.0)
+
+
+@st.composite
+def rows_of_three(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A batch of 1-6 rows of three estimates, the first present, the two told ones present or not;
+    some rows with equal covariances (every weight optimal: the tie rule decides) or equal means."""
+    rows = draw(st.integers(1, 6))
+    batch_means, batch_covariances = [], []
+    for _ in range(rows):
+        tie = draw(st.sampled_from(["none", "covariances", "both"]))
+        covariance = draw(spd())
+        batch_covariances.append([covariance] * 3 if tie != "none" else [covariance, draw(spd()), draw(spd())])
+        mean = draw(means())
+        batch_means.append([mean] * 3 if tie == "both" else [mean, draw(means()), draw(means())])
+    told = draw(st.lists(st.lists(st.booleans(), min_size=2, max_size=2), min_size=rows, max_size=rows))
+    return np.array(batch_means), np.array(batch_covariances), np.array([[True, *pair] for pair in told])
+
+
+@pytest.mark.parametrize("criterion", CRITERIA)
+@given(batch=rows_of_three())
+def test_rows_fused_in_floats_are_the_batched_bits(criterion, batch):
+    """:func:`intersect_rows` (Python floats, for the few rows a robot or a small team fuses) gives
+    byte for byte what the batched :func:`intersect` gives: a robot process and the engine agree
+    whichever of the two fuses their rows."""
+    batch_means, batch_covariances, present = batch
+    batched = intersect(batch_means, batch_covariances, present, criterion)
+    in_floats = intersect_rows(batch_means, batch_covariances, present, criterion)
+    for name in ("mean", "covariance", "weights"):
+        expected, got = getattr(batched, name), getattr(in_floats, name)
+        assert got.dtype == expected.dtype and got.shape == expected.shape
+        assert got.tobytes() == expected.tobytes(), name
