@@ -116,3 +116,5 @@ def test_studies_bench_quick_reports_every_measurement(tmp_path: Path) -> None:
     measured = ["alone_s_per_trial", "batch_10_s_per_trial", "batch_100_s_per_trial", "decentralized_over_centralized",
                 "faults_study_s", "stationary_sweep_s", "workers_2_speedup"]
     assert all(isinstance(result[name], float) and result[name] > 0 for name in measured)
+    batched = result["decentralized_over_centralized_batched"]
+    assert set(batched) == {"batch_10", "batch_100"} and all(ratio > 0 for ratio in batched.values())
