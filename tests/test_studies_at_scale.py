@@ -5,6 +5,7 @@ progress in trials."""
 from __future__ import annotations
 
 import io
+import json
 import re
 import signal
 import subprocess
@@ -165,6 +166,45 @@ def test_resume_without_a_journal_or_with_another_studys(tmp_path: Path, capsys:
     assert main(arguments) == 0
     assert capsys.readouterr().err.splitlines() == [
         f"experiment stationary: replacing the journal {tmp_path / 's.journal.jsonl'} (--resume continues one)"]
+
+
+def test_resume_refuses_a_journal_of_other_code_or_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A journal records a digest of the code that computes results and of the files the study reads:
+    resuming after either changed would mix two studies' trials, so ``--resume`` refuses."""
+    scenario = tmp_path / "square.toml"
+    scenario.write_bytes((runner.PACKAGE_ROOT / "scenarios" / "paper-stationary.toml").read_bytes())
+    journal = tmp_path / "s.journal.jsonl"
+    arguments = ["experiment", "stationary", str(scenario), "--robots", "4", "--trials", "3", "--batch", "2",
+                 "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]
+    refused = (f"ringtrack: error: --resume: {journal} was written by other code or from other files (ringtrack's "
+               "source or a file the study reads has changed since); finish it with what began it, or run without "
+               "--resume to start over")
+    assert main(arguments) == 0
+    header, *tasks = journal.read_bytes().splitlines(keepends=True)
+    assert main([*arguments, "--resume"]) == 0  # nothing changed: resumed (nothing left to run)
+    scenario.write_bytes(scenario.read_bytes() + b"\n# a comment changes the file\n")
+    assert main([*arguments, "--resume"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == refused
+    assert main(arguments) == 0  # started over from the edited file
+    header, *tasks = journal.read_bytes().splitlines(keepends=True)
+    decoded = json.loads(header)
+    assert decoded["inputs"] == runner.inputs_digest(decoded["parameters"])
+    del decoded["inputs"]  # a journal from before the digest was kept: whatever computed it is unknown
+    journal.write_bytes(json.dumps(decoded).encode() + b"\n" + b"".join(tasks))
+    assert main([*arguments, "--resume"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == refused
+
+
+def test_inputs_digest_covers_the_code_and_the_named_files(tmp_path: Path) -> None:
+    strategy = tmp_path / "mine.py"
+    strategy.write_text("x = 1\n")
+    parameters = {"scenario": "paper-stationary", "strategies": ["self", str(strategy)]}
+    digest = runner.inputs_digest(parameters)
+    assert runner.inputs_digest(parameters) == digest and len(digest) == 64
+    assert runner.inputs_digest({"scenario": "paper-stationary", "strategies": ["self"]}) != digest
+    strategy.write_text("x = 2\n")
+    assert runner.inputs_digest(parameters) != digest
+    assert {"agents", "bus", "world", "scenarios"} <= set(runner.RESULT_SOURCES)
 
 
 def test_progress_off_a_terminal_is_plain_lines_and_quiet_is_nothing() -> None:

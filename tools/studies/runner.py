@@ -13,13 +13,16 @@ so ``batch`` only trades engine efficiency (bigger) against parallelism and the 
 
 The journal (``PATH.journal.jsonl`` beside the study's ``--json`` or ``--csv`` output) is JSON
 lines: a header (:class:`JournalHeader`: the experiment, every parameter that changes results, the
-chunk size), then one :class:`JournalTask` per finished task, each flushed and fsync'd, so a killed
-study loses only its tasks in flight; a last line cut by the kill is left out.
+chunk size, a digest of the code and files that compute them), then one :class:`JournalTask` per
+finished task, each flushed and fsync'd, so a killed study loses only its tasks in flight; a last
+line cut by the kill is left out. ``--resume`` continues only a journal of the same study computed
+by the same code from the same files.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import importlib
 import multiprocessing
 import os
@@ -36,6 +39,8 @@ from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.progress import TrialProgress
 
 BATCH = 50  # trials per task unless --batch says otherwise (speed only: see the module docstring)
+PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
+RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # what computes a study's results
 CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
 
 
@@ -111,11 +116,13 @@ def journal_path(*outputs: Path | None) -> Path | None:
 # ---------------------------------------------------------------------------------------- journal
 class JournalHeader(msgspec.Struct, frozen=True, tag="study"):
     """The journal's first line: the experiment, the parameters that change its results, the
-    trials per task."""
+    trials per task, and the digest of the code and files that compute them (:func:`inputs_digest`;
+    empty in journals written before it was kept)."""
 
     experiment: str
     batch: int
     parameters: dict[str, Any]
+    inputs: str = ""
 
 
 class JournalTask(msgspec.Struct, frozen=True, tag="task"):
@@ -133,7 +140,37 @@ def header_of(study: Study, batch: int) -> JournalHeader:
     """The journal header of ``study`` cut in chunks of ``batch`` trials, its parameters as JSON
     gives them back (tuples as lists), so that a header read from a journal compares equal."""
     parameters = msgspec.json.decode(msgspec.json.encode(dict(study.parameters)))
-    return JournalHeader(experiment=study.experiment, batch=batch, parameters=parameters)
+    return JournalHeader(experiment=study.experiment, batch=batch, parameters=parameters,
+                         inputs=inputs_digest(parameters))
+
+
+def inputs_digest(parameters: Mapping[str, object]) -> str:
+    """What a study's results depend on besides its parameters' values, as a SHA-256 (hex): the
+    source of the code that computes them (:data:`RESULT_SOURCES`) and the contents of every file
+    the ``parameters`` name (a scenario's TOML, a strategy's Python file)."""
+    digest = hashlib.sha256()
+    for folder in RESULT_SOURCES:
+        for path in sorted((PACKAGE_ROOT / folder).rglob("*")):
+            if path.suffix in (".py", ".toml") and path.is_file():
+                digest.update(f"{path.relative_to(PACKAGE_ROOT).as_posix()}\0".encode())
+                digest.update(hashlib.sha256(path.read_bytes()).digest())
+    for name in sorted(set(_named_files(parameters))):
+        digest.update(f"{name}\0".encode())
+        digest.update(hashlib.sha256(Path(name).read_bytes()).digest())
+    return digest.hexdigest()
+
+
+def _named_files(value: object) -> Iterator[str]:
+    """The strings in ``value`` (nested lists and mappings) that name existing files."""
+    if isinstance(value, str):
+        if value and Path(value).is_file():
+            yield value
+    elif isinstance(value, Mapping):
+        for item in value.values():
+            yield from _named_files(item)
+    elif isinstance(value, list | tuple):
+        for item in value:
+            yield from _named_files(item)
 
 
 def header_difference(found: JournalHeader, wanted: JournalHeader) -> str | None:
@@ -172,6 +209,10 @@ def read_journal(path: Path, study: Study, header: JournalHeader) -> dict[int, b
             if difference is not None:
                 raise UsageError(f"--resume: {path} is the journal of another study ({difference}); "
                                  "give the same flags or run without --resume to start over")
+            if record.inputs != header.inputs:
+                raise UsageError(f"--resume: {path} was written by other code or from other files (ringtrack's "
+                                 "source or a file the study reads has changed since); finish it with what began "
+                                 "it, or run without --resume to start over")
         elif not (isinstance(record, JournalTask) and record.index < len(study.tasks)
                   and study.tasks[record.index].key == record.key):
             raise UsageError(f"--resume: {path} line {number} is no task of this study; run without --resume")
