@@ -20,6 +20,8 @@ from rich.console import Console
 from ringtrack.tools.cli import main
 from ringtrack.tools.output.progress import TrialProgress, duration
 from ringtrack.tools.studies import runner
+from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, stationary_task
+from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK
 
 # Small studies of several tasks each (--batch 2), one per experiment command.
@@ -205,6 +207,19 @@ def test_inputs_digest_covers_the_code_and_the_named_files(tmp_path: Path) -> No
     strategy.write_text("x = 2\n")
     assert runner.inputs_digest(parameters) != digest
     assert {"agents", "bus", "world", "scenarios"} <= set(runner.RESULT_SOURCES)
+
+
+def test_pools_and_clusters_get_the_costliest_tasks_first() -> None:
+    """A sweep's large teams start first (a long task started last would run alone at the end); tasks
+    of equal cost keep the study's order."""
+    scenario = load_scenario("paper-stationary")
+    tasks = [StationaryTask(f"N={robots} {strategy}", 0, seeds, robots, strategy, scenario)
+             for robots, seeds in ((3, [0, 1]), (30, [0, 1]), (6, [0, 1]), (30, [2])) for strategy in ("constant", "self")]
+    study = runner.Study("stationary", {}, tasks, stationary_task, StationaryPart)
+    order = runner.costliest_first(study, [0, 1, 2, 3, 4, 5, 7])
+    assert [tasks[index].key for index in order] == ["N=30 constant", "N=30 self", "N=30 self", "N=6 constant",
+                                                     "N=6 self", "N=3 constant", "N=3 self"]
+    assert order == [2, 3, 7, 4, 5, 0, 1]
 
 
 def test_progress_off_a_terminal_is_plain_lines_and_quiet_is_nothing() -> None:

@@ -207,6 +207,10 @@ class StationaryTask(Task):
     strategy: str
     scenario: Scenario
 
+    def cost(self) -> float:
+        """Robots times trials, which a batch's steps cost roughly in proportion to."""
+        return self.robots * len(self.seeds)
+
 
 class StationaryPart(msgspec.Struct, frozen=True):
     """What a :class:`StationaryTask` came to: a row per trial."""

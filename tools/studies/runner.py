@@ -59,6 +59,11 @@ class Task:
     first: int
     seeds: list[int]
 
+    def cost(self) -> float:
+        """How long the task runs beside the study's others, a guess (here: its trials); pools and
+        clusters start the costliest first, so that no long task is left running alone at the end."""
+        return len(self.seeds)
+
 
 TaskT = TypeVar("TaskT", bound=Task)
 ResultT = TypeVar("ResultT", bound=msgspec.Struct)
@@ -290,10 +295,16 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
 def finished(study: Study, pending: list[int], execution: Execution) -> Generator[tuple[int, bytes], None, None]:
     """``(task index, result)`` of the ``pending`` tasks as they finish, wherever they run."""
     if execution.cluster is not None:
-        return on_cluster(study, pending, execution.cluster)
+        return on_cluster(study, costliest_first(study, pending), execution.cluster)
     if execution.workers > 1 and len(pending) > 1:
-        return in_pool(study, pending, execution.workers)
+        return in_pool(study, costliest_first(study, pending), execution.workers)
     return ((index, execute(study.work, study.tasks[index])) for index in pending)
+
+
+def costliest_first(study: Study, pending: list[int]) -> list[int]:
+    """The ``pending`` tasks by :meth:`Task.cost`, highest first (the study's order among equals):
+    the order a pool or a cluster is given them in (results are assembled by index, whatever the order)."""
+    return sorted(pending, key=lambda index: -study.tasks[index].cost())
 
 
 def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
