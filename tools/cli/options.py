@@ -298,8 +298,8 @@ def add_study_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cluster", type=scheduler_address, metavar="ADDRESS",
                         help=f"run the tasks on the Dask scheduler at ADDRESS, e.g. tcp://host:8786 ({CLUSTER_EXTRA})")
     parser.add_argument("--batch", type=at_least(1), default=BATCH, metavar="TRIALS",
-                        help=f"trials per task, run as one engine batch (default {BATCH}); a stationary batch stops "
-                        "once all its trials converged, so Ctime on the true Cerr depends on it")
+                        help=f"trials per task, run as one engine batch (default {BATCH}); speed only: the results "
+                        "are the same for any batch")
     parser.add_argument("--resume", action="store_true",
                         help="continue an interrupted study from its journal (PATH.journal.jsonl beside --json or "
                         "--csv), running only the tasks it lacks")
