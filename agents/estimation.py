@@ -329,10 +329,10 @@ class Estimators:
         fusing: NDArray[np.bool_] = np.asarray(told.present.any(axis=1))
         if not anywhere(fusing):
             return
-        means = np.concatenate([self.filters.mean[:, None], told.means], axis=1)
-        covariances = np.concatenate([self.filters.covariance[:, None], told.covariances], axis=1)
-        present = np.concatenate([np.ones((len(means), 1), dtype=bool), told.present], axis=1)
-        means, covariances, present = means[fusing], covariances[fusing], present[fusing]
+        # each fusing filter's own belief first, then what it was told (the rows told nothing left out)
+        means = np.concatenate([self.filters.mean[fusing, None], told.means[fusing]], axis=1)
+        covariances = np.concatenate([self.filters.covariance[fusing, None], told.covariances[fusing]], axis=1)
+        present = np.concatenate([np.ones((len(means), 1), dtype=bool), told.present[fusing]], axis=1)
         if self.params.fusion != "ci":
             combine = intersect_in_order
         else:  # the same bits either way: floats for a few rows, arrays for many

@@ -51,10 +51,12 @@ def intersect_rows(means: FloatArray, covariances: FloatArray, present: NDArray[
     absent = (1.0, -0.0, 1.0)  # the batched code's inverse of the identity standing in for an absent estimate
     informations = [[_information(matrix) if here else absent for matrix, here in zip(row, row_present, strict=True)]
                     for row, row_present in zip(covariances.tolist(), rows_present, strict=True)]
-    forms = [_determinant_form(information) for information in informations]
+    traces = [_traces(information) for information in informations]
+    forms = [_determinant_form(information, row_traces) for information, row_traces in zip(informations, traces,
+                                                                                             strict=True)]
     powers = np.power(np.maximum([[_scale(form, face) for face in FACES] for form in forms], 1e-300),
                       FACE_SIZES).tolist()
-    weights = [_optimal_weights(*row, criterion) for row in zip(informations, forms, rows_present, powers, strict=True)]
+    weights = [_optimal_weights(*row, criterion) for row in zip(traces, forms, rows_present, powers, strict=True)]
     fused = [_fuse(row_means, information, row_weights)
              for row_means, information, row_weights in zip(means.tolist(), informations, weights, strict=True)]
     return Fused(mean=np.array([mean for mean, _ in fused]),
@@ -83,10 +85,15 @@ def _inverse(xx: float, xy: float, yy: float) -> Entries:
     return yy / determinant, -xy / determinant, xx / determinant
 
 
-def _determinant_form(information: list[Entries]) -> list[list[float]]:
+def _traces(information: list[Entries]) -> list[float]:
+    """``tr I_k`` of each estimate's information."""
+    return [xx + yy for xx, _, yy in information]
+
+
+def _determinant_form(information: list[Entries], traces: list[float]) -> list[list[float]]:
     """``D`` with ``det(sum_k w_k I_k) = w^T D w`` (symmetric, exactly: each entry's products commute)."""
     (a0, b0, c0), (a1, b1, c1), (a2, b2, c2) = information
-    t0, t1, t2 = a0 + c0, a1 + c1, a2 + c2
+    t0, t1, t2 = traces
     d01 = 0.5 * (t0 * t1 - (a0 * a1 + 2.0 * (b0 * b1) + c0 * c1))
     d02 = 0.5 * (t0 * t2 - (a0 * a2 + 2.0 * (b0 * b2) + c0 * c2))
     d12 = 0.5 * (t1 * t2 - (a1 * a2 + 2.0 * (b1 * b2) + c1 * c2))
@@ -113,11 +120,10 @@ def _face_system(form: list[list[float]], face: tuple[int, ...]) -> tuple[float,
     return d00, d01, d02, d10, d11, d12, d20, d21, d22
 
 
-def _optimal_weights(information: list[Entries], form: list[list[float]], present: list[bool],
+def _optimal_weights(traces: list[float], form: list[list[float]], present: list[bool],
                      powers: list[float], criterion: Criterion) -> list[float]:
-    """One row's optimal CI weights: the vertices, then each face's stationary points; the best
-    (the mean of the tied best)."""
-    traces = [xx + yy for xx, _, yy in information]
+    """One row's optimal CI weights, from its estimates' information traces and determinant form: the
+    vertices, then each face's stationary points; the best (the mean of the tied best)."""
     candidates = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     feasible = list(present)
     for face, power in zip(FACES, powers, strict=True):
