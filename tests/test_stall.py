@@ -52,3 +52,16 @@ def test_a_stall_says_which_step_and_which_robot_it_waited_for(tmp_path: Path) -
     (tmp_path / "world.stderr").write_text("ringtrack.world: lockstep step 7 waits for r3\n")
     expected = "after step 0 (waiting for step 1; lockstep step 7 waits for r3)"
     assert stalled_at(tmp_path / "log.jsonl", tmp_path) == expected
+
+
+@pytest.mark.processes
+def test_a_log_that_appears_and_vanishes_is_waited_through(tmp_path: Path) -> None:
+    """The monitor's ``--log`` check makes the log and removes it again before the monitor writes it
+    for good: the stall guard, polling beside it, must take a log gone between two looks as empty."""
+    log = tmp_path / "log.jsonl"
+    probe = f"import pathlib, time\nend = time.monotonic() + 1.5\nlog = pathlib.Path({str(log)!r})\n" \
+            "while time.monotonic() < end:\n    log.open('xb').close()\n    log.unlink()\n"
+    with Supervisor(tmp_path) as supervisor:
+        supervisor.start("probe", [sys.executable, "-c", probe])
+        supervisor.wait(stall_s=60.0, watched=log, started=lambda: True, poll_s=0.001)
+    assert supervisor.children[0].process.returncode == 0

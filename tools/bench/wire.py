@@ -20,13 +20,14 @@ import socket
 import struct
 import sys
 import threading
+import time
 from pathlib import Path
 
 import msgspec
 
 from ringtrack.tools.output.files import write_json
 from ringtrack.tools.team.plan import TeamPlan, TeamResult
-from ringtrack.tools.team.spawn import spawn_team
+from ringtrack.tools.team.spawn import FirstStep, spawn_team
 from ringtrack.world.scenario import load_scenario
 
 
@@ -72,10 +73,12 @@ def main(out: Path, scenario_path: str, runs: Path, secure: Path | None) -> None
     at_first_step: list[int] = []
     log_path = runs / f"wire-{os.getpid()}.jsonl"
     stop = threading.Event()
+    first_step = FirstStep(log_path, time.perf_counter())
 
     def watch() -> None:
         while not stop.wait(0.005):
-            if log_path.exists() and b'"type":"step"' in log_path.read_bytes()[:65536]:
+            first_step()
+            if first_step.after is not None:
                 at_first_step.append(transmitted())
                 return
 

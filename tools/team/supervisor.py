@@ -253,7 +253,10 @@ class Supervisor:
             if any(child.name in critical for child in self.failed()):
                 return
             if stall_s is not None and watched is not None:
-                size = watched.stat().st_size if watched.exists() else 0
+                try:
+                    size = watched.stat().st_size
+                except FileNotFoundError:  # not written yet, or the monitor's --log check removing its probe
+                    size = 0
                 if size != last_size or (started is not None and not started()):
                     last_size, last_change = size, time.monotonic()
                 elif time.monotonic() - last_change > stall_s:
