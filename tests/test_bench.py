@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import fcntl
 import io
 import json
 import re
+import time
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,7 @@ from rich.console import Console
 
 from ringtrack.bus.messages import SCHEMA, Reply, Request, encode
 from ringtrack.tools.bench.bench import EngineProgress, engine_results, suite_ratios
+from ringtrack.tools.bench.studies import two_process_ceiling
 from ringtrack.tools.cli import main
 
 pytestmark = pytest.mark.timeout(240)
@@ -114,7 +117,33 @@ def test_studies_bench_quick_reports_every_measurement(tmp_path: Path) -> None:
         assert set(rates) == {"workers_1", f"workers_{cores}"}
         assert all(isinstance(rate, float) and rate > 0 for rate in rates.values())
     measured = ["alone_s_per_trial", "batch_10_s_per_trial", "batch_100_s_per_trial", "decentralized_over_centralized",
-                "faults_study_s", "stationary_sweep_s", "workers_2_speedup"]
+                "faults_study_s", "stationary_sweep_s", "workers_2_speedup", "two_process_ceiling"]
     assert all(isinstance(result[name], float) and result[name] > 0 for name in measured)
     batched = result["decentralized_over_centralized_batched"]
     assert set(batched) == {"batch_10", "batch_100"} and all(ratio > 0 for ratio in batched.values())
+
+
+LOCK_HELD_S = 0.2  # s: how long a lock-holding task holds the lock (below)
+
+
+def sleep_a_while(lock: Path) -> None:
+    """A task that takes LOCK_HELD_S without the CPU: any number run at once."""
+    time.sleep(LOCK_HELD_S)
+
+
+def hold_the_lock(lock: Path) -> None:
+    """A task that takes LOCK_HELD_S holding an exclusive lock on ``lock``: two copies run one after
+    the other, however many processes run them."""
+    with lock.open("w") as file:
+        fcntl.flock(file, fcntl.LOCK_EX)
+        time.sleep(LOCK_HELD_S)
+
+
+@pytest.mark.processes
+def test_the_two_process_ceiling_is_two_for_tasks_that_share_nothing_and_one_for_tasks_that_queue(
+        tmp_path: Path) -> None:
+    """The most two processes gain: about 2 for tasks that do not compete (sleeps), about 1 for
+    tasks that take turns on one resource (a lock); a machine's cores are in between."""
+    lock = tmp_path / "lock"
+    assert 1.6 < two_process_ceiling(sleep_a_while, lock, 2) <= 2.2
+    assert 0.8 < two_process_ceiling(hold_the_lock, lock, 2) < 1.3

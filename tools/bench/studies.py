@@ -5,12 +5,13 @@ against the centralized one, and the wall time of whole studies (each beside its
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import msgspec
 
@@ -19,10 +20,20 @@ from ringtrack.tools.bench.bench import machine
 from ringtrack.tools.output.console import err
 from ringtrack.tools.studies.experiment import random_start_scenarios, stationary_experiment
 from ringtrack.tools.studies.robustness import Cell, faults_experiment
-from ringtrack.tools.studies.runner import Execution, Study, Task, available_cores, chunks, run_study, seed_range
+from ringtrack.tools.studies.runner import (
+    Execution,
+    Study,
+    Task,
+    available_cores,
+    chunks,
+    run_study,
+    seed_range,
+    worker_pool,
+)
 from ringtrack.tools.team.launcher import PRELOADED
 from ringtrack.world.scenario import Scenario, load_scenario
 
+T = TypeVar("T")
 MOVING = "authors-moving"
 STATIONARY = "paper-stationary"
 FAULT_DROPS = (0.0, 0.1, 0.2, 0.3, 0.5)
@@ -85,6 +96,37 @@ def bench_task(task: BenchTask) -> BenchPart:
     """Run one chunk of trials as an engine batch."""
     history = engine.run(task.scenario, task.seeds, until_converged=not task.scenario.moving, record_positions=False)
     return BenchPart(history.steps)
+
+
+def pid_and_seconds(work: Callable[[T], object], task: T) -> tuple[int, float]:
+    """Run ``work(task)`` and return the pid that ran it and its wall seconds there."""
+    started = time.perf_counter()
+    work(task)
+    return os.getpid(), time.perf_counter() - started
+
+
+def two_process_ceiling(work: Callable[[T], object], task: T, repeats: int) -> float:
+    """What two processes can gain here: twice the seconds one process takes for ``work(task)``
+    over the seconds each of two takes when both run a copy at once (2.0: two free cores of their
+    own; two hyperthreads of one core, or a host busy with other tenants, give less), no worker's
+    start counted. Each timing is the best of ``repeats`` rounds, alone and together taking turns,
+    in a warm pool of two (a round in which one worker took both copies is run again). ``work``
+    must be a module's function (the pool's processes import it)."""
+    alone: list[float] = []
+    together: list[float] = []
+    copies = [work, work], [task, task]
+    with worker_pool(work.__module__, 2) as pool:
+        list(pool.map(pid_and_seconds, *copies))  # both workers started and warm
+        for _ in range(4 * repeats):
+            alone.append(pool.submit(pid_and_seconds, work, task).result()[1])
+            both = list(pool.map(pid_and_seconds, *copies))
+            if both[0][0] != both[1][0]:
+                together.append(max(seconds for _, seconds in both))
+            if len(together) == repeats:
+                break
+    if not together:
+        raise RuntimeError("the pool of two never ran two tasks at once")
+    return 2 * min(alone) / min(together)
 
 
 def scenario_of(base: str, strategy: str, mode: str | None, sizes: Sizes) -> Scenario:
@@ -187,10 +229,12 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
                                                execution=every_core, max_steps=sizes.stationary_steps),
     }, min(2, sizes.repeats))
     stationary = scenario_of(STATIONARY, "self", None, sizes)
+    speedup_batch = max(1, sizes.speedup_trials // 10)
     # the best of two runs each, alternating (a busy machine only ever slows a run down)
-    runs = [(workers, trials_per_s(stationary, sizes.speedup_trials, max(1, sizes.speedup_trials // 10), workers))
+    runs = [(workers, trials_per_s(stationary, sizes.speedup_trials, speedup_batch, workers))
             for _ in range(2) for workers in (1, 2)]
     one, two = (max(rate for count, rate in runs if count == workers) for workers in (1, 2))
+    first_task = BenchTask(seed_range(list(range(speedup_batch))), 0, list(range(speedup_batch)), stationary)
     return {
         "benchmark": "studies",
         "machine": machine(),
@@ -202,6 +246,7 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
         "faults_study_s": studies["faults"],
         "stationary_sweep_s": studies["sweep"],
         "workers_2_speedup": two / one,
+        "two_process_ceiling": two_process_ceiling(bench_task, first_task, sizes.repeats),
         "speedup_trials": sizes.speedup_trials,
         "robot_start_s": min(robot_start_s() for _ in range(3)),
     }

@@ -278,6 +278,9 @@ def studies_table(results: dict[str, Any]) -> Table:
         if name == "decentralized_over_centralized":
             for label, ratio in results["decentralized_over_centralized_batched"].items():
                 table.add_row(f"... per trial in a {label.replace('_', ' of ')}", f"{ratio:.3f} x", "", "")
+        if name == "workers_2_speedup":
+            table.add_row("... two processes at once vs one (the most 2 workers gain here)",
+                          f"{results['two_process_ceiling']:.3f} x", "", "")
     return table
 
 

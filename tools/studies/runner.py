@@ -308,18 +308,25 @@ def costliest_first(study: Study, pending: list[int]) -> list[int]:
 
 
 def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
-    """Run the tasks in up to ``workers`` local processes (started by a fork server: this process
-    may run a progress thread, which a fork would copy mid-flight); the pool is shut down, its queued
-    tasks cancelled, however the loop ends (an error, Ctrl-C)."""
-    context = multiprocessing.get_context("forkserver")
-    # The fork server imports the work's module (numpy, the engine) once; each pool's workers fork
-    # from it ready (a preload counts when this process starts its fork server, at its first pool).
-    context.set_forkserver_preload([study.work.__module__])
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(pending)), mp_context=context)
-    try:
+    """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`); the pool is shut
+    down, its queued tasks cancelled, however the loop ends (an error, Ctrl-C)."""
+    with worker_pool(study.work.__module__, min(workers, len(pending))) as pool:
         futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
         for future in as_completed(futures):
             yield futures[future], future.result()
+
+
+@contextlib.contextmanager
+def worker_pool(module: str, workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A pool of ``workers`` local processes started by a fork server (this process may run a
+    progress thread, which a fork would copy mid-flight) that has imported ``module`` (the work's:
+    numpy, the engine) once, so that each worker forks from it ready (a preload counts when this
+    process starts its fork server, at its first pool); shut down on leaving, queued tasks cancelled."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([module])
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    try:
+        yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
