@@ -4,20 +4,25 @@ progress in trials."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
+import os
 import re
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import pytest
 from rich.console import Console
 
 from ringtrack.tools.cli import main
+from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.progress import TrialProgress, duration
 from ringtrack.tools.studies import runner
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, stationary_task
@@ -72,16 +77,23 @@ def test_batching_does_not_change_a_study(study: str, tmp_path: Path) -> None:
     assert pairs == whole
 
 
+@contextlib.contextmanager
+def local_cluster(workers: int, **config: object) -> Iterator[str]:
+    """A Dask LocalCluster of ``workers`` single-threaded worker processes, its scheduler's HTTP
+    server too on loopback only, under Dask ``config``: its address."""
+    dask = pytest.importorskip("dask")
+    distributed = pytest.importorskip("dask.distributed")
+    with (dask.config.set(config),
+          distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address="127.0.0.1:0") as local):
+        yield local.scheduler_address
+
+
 @pytest.fixture(scope="module")
 def cluster() -> Iterator[str]:
-    """A Dask LocalCluster of two single-threaded worker processes on loopback: its address."""
-    distributed = pytest.importorskip("dask.distributed")
-    local = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                     dashboard_address=None)
-    try:
-        yield local.scheduler_address
-    finally:
-        local.close()
+    """A cluster of two workers for the module's tests: its address."""
+    with local_cluster(2) as address:
+        yield address
 
 
 @pytest.mark.processes
@@ -235,3 +247,69 @@ def test_progress_off_a_terminal_is_plain_lines_and_quiet_is_nothing() -> None:
         progress.advance(10)
     assert quiet.file.getvalue() == ""  # type: ignore[attr-defined]
     assert [duration(seconds) for seconds in (45, 80, 3720)] == ["45s", "1m20s", "1h02m"]
+
+
+class Seeds(msgspec.Struct, frozen=True):
+    """What a :class:`DyingTask` returns: its seeds."""
+
+    seeds: list[int]
+
+
+@dataclass(frozen=True)
+class DyingTask(runner.Task):
+    """A task whose worker dies (SIGKILL, as the out-of-memory killer does) while ``marker`` holds
+    fewer than ``deaths`` bytes, adding one before it dies."""
+
+    marker: str
+    deaths: int
+
+
+def die_then_answer(task: DyingTask) -> Seeds:
+    """Kill this process while the task's marker holds fewer than its deaths, else return its seeds."""
+    marker = Path(task.marker)
+    if task.deaths and marker.stat().st_size < task.deaths:
+        with marker.open("ab") as file:
+            file.write(b".")
+        os.kill(os.getpid(), signal.SIGKILL)
+    return Seeds(task.seeds)
+
+
+def dying_study(marker: Path, deaths: int) -> runner.Study:
+    """Eight tasks of one trial each; the fourth kills its worker ``deaths`` times."""
+    marker.touch()
+    tasks = [DyingTask(f"task {index}", index, [index], str(marker), deaths if index == 3 else 0)
+             for index in range(8)]
+    return runner.Study("dying", {}, tasks, die_then_answer, Seeds)
+
+
+@pytest.mark.processes
+def test_the_tasks_of_a_worker_that_died_run_again_in_a_new_pool(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    results = runner.run_study(dying_study(tmp_path / "marker", 2), runner.Execution(workers=2))
+    assert results == [Seeds([index]) for index in range(8)]
+    notes = [line for line in capsys.readouterr().err.splitlines() if "died" in line]
+    assert len(notes) == 2 and notes[0].startswith("experiment dying: a worker process died (killed, or out of "
+                                                   "memory); running its pool's ")
+    assert notes[1].endswith(f"in a new pool (2 of {runner.POOL_RESTARTS})")
+
+
+@pytest.mark.processes
+def test_a_task_that_keeps_killing_its_worker_ends_the_study_in_one_line(tmp_path: Path) -> None:
+    with pytest.raises(UsageError) as raised:
+        runner.run_study(dying_study(tmp_path / "marker", 99), runner.Execution(workers=2))
+    assert str(raised.value) == (
+        f"experiment dying: a worker process died {runner.POOL_RESTARTS + 1} times (killed, or out of memory: try "
+        "fewer --workers or a smaller --batch); the tasks finished are in the journal of --json or --csv, which "
+        "--resume continues")
+
+
+@pytest.mark.processes
+def test_a_task_that_keeps_killing_its_dask_workers_ends_the_study_in_one_line(tmp_path: Path) -> None:
+    """The scheduler gives up on a task after ``allowed-failures`` deaths of its workers (here 1)."""
+    with (local_cluster(1, **{"distributed.scheduler.allowed-failures": 1}) as address,
+          pytest.raises(UsageError) as raised):
+        runner.run_study(dying_study(tmp_path / "marker", 99), runner.Execution(cluster=address))
+    assert (tmp_path / "marker").stat().st_size == 2  # it died twice, the second time for good
+    assert str(raised.value) == (
+        "experiment dying: the workers that ran task 'task 3' kept dying (killed, or out of memory); the tasks "
+        "finished are in the journal of --json or --csv, which --resume continues")

@@ -28,6 +28,7 @@ import multiprocessing
 import os
 from collections.abc import Callable, Generator, Iterator, Mapping
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -41,6 +42,7 @@ from ringtrack.tools.output.progress import TrialProgress
 BATCH = 50  # trials per task unless --batch says otherwise (speed only: see the module docstring)
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
 RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # what computes a study's results
+POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that died (as Dask retries them)
 CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
 
 
@@ -309,11 +311,32 @@ def costliest_first(study: Study, pending: list[int]) -> list[int]:
 
 def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
     """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`); the pool is shut
-    down, its queued tasks cancelled, however the loop ends (an error, Ctrl-C)."""
-    with worker_pool(study.work.__module__, min(workers, len(pending))) as pool:
-        futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+    down, its queued tasks cancelled, however the loop ends (an error, Ctrl-C). A worker that dies
+    (killed, out of memory) breaks the pool and every task it had not finished: those run again in a
+    new pool (a task's result does not depend on where or how often it ran), saying so on stderr,
+    at most :data:`POOL_RESTARTS` times in a study."""
+    restarts = 0
+    while pending:
+        lost = []
+        with worker_pool(study.work.__module__, min(workers, len(pending))) as pool:
+            futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
+            for future in as_completed(futures):
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    lost.append(futures[future])
+                    continue
+                yield futures[future], result
+        if lost:
+            restarts += 1
+            if restarts > POOL_RESTARTS:
+                raise UsageError(f"experiment {study.experiment}: a worker process died {restarts} times (killed, or "
+                                 "out of memory: try fewer --workers or a smaller --batch); the tasks finished are "
+                                 "in the journal of --json or --csv, which --resume continues")
+            err.print(f"experiment {study.experiment}: a worker process died (killed, or out of memory); running "
+                      f"its pool's {len(lost)} unfinished tasks in a new pool ({restarts} of {POOL_RESTARTS})",
+                      highlight=False, markup=False)
+        pending = [index for index in pending if index in lost]  # in the order given
 
 
 @contextlib.contextmanager
@@ -341,7 +364,8 @@ def dask_distributed() -> ModuleType:
 
 def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tuple[int, bytes], None, None]:
     """Run the tasks on the Dask scheduler at ``address`` (its workers import ringtrack); the client
-    is closed however the loop ends."""
+    is closed however the loop ends. The scheduler runs again the tasks of a worker that died; a task
+    whose workers kept dying (Dask's ``allowed-failures``) ends the study in one line."""
     distributed = dask_distributed()
     try:
         client = distributed.Client(address, timeout="20s")
@@ -352,6 +376,13 @@ def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tupl
         futures = [client.submit(execute, study.work, study.tasks[index], pure=False) for index in pending]
         index_of = {future.key: index for future, index in zip(futures, pending, strict=True)}
         for future in distributed.as_completed(futures):
-            yield index_of[future.key], future.result()
+            try:
+                result = future.result()
+            except distributed.KilledWorker:
+                raise UsageError(f"experiment {study.experiment}: the workers that ran task "
+                                 f"'{study.tasks[index_of[future.key]].key}' kept dying (killed, or out of memory); "
+                                 "the tasks finished are in the journal of --json or --csv, which --resume "
+                                 "continues") from None
+            yield index_of[future.key], result
     finally:
         client.close()
