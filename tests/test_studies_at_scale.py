@@ -313,3 +313,14 @@ def test_a_task_that_keeps_killing_its_dask_workers_ends_the_study_in_one_line(t
     assert str(raised.value) == (
         "experiment dying: the workers that ran task 'task 3' kept dying (killed, or out of memory); the tasks "
         "finished are in the journal of --json or --csv, which --resume continues")
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full (a device whose writes find the disk full)")
+def test_a_journal_on_a_full_disk_stops_the_study_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    journal = tmp_path / "s.journal.jsonl"
+    journal.symlink_to("/dev/full")
+    assert main([*STUDIES["stationary"], "--quiet", "--json", str(tmp_path / "s.json")]) == 1
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"ringtrack: error: {journal}: not written (No space left on device); the study's finished tasks are kept "
+        "there: make room and run it again with --resume")
+    assert not (tmp_path / "s.json").exists()

@@ -37,6 +37,7 @@ from typing import Any, BinaryIO, Generic, TypeVar
 import msgspec
 
 from ringtrack.tools.output.console import UsageError, err
+from ringtrack.tools.output.files import OutputError
 from ringtrack.tools.output.progress import TrialProgress
 
 BATCH = 50  # trials per task unless --batch says otherwise (speed only: see the module docstring)
@@ -239,7 +240,7 @@ def journal_file(path: Path | None, header: JournalHeader, resume: bool) -> Iter
         return
     if resume:
         kept = len(whole_lines(path))
-        with path.open("r+b") as file:
+        with path.open("r+b", buffering=0) as file:
             file.truncate(kept)
             file.seek(kept)
             yield file
@@ -248,16 +249,23 @@ def journal_file(path: Path | None, header: JournalHeader, resume: bool) -> Iter
         err.print(f"experiment {header.experiment}: replacing the journal {path} (--resume continues one)",
                   highlight=False, markup=False)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as file:
+    with path.open("wb", buffering=0) as file:
         append(file, msgspec.json.encode(header))
         yield file
 
 
 def append(file: BinaryIO, line: bytes) -> None:
-    """Write one journal line and make it durable (flushed and fsync'd) before going on."""
-    file.write(line + b"\n")
-    file.flush()
-    os.fsync(file.fileno())
+    """Write one journal line to the (unbuffered) journal and make it durable (fsync'd) before going
+    on; a full disk raises :class:`OutputError` saying that ``--resume`` continues from the lines
+    written (a line cut short is left out)."""
+    rest = memoryview(line + b"\n")
+    try:
+        while rest:
+            rest = rest[file.write(rest):]
+        os.fsync(file.fileno())
+    except OSError as error:
+        raise OutputError(f"{file.name}: not written ({error.strerror or error}); the study's finished tasks "
+                          "are kept there: make room and run it again with --resume") from None
 
 
 # ---------------------------------------------------------------------------------------- running
