@@ -324,3 +324,45 @@ def test_a_journal_on_a_full_disk_stops_the_study_in_one_line(tmp_path: Path, ca
         f"ringtrack: error: {journal}: not written (No space left on device); the study's finished tasks are kept "
         "there: make room and run it again with --resume")
     assert not (tmp_path / "s.json").exists()
+
+
+def descendants(pid: int) -> set[int]:
+    """The pids of every process below ``pid`` (its children's children too), from /proc."""
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            for child in map(int, (task / "children").read_text().split()):
+                found |= {child, *descendants(child)}
+    return found
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize(("stop", "code", "line"), [(signal.SIGTERM, 143, "ringtrack: terminated (SIGTERM)"),
+                                                    (signal.SIGINT, 130, "ringtrack: interrupted")])
+def test_a_signal_to_a_study_ends_its_workers_and_keeps_its_journal(stop: signal.Signals, code: int, line: str,
+                                                                   tmp_path: Path) -> None:
+    """SIGTERM (a batch system, systemd, docker stop) or SIGINT to the study's process alone: its
+    workers end with it, whatever they were running, and the journal holds whole lines only."""
+    output, journal = tmp_path / "s.json", tmp_path / "s.journal.jsonl"
+    child = subprocess.Popen([*RINGTRACK, "experiment", "stationary", "--robots", "8-12", "--trials", "40", "--batch",
+                              "5", "--workers", "2", "--quiet", "--json", str(output)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    workers: set[int] = set()
+    try:
+        deadline = time.monotonic() + 60
+        while child.poll() is None and time.monotonic() < deadline:
+            workers |= descendants(child.pid)
+            if journal.exists() and journal.read_bytes().count(b"\n") >= 2 and len(workers) >= 3:  # fork server, 2 workers
+                break
+            time.sleep(0.05)
+        child.send_signal(stop)
+        _, errors = child.communicate(timeout=60)
+    finally:
+        child.kill()
+        child.wait()
+    assert child.returncode == code and errors.splitlines()[-1] == line
+    deadline = time.monotonic() + 30
+    while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+    assert not output.exists() and journal.read_bytes().endswith(b"\n")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
 from collections.abc import Sequence
 from importlib import metadata
@@ -105,3 +106,9 @@ def main(argv: Sequence[str] | None = None, commands: Sequence[str] = tuple(COMM
     except KeyboardInterrupt:
         print("ringtrack: interrupted", file=sys.stderr)
         return 130
+    except Exception as error:
+        terminated = getattr(sys.modules.get("ringtrack.tools.team.supervisor"), "Terminated", ())
+        if not isinstance(error, terminated):
+            raise
+        print("ringtrack: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM

@@ -39,6 +39,7 @@ import msgspec
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.files import OutputError
 from ringtrack.tools.output.progress import TrialProgress
+from ringtrack.tools.team.supervisor import terminate_as_exception
 
 BATCH = 50  # trials per task unless --batch says otherwise (speed only: see the module docstring)
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
@@ -290,7 +291,8 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
                   f"{len(pending)} to run", highlight=False, markup=False)
     total = sum(len(task.seeds) for task in study.tasks)
     done = sum(len(study.tasks[index].seeds) for index in results)
-    with (journal_file(execution.journal, header, execution.resume) as journal,
+    with (terminate_as_exception(),  # a SIGTERM ends the workers and keeps the journal, as Ctrl-C does
+          journal_file(execution.journal, header, execution.resume) as journal,
           TrialProgress(label, total, done, execution.quiet) as progress,
           contextlib.closing(finished(study, pending, execution)) as outcomes):
         for index, result in outcomes:
@@ -358,8 +360,19 @@ def worker_pool(module: str, workers: int) -> Iterator[ProcessPoolExecutor]:
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
     try:
         yield pool
+    except BaseException:  # Ctrl-C, SIGTERM, an error, or the caller leaving: the tasks in flight are lost
+        end_workers(pool)
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def end_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop the pool's worker processes now (SIGTERM), whatever task they run, so that leaving a pool
+    early never waits for its running tasks nor leaves them running (``terminate_workers`` from
+    Python 3.14; its table of processes before)."""
+    for process in list((pool._processes or {}).values()):
+        process.terminate()
 
 
 def dask_distributed() -> ModuleType:
