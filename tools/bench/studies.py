@@ -201,6 +201,8 @@ def timed(call: Callable[[], object]) -> float:
 def studies_results(sizes: Sizes) -> dict[str, Any]:
     """Every measurement of ``bench studies`` at ``sizes`` (seconds, trials per second, ratios)."""
     cores = available_cores()
+    with worker_pool(bench_task.__module__, 1) as pool:  # the fork server starts once a command: not timed
+        pool.submit(os.getpid).result()
     throughput = {}
     for name, (base, strategy, mode) in THROUGHPUT.items():
         err.print(f"bench studies: {name}, {sizes.throughput_trials} trials on 1 and {cores} workers", highlight=False)
