@@ -5,6 +5,7 @@ progress in trials."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import io
 import json
 import os
@@ -366,3 +367,21 @@ def test_a_signal_to_a_study_ends_its_workers_and_keeps_its_journal(stop: signal
         time.sleep(0.05)
     assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()]
     assert not output.exists() and journal.read_bytes().endswith(b"\n")
+
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_a_journal_another_study_is_writing_is_left_alone(resume: bool, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """The same command started twice: the second refuses in one line, and neither replaces nor
+    continues the first's journal."""
+    arguments = [*STUDIES["stationary"], "--quiet", "--json", str(tmp_path / "s.json")]
+    assert main(arguments) == 0
+    journal = tmp_path / "s.journal.jsonl"
+    written = journal.read_bytes()
+    with journal.open("rb") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)  # as the first study holds it while it runs
+        assert main([*arguments, *(["--resume"] if resume else [])]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"ringtrack: error: {journal}: another study is writing this journal (the same command running elsewhere?); "
+        "wait for it to end, or give another --json or --csv")
+    assert journal.read_bytes() == written

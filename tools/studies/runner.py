@@ -22,6 +22,7 @@ by the same code from the same files.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import importlib
 import multiprocessing
@@ -234,24 +235,38 @@ def read_journal(path: Path, study: Study, header: JournalHeader) -> dict[int, b
 
 @contextlib.contextmanager
 def journal_file(path: Path | None, header: JournalHeader, resume: bool) -> Iterator[BinaryIO | None]:
-    """The journal opened for appending: continued (cut to its whole lines) with ``resume``, else
-    started afresh with its header (saying so on stderr when it replaces one). None: no journal."""
+    """The journal opened for appending (:func:`locked_journal`): continued (cut to its whole lines)
+    with ``resume``, else started afresh with its header (saying so on stderr when it replaces one).
+    None: no journal."""
     if path is None:
         yield None
         return
-    if resume:
-        kept = len(whole_lines(path))
-        with path.open("r+b", buffering=0) as file:
-            file.truncate(kept)
-            file.seek(kept)
-            yield file
-        return
-    if path.exists():
-        err.print(f"experiment {header.experiment}: replacing the journal {path} (--resume continues one)",
-                  highlight=False, markup=False)
+    replacing = not resume and path.exists()
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb", buffering=0) as file:
-        append(file, msgspec.json.encode(header))
+    with locked_journal(path) as file:
+        if resume:
+            file.truncate(len(whole_lines(path)))
+        else:
+            if replacing:
+                err.print(f"experiment {header.experiment}: replacing the journal {path} (--resume continues one)",
+                          highlight=False, markup=False)
+            if os.fstat(file.fileno()).st_size:
+                file.truncate(0)
+            append(file, msgspec.json.encode(header))
+        yield file
+
+
+@contextlib.contextmanager
+def locked_journal(path: Path) -> Iterator[BinaryIO]:
+    """``path`` opened unbuffered for appending (made if absent, not cut) under an exclusive lock held
+    until it is closed, so that two studies never write one journal (the same command started
+    twice): a :class:`UsageError` when another process holds it."""
+    with path.open("a+b", buffering=0) as file:
+        try:
+            fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise UsageError(f"{path}: another study is writing this journal (the same command running "
+                             "elsewhere?); wait for it to end, or give another --json or --csv") from None
         yield file
 
 
