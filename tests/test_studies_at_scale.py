@@ -5,6 +5,7 @@ progress in trials."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import io
 import json
@@ -320,7 +321,7 @@ def test_a_task_that_keeps_killing_its_dask_workers_ends_the_study_in_one_line(t
 def test_a_journal_on_a_full_disk_stops_the_study_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     journal = tmp_path / "s.journal.jsonl"
     journal.symlink_to("/dev/full")
-    assert main([*STUDIES["stationary"], "--quiet", "--json", str(tmp_path / "s.json")]) == 1
+    assert main([*STUDIES["stationary"], "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]) == 1
     assert capsys.readouterr().err.splitlines()[-1] == (
         f"ringtrack: error: {journal}: not written (No space left on device); the study's finished tasks are kept "
         "there: make room and run it again with --resume")
@@ -374,7 +375,7 @@ def test_a_journal_another_study_is_writing_is_left_alone(resume: bool, tmp_path
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     """The same command started twice: the second refuses in one line, and neither replaces nor
     continues the first's journal."""
-    arguments = [*STUDIES["stationary"], "--quiet", "--json", str(tmp_path / "s.json")]
+    arguments = [*STUDIES["stationary"], "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]
     assert main(arguments) == 0
     journal = tmp_path / "s.journal.jsonl"
     written = journal.read_bytes()
@@ -385,3 +386,15 @@ def test_a_journal_another_study_is_writing_is_left_alone(resume: bool, tmp_path
         f"ringtrack: error: {journal}: another study is writing this journal (the same command running elsewhere?); "
         "wait for it to end, or give another --json or --csv")
     assert journal.read_bytes() == written
+
+
+def test_a_journal_where_files_cannot_be_locked_is_written_unguarded(monkeypatch: pytest.MonkeyPatch,
+                                                                     tmp_path: Path) -> None:
+    """Some network and FUSE file systems refuse locks (ENOLCK): the study runs, its journal whole."""
+
+    def refuse(file: object, operation: int) -> None:
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(runner.fcntl, "flock", refuse)
+    assert main([*STUDIES["stationary"], "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]) == 0
+    assert len((tmp_path / "s.journal.jsonl").read_bytes().splitlines()) == 1 + 4  # header, 2 strategies x 2 chunks

@@ -260,13 +260,15 @@ def journal_file(path: Path | None, header: JournalHeader, resume: bool) -> Iter
 def locked_journal(path: Path) -> Iterator[BinaryIO]:
     """``path`` opened unbuffered for appending (made if absent, not cut) under an exclusive lock held
     until it is closed, so that two studies never write one journal (the same command started
-    twice): a :class:`UsageError` when another process holds it."""
+    twice): a :class:`UsageError` when another process holds it (where the file system has locks)."""
     with path.open("a+b", buffering=0) as file:
         try:
             fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise UsageError(f"{path}: another study is writing this journal (the same command running "
                              "elsewhere?); wait for it to end, or give another --json or --csv") from None
+        except OSError:  # a file system without locks (some network or FUSE ones): the journal goes unguarded
+            pass
         yield file
 
 
