@@ -46,6 +46,7 @@ BATCH = 50  # trials per task unless --batch says otherwise (speed only: see the
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
 RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # what computes a study's results
 POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that died (as Dask retries them)
+KEPT_TASKS = "the tasks finished are in the journal of --json or --csv, which --resume continues"  # a stop's hint
 CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
 
 
@@ -358,8 +359,7 @@ def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[i
             restarts += 1
             if restarts > POOL_RESTARTS:
                 raise UsageError(f"experiment {study.experiment}: a worker process died {restarts} times (killed, or "
-                                 "out of memory: try fewer --workers or a smaller --batch); the tasks finished are "
-                                 "in the journal of --json or --csv, which --resume continues")
+                                 f"out of memory: try fewer --workers or a smaller --batch); {KEPT_TASKS}")
             err.print(f"experiment {study.experiment}: a worker process died (killed, or out of memory); running "
                       f"its pool's {len(lost)} unfinished tasks in a new pool ({restarts} of {POOL_RESTARTS})",
                       highlight=False, markup=False)
@@ -419,8 +419,7 @@ def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tupl
             except distributed.KilledWorker:
                 raise UsageError(f"experiment {study.experiment}: the workers that ran task "
                                  f"'{study.tasks[index_of[future.key]].key}' kept dying (killed, or out of memory); "
-                                 "the tasks finished are in the journal of --json or --csv, which --resume "
-                                 "continues") from None
+                                 f"{KEPT_TASKS}") from None
             yield index_of[future.key], result
     finally:
         client.close()
