@@ -23,17 +23,20 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import hashlib
 import importlib
+import logging
 import multiprocessing
 import os
+import socket
 from collections.abc import Callable, Generator, Iterator, Mapping
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import CancelledError, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import Any, BinaryIO, Generic, TypeVar
+from typing import Any, BinaryIO, Generic, NamedTuple, TypeVar
 
 import msgspec
 
@@ -48,6 +51,13 @@ RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # wha
 POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that died (as Dask retries them)
 KEPT_TASKS = "the tasks finished are in the journal of --json or --csv, which --resume continues"  # a stop's hint
 CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
+
+
+class StudyStopped(ValueError):
+    """A study stopped by what it ran on rather than by its input (the Dask scheduler went away):
+    the message is one line saying what and how to continue; the command exits with ``exit_code``."""
+
+    exit_code = 1
 
 
 def available_cores() -> int:
@@ -157,18 +167,31 @@ def header_of(study: Study, batch: int) -> JournalHeader:
 
 def inputs_digest(parameters: Mapping[str, object]) -> str:
     """What a study's results depend on besides its parameters' values, as a SHA-256 (hex): the
-    source of the code that computes them (:data:`RESULT_SOURCES`) and the contents of every file
-    the ``parameters`` name (a scenario's TOML, a strategy's Python file)."""
+    source of the code that computes them (:func:`code_digest`) and the contents of every file the
+    ``parameters`` name (a scenario's TOML, a strategy's Python file)."""
+    digest = hashlib.sha256(code_digest().encode())
+    for name in sorted(set(_named_files(parameters))):
+        digest.update(f"{name}\0{file_digest(name)}\0".encode())
+    return digest.hexdigest()
+
+
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 (hex) of ringtrack's source that computes a study's results (:data:`RESULT_SOURCES`)
+    as installed where this runs: equal on two machines exactly when they compute the same results."""
     digest = hashlib.sha256()
     for folder in RESULT_SOURCES:
         for path in sorted((PACKAGE_ROOT / folder).rglob("*")):
             if path.suffix in (".py", ".toml") and path.is_file():
                 digest.update(f"{path.relative_to(PACKAGE_ROOT).as_posix()}\0".encode())
                 digest.update(hashlib.sha256(path.read_bytes()).digest())
-    for name in sorted(set(_named_files(parameters))):
-        digest.update(f"{name}\0".encode())
-        digest.update(hashlib.sha256(Path(name).read_bytes()).digest())
     return digest.hexdigest()
+
+
+def file_digest(name: str) -> str | None:
+    """SHA-256 (hex) of the file at path ``name`` where this runs; None where there is none."""
+    path = Path(name)
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
 
 
 def _named_files(value: object) -> Iterator[str]:
@@ -402,24 +425,89 @@ def dask_distributed() -> ModuleType:
 
 def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tuple[int, bytes], None, None]:
     """Run the tasks on the Dask scheduler at ``address`` (its workers import ringtrack); the client
-    is closed however the loop ends. The scheduler runs again the tasks of a worker that died; a task
-    whose workers kept dying (Dask's ``allowed-failures``) ends the study in one line."""
+    is closed however the loop ends. A worker runs a task only where it computes with what this
+    machine does (:func:`execute_checked`), else the study stops in one line naming the worker and
+    what differs. The scheduler runs again the tasks of a worker that died; a task whose workers kept
+    dying (Dask's ``allowed-failures``) ends the study in one line, and so does a scheduler that goes
+    away."""
     distributed = dask_distributed()
     try:
         client = distributed.Client(address, timeout="20s")
     except (OSError, TimeoutError) as error:
         raise UsageError(f"--cluster {address}: no Dask scheduler answers there ({error}); start one with "
                          "'dask scheduler' and give its tcp://HOST:PORT") from None
+    read = worker_files(study)
+    expected = provenance(read)
+    lost = False
     try:
-        futures = [client.submit(execute, study.work, study.tasks[index], pure=False) for index in pending]
+        futures = [client.submit(execute_checked, study.work, study.tasks[index], read, expected, pure=False)
+                   for index in pending]
         index_of = {future.key: index for future, index in zip(futures, pending, strict=True)}
         for future in distributed.as_completed(futures):
             try:
-                result = future.result()
+                host, found, result = future.result()
             except distributed.KilledWorker:
                 raise UsageError(f"experiment {study.experiment}: the workers that ran task "
                                  f"'{study.tasks[index_of[future.key]].key}' kept dying (killed, or out of memory); "
                                  f"{KEPT_TASKS}") from None
+            except (distributed.comm.CommClosedError, CancelledError):
+                # the client lost its scheduler: it cancels every future, and a result it was fetching fails
+                lost = True
+                raise StudyStopped(f"--cluster {address}: the Dask scheduler went away mid-study (lost the "
+                                   f"connection); {KEPT_TASKS}, here or on a scheduler started again") from None
+            if result is None:
+                raise UsageError(f"--cluster {address}: {difference(host, found, expected, read)}")
             yield index_of[future.key], result
     finally:
-        client.close()
+        with logs_silenced() if lost else contextlib.nullcontext():
+            client.close()  # after a loss, without the traceback of the reconnection it cancels
+
+
+class Provenance(NamedTuple):
+    """What a machine computes a study's results with: ringtrack's source there (:func:`code_digest`)
+    and the :func:`file_digest` there of each file the study's workers read."""
+
+    code: str
+    files: tuple[str | None, ...]
+
+
+def provenance(files: tuple[str, ...]) -> Provenance:
+    """The :class:`Provenance` of this machine for a study whose workers read ``files`` (paths)."""
+    return Provenance(code_digest(), tuple(file_digest(name) for name in files))
+
+
+def worker_files(study: Study) -> tuple[str, ...]:
+    """The files a worker reads itself at the path the study names them by: its strategy files
+    (``.py``; a scenario's TOML is read here, and its content travels in the task)."""
+    return tuple(sorted({name for name in _named_files(study.parameters) if name.endswith(".py")}))
+
+
+def execute_checked(work: Callable[[TaskT], msgspec.Struct], task: TaskT, files: tuple[str, ...],
+                    expected: Provenance) -> tuple[str, Provenance, bytes | None]:
+    """Run ``task`` on a cluster worker (:func:`execute`) if the worker computes with what the
+    study's machine does (``expected``, for the ``files`` workers read): the worker's host name, its
+    :class:`Provenance`, and the result (None: not run, as it could differ from a local run's)."""
+    found = provenance(files)
+    return socket.gethostname(), found, execute(work, task) if found == expected else None
+
+
+def difference(host: str, found: Provenance, expected: Provenance, files: tuple[str, ...]) -> str:
+    """What differs on the worker on ``host`` from this machine, and the fix, in one line."""
+    if found.code != expected.code:
+        return (f"the worker on {host} runs other ringtrack code than this machine (its results would differ from "
+                "a local run's); install the same ringtrack on every worker")
+    name, there = next((name, there) for name, there, here in zip(files, found.files, expected.files, strict=True)
+                       if there != here)
+    if there is None:
+        return f"the worker on {host} has no {name} (a worker reads it at that path); copy it to every worker's host"
+    return f"{name} on the worker on {host} differs from this machine's; copy this one to every worker's host"
+
+
+@contextlib.contextmanager
+def logs_silenced() -> Iterator[None]:
+    """Drop every log record while in the block (:func:`logging.disable`)."""
+    logging.disable(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logging.disable(logging.NOTSET)

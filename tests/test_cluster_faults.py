@@ -1,0 +1,157 @@
+"""A study on a Dask cluster meets what a cluster of several hosts meets: a scheduler that goes away
+(one line, exit 1, the journal kept for ``--resume``), and workers that would compute with other
+code or other files than the study's machine (they run no task; one line names the worker and what
+differs). The scheduler and the workers are real ``dask`` processes started here."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from ringtrack.tools.cli import main
+from ringtrack.tools.studies import runner
+from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, random_start_scenarios, stationary_task
+from tests.helpers import RINGTRACK
+from tests.test_strategy import example
+from tests.test_studies_at_scale import counted_tasks, local_cluster, run
+
+pytest.importorskip("dask.distributed")
+
+# Another copy of ringtrack imported in place of this one: the editable install's finder, which
+# would find this one first, is taken off the import system before the worker starts.
+IMPORTING_FROM = ("import sys; sys.meta_path[:] = [finder for finder in sys.meta_path "
+                  "if not getattr(finder, '__module__', '').startswith('__editable__')]; sys.path.insert(0, {folder!r}); "
+                  "from distributed.cli.dask_{role} import main; main()")
+STUDY = ["experiment", "stationary", "--robots", "8-12", "--trials", "6", "--batch", "2", "--quiet"]  # 30 tasks
+
+
+@contextlib.contextmanager
+def dask_process(role: str, *arguments: str, cwd: Path | None = None,
+                 code: Path | None = None) -> Iterator[subprocess.Popen[bytes]]:
+    """``dask ROLE ARGUMENTS`` (``scheduler`` or ``worker``) as a child of this test, serving on
+    loopback, in folder ``cwd``; with ``code``, a folder holding another copy of ringtrack, which it
+    imports instead of this one. Killed (by its pid) on leaving."""
+    command = ([sys.executable, "-c", IMPORTING_FROM.format(folder=str(code), role=role)] if code is not None
+               else [sys.executable, "-m", f"distributed.cli.dask_{role}"])
+    child = subprocess.Popen([*command, *arguments, "--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"],
+                             cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        yield child
+    finally:
+        child.kill()
+        child.wait()
+
+
+def worker(address: str, cwd: Path | None = None, code: Path | None = None) -> contextlib.AbstractContextManager:
+    """One single-threaded worker process (:func:`dask_process`) of the scheduler at ``address``."""
+    return dask_process("worker", address, "--nthreads", "1", "--no-nanny", cwd=cwd, code=code)
+
+
+def scheduler_address(scheduler_file: Path, scheduler: subprocess.Popen[bytes]) -> str:
+    """The address a scheduler started with ``--scheduler-file`` serves on, once it has written it."""
+    deadline = time.monotonic() + 60
+    while not scheduler_file.exists() or not scheduler_file.read_bytes().strip():
+        assert scheduler.poll() is None and time.monotonic() < deadline, "the scheduler did not start"
+        time.sleep(0.05)
+    return str(json.loads(scheduler_file.read_text())["address"])
+
+
+@pytest.mark.processes
+def test_a_scheduler_that_goes_away_stops_the_study_in_one_line_and_resume_finishes_it(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    output, journal, scheduler_file = tmp_path / "s.json", tmp_path / "s.journal.jsonl", tmp_path / "scheduler.json"
+    with dask_process("scheduler", "--port", "0", "--scheduler-file", str(scheduler_file)) as scheduler:
+        address = scheduler_address(scheduler_file, scheduler)
+        with worker(address):
+            study = subprocess.Popen([*RINGTRACK, *STUDY, "--cluster", address, "--json", str(output)],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            try:
+                deadline = time.monotonic() + 120
+                while study.poll() is None and time.monotonic() < deadline:
+                    if journal.exists() and journal.read_bytes().count(b"\n") >= 2:  # the header and a task
+                        break
+                    time.sleep(0.05)
+                scheduler.kill()  # as a crash or a lost host does: no goodbye
+                _, errors = study.communicate(timeout=120)
+            finally:
+                study.kill()
+                study.wait()
+    assert study.returncode == 1 and "Traceback" not in errors
+    assert errors.splitlines()[-1] == (
+        f"ringtrack: error: --cluster {address}: the Dask scheduler went away mid-study (lost the connection); the "
+        "tasks finished are in the journal of --json or --csv, which --resume continues, here or on a scheduler "
+        "started again")
+    finished = journal.read_bytes().count(b"\n") - 1
+    assert not output.exists() and journal.read_bytes().endswith(b"\n") and 1 <= finished < 30
+    keys = counted_tasks(monkeypatch)
+    resumed = run(STUDY, tmp_path, "s", "--resume", "--workers", "1")
+    assert len(keys) == 30 - finished
+    assert resumed == run(STUDY, tmp_path, "whole", "--workers", "1")
+
+
+@pytest.fixture(scope="module")
+def bare_scheduler() -> Iterator[str]:
+    """A scheduler with no worker of its own (each test brings its own): its address."""
+    with local_cluster(0) as address:
+        yield address
+
+
+@pytest.mark.processes
+def test_a_worker_with_other_ringtrack_code_runs_no_task(bare_scheduler: str, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """The worker imports a copy of ringtrack with one line added to a file that computes results."""
+    copy = tmp_path / "elsewhere" / "ringtrack"
+    for part in {source.split("/")[0] for source in runner.RESULT_SOURCES} | {"tools"}:  # the whole package
+        shutil.copytree(runner.PACKAGE_ROOT / part, copy / part, ignore=shutil.ignore_patterns("__pycache__"))
+    with (copy / "agents" / "laws.py").open("a") as laws:
+        laws.write("# one line more\n")
+    output = tmp_path / "s.json"
+    with worker(bare_scheduler, code=copy.parent):
+        assert main([*STUDY, "--cluster", bare_scheduler, "--json", str(output)]) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"ringtrack: error: --cluster {bare_scheduler}: the worker on {socket.gethostname()} runs other ringtrack "
+        "code than this machine (its results would differ from a local run's); install the same ringtrack on every "
+        "worker")
+    assert not output.exists() and (tmp_path / "s.journal.jsonl").read_bytes().count(b"\n") == 1  # the header
+
+
+@pytest.mark.parametrize(("there", "problem"), [
+    (None, "the worker on {host} has no heartbeat.py (a worker reads it at that path); copy it to every worker's host"),
+    (b"\n# edited there\n", "heartbeat.py on the worker on {host} differs from this machine's; copy this one to every "
+                            "worker's host"),
+    (b"", None),
+], ids=["missing", "edited", "same"])
+def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, problem: str | None,
+                                                          monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A worker (here: this process, moved to a folder of its own) reads the strategy file at the
+    path the study names it by: absent there or edited, it runs nothing and the study says so;
+    the same file, it runs the task as the study's machine would."""
+    here, elsewhere = tmp_path / "here", tmp_path / "elsewhere"
+    here.mkdir()
+    elsewhere.mkdir()
+    strategy = example(here)
+    if there is not None:
+        (elsewhere / strategy.name).write_bytes(strategy.read_bytes() + there)
+    monkeypatch.chdir(here)
+    scenario = random_start_scenarios("paper-stationary", 4, [strategy.name])["heartbeat"]
+    task = StationaryTask("N=4 heartbeat 0..1", 0, [0, 1], 4, "heartbeat", scenario)
+    study = runner.Study("stationary", {"strategies": [strategy.name]}, [task], stationary_task, StationaryPart)
+    files = runner.worker_files(study)
+    expected = runner.provenance(files)
+    local = runner.execute(stationary_task, task)
+    monkeypatch.chdir(elsewhere)
+    host, found, result = runner.execute_checked(stationary_task, task, files, expected)
+    assert files == (strategy.name,) and host == socket.gethostname()
+    if problem is None:
+        assert found == expected and result == local
+    else:
+        assert result is None and runner.difference(host, found, expected, files) == problem.format(host=host)
