@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import select
 import shutil
 import socket
 import subprocess
@@ -22,7 +23,7 @@ from ringtrack.tools.studies import runner
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, random_start_scenarios, stationary_task
 from tests.helpers import RINGTRACK
 from tests.test_strategy import example
-from tests.test_studies_at_scale import counted_tasks, local_cluster, run
+from tests.test_studies_at_scale import counted_tasks, local_cluster, run, without_wall
 
 pytest.importorskip("dask.distributed")
 
@@ -155,3 +156,26 @@ def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, 
         assert found == expected and result == local
     else:
         assert result is None and runner.difference(host, found, expected, files) == problem.format(host=host)
+
+
+@pytest.mark.processes
+def test_a_study_on_a_scheduler_without_workers_says_so_and_waits_for_one(tmp_path: Path) -> None:
+    output, scheduler_file = tmp_path / "s.json", tmp_path / "scheduler.json"
+    with dask_process("scheduler", "--port", "0", "--scheduler-file", str(scheduler_file)) as scheduler:
+        address = scheduler_address(scheduler_file, scheduler)
+        study = subprocess.Popen([*RINGTRACK, *STUDY, "--cluster", address, "--json", str(output)],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            assert study.stderr is not None
+            ready, _, _ = select.select([study.stderr], [], [], 120)
+            assert ready and study.stderr.readline() == (
+                f"experiment stationary: the Dask scheduler at {address} has no worker yet; the tasks wait for one "
+                f"('dask worker {address}' on a host with ringtrack)\n")
+            assert study.poll() is None  # waiting, not failed
+            with worker(address):
+                _, errors = study.communicate(timeout=120)
+        finally:
+            study.kill()
+            study.wait()
+    assert study.returncode == 0 and "Traceback" not in errors
+    assert without_wall(output) == run(STUDY, tmp_path, "local", "--workers", "1")[0]

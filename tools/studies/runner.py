@@ -425,11 +425,11 @@ def dask_distributed() -> ModuleType:
 
 def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tuple[int, bytes], None, None]:
     """Run the tasks on the Dask scheduler at ``address`` (its workers import ringtrack); the client
-    is closed however the loop ends. A worker runs a task only where it computes with what this
-    machine does (:func:`execute_checked`), else the study stops in one line naming the worker and
-    what differs. The scheduler runs again the tasks of a worker that died; a task whose workers kept
-    dying (Dask's ``allowed-failures``) ends the study in one line, and so does a scheduler that goes
-    away."""
+    is closed however the loop ends. A scheduler with no worker yet is said on stderr (the tasks
+    wait). A worker runs a task only where it computes with what this machine does
+    (:func:`execute_checked`), else the study stops in one line naming the worker and what differs.
+    The scheduler runs again the tasks of a worker that died; a task whose workers kept dying
+    (Dask's ``allowed-failures``) ends the study in one line, and so does a scheduler that goes away."""
     distributed = dask_distributed()
     try:
         client = distributed.Client(address, timeout="20s")
@@ -440,6 +440,9 @@ def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tupl
     expected = provenance(read)
     lost = False
     try:
+        if not client.scheduler_info()["workers"]:
+            err.print(f"experiment {study.experiment}: the Dask scheduler at {address} has no worker yet; the tasks "
+                      f"wait for one ('dask worker {address}' on a host with ringtrack)", highlight=False, markup=False)
         futures = [client.submit(execute_checked, study.work, study.tasks[index], read, expected, pure=False)
                    for index in pending]
         index_of = {future.key: index for future, index in zip(futures, pending, strict=True)}
