@@ -19,8 +19,10 @@ from pathlib import Path
 import pytest
 
 from ringtrack.tools.cli import main
-from ringtrack.tools.studies import runner
+from ringtrack.tools.studies import cluster
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, random_start_scenarios, stationary_task
+from ringtrack.tools.studies.journal import PACKAGE_ROOT, RESULT_SOURCES
+from ringtrack.tools.studies.study import Study, execute
 from tests.helpers import RINGTRACK
 from tests.test_strategy import example
 from tests.test_studies_at_scale import counted_tasks, local_cluster, run, without_wall
@@ -111,8 +113,8 @@ def test_a_worker_with_other_ringtrack_code_runs_no_task(bare_scheduler: str, tm
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     """The worker imports a copy of ringtrack with one line added to a file that computes results."""
     copy = tmp_path / "elsewhere" / "ringtrack"
-    for part in {source.split("/")[0] for source in runner.RESULT_SOURCES} | {"tools"}:  # the whole package
-        shutil.copytree(runner.PACKAGE_ROOT / part, copy / part, ignore=shutil.ignore_patterns("__pycache__"))
+    for part in {source.split("/")[0] for source in RESULT_SOURCES} | {"tools"}:  # the whole package
+        shutil.copytree(PACKAGE_ROOT / part, copy / part, ignore=shutil.ignore_patterns("__pycache__"))
     with (copy / "agents" / "laws.py").open("a") as laws:
         laws.write("# one line more\n")
     output = tmp_path / "s.json"
@@ -145,17 +147,17 @@ def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, 
     monkeypatch.chdir(here)
     scenario = random_start_scenarios("paper-stationary", 4, [strategy.name])["heartbeat"]
     task = StationaryTask("N=4 heartbeat 0..1", 0, [0, 1], 4, "heartbeat", scenario)
-    study = runner.Study("stationary", {"strategies": [strategy.name]}, [task], stationary_task, StationaryPart)
-    files = runner.worker_files(study)
-    expected = runner.provenance(files)
-    local = runner.execute(stationary_task, task)
+    study = Study("stationary", {"strategies": [strategy.name]}, [task], stationary_task, StationaryPart)
+    files = cluster.worker_files(study)
+    expected = cluster.provenance(files)
+    local = execute(stationary_task, task)
     monkeypatch.chdir(elsewhere)
-    host, found, result = runner.execute_checked(stationary_task, task, files, expected)
+    host, found, result = cluster.execute_checked(stationary_task, task, files, expected)
     assert files == (strategy.name,) and host == socket.gethostname()
     if problem is None:
         assert found == expected and result == local
     else:
-        assert result is None and runner.difference(host, found, expected, files) == problem.format(host=host)
+        assert result is None and cluster.difference(host, found, expected, files) == problem.format(host=host)
 
 
 @pytest.mark.processes

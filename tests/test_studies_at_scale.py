@@ -1,4 +1,4 @@
-"""Studies at scale (tools/studies/runner.py): the same bytes from one process, a pool of workers
+"""Studies at scale (tools/studies/): the same bytes from one process, a pool of workers
 and a Dask cluster; a journal that survives a kill and a ``--resume`` that runs only what it lacks;
 progress in trials."""
 
@@ -26,8 +26,10 @@ from rich.console import Console
 from ringtrack.tools.cli import main
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.progress import TrialProgress, duration
-from ringtrack.tools.studies import runner
+from ringtrack.tools.studies import pool, runner
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, stationary_task
+from ringtrack.tools.studies.journal import PACKAGE_ROOT, RESULT_SOURCES, inputs_digest
+from ringtrack.tools.studies.study import Execution, Study, Task
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK
 
@@ -188,7 +190,7 @@ def test_resume_refuses_a_journal_of_other_code_or_files(tmp_path: Path, capsys:
     """A journal records a digest of the code that computes results and of the files the study reads:
     resuming after either changed would mix two studies' trials, so ``--resume`` refuses."""
     scenario = tmp_path / "square.toml"
-    scenario.write_bytes((runner.PACKAGE_ROOT / "scenarios" / "paper-stationary.toml").read_bytes())
+    scenario.write_bytes((PACKAGE_ROOT / "scenarios" / "paper-stationary.toml").read_bytes())
     journal = tmp_path / "s.journal.jsonl"
     arguments = ["experiment", "stationary", str(scenario), "--robots", "4", "--trials", "3", "--batch", "2",
                  "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]
@@ -204,7 +206,7 @@ def test_resume_refuses_a_journal_of_other_code_or_files(tmp_path: Path, capsys:
     assert main(arguments) == 0  # started over from the edited file
     header, *tasks = journal.read_bytes().splitlines(keepends=True)
     decoded = json.loads(header)
-    assert decoded["inputs"] == runner.inputs_digest(decoded["parameters"])
+    assert decoded["inputs"] == inputs_digest(decoded["parameters"])
     del decoded["inputs"]  # a journal from before the digest was kept: whatever computed it is unknown
     journal.write_bytes(json.dumps(decoded).encode() + b"\n" + b"".join(tasks))
     assert main([*arguments, "--resume"]) == 2
@@ -215,12 +217,12 @@ def test_inputs_digest_covers_the_code_and_the_named_files(tmp_path: Path) -> No
     strategy = tmp_path / "mine.py"
     strategy.write_text("x = 1\n")
     parameters = {"scenario": "paper-stationary", "strategies": ["self", str(strategy)]}
-    digest = runner.inputs_digest(parameters)
-    assert runner.inputs_digest(parameters) == digest and len(digest) == 64
-    assert runner.inputs_digest({"scenario": "paper-stationary", "strategies": ["self"]}) != digest
+    digest = inputs_digest(parameters)
+    assert inputs_digest(parameters) == digest and len(digest) == 64
+    assert inputs_digest({"scenario": "paper-stationary", "strategies": ["self"]}) != digest
     strategy.write_text("x = 2\n")
-    assert runner.inputs_digest(parameters) != digest
-    assert {"agents", "bus", "world", "scenarios"} <= set(runner.RESULT_SOURCES)
+    assert inputs_digest(parameters) != digest
+    assert {"agents", "bus", "world", "scenarios"} <= set(RESULT_SOURCES)
 
 
 def test_pools_and_clusters_get_the_costliest_tasks_first() -> None:
@@ -229,7 +231,7 @@ def test_pools_and_clusters_get_the_costliest_tasks_first() -> None:
     scenario = load_scenario("paper-stationary")
     tasks = [StationaryTask(f"N={robots} {strategy}", 0, seeds, robots, strategy, scenario)
              for robots, seeds in ((3, [0, 1]), (30, [0, 1]), (6, [0, 1]), (30, [2])) for strategy in ("constant", "self")]
-    study = runner.Study("stationary", {}, tasks, stationary_task, StationaryPart)
+    study = Study("stationary", {}, tasks, stationary_task, StationaryPart)
     order = runner.costliest_first(study, [0, 1, 2, 3, 4, 5, 7])
     assert [tasks[index].key for index in order] == ["N=30 constant", "N=30 self", "N=30 self", "N=6 constant",
                                                      "N=6 self", "N=3 constant", "N=3 self"]
@@ -258,7 +260,7 @@ class Seeds(msgspec.Struct, frozen=True):
 
 
 @dataclass(frozen=True)
-class DyingTask(runner.Task):
+class DyingTask(Task):
     """A task whose worker dies (SIGKILL, as the out-of-memory killer does) while ``marker`` holds
     fewer than ``deaths`` bytes, adding one before it dies."""
 
@@ -276,31 +278,31 @@ def die_then_answer(task: DyingTask) -> Seeds:
     return Seeds(task.seeds)
 
 
-def dying_study(marker: Path, deaths: int) -> runner.Study:
+def dying_study(marker: Path, deaths: int) -> Study:
     """Eight tasks of one trial each; the fourth kills its worker ``deaths`` times."""
     marker.touch()
     tasks = [DyingTask(f"task {index}", index, [index], str(marker), deaths if index == 3 else 0)
              for index in range(8)]
-    return runner.Study("dying", {}, tasks, die_then_answer, Seeds)
+    return Study("dying", {}, tasks, die_then_answer, Seeds)
 
 
 @pytest.mark.processes
 def test_the_tasks_of_a_worker_that_died_run_again_in_a_new_pool(tmp_path: Path,
                                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    results = runner.run_study(dying_study(tmp_path / "marker", 2), runner.Execution(workers=2))
+    results = runner.run_study(dying_study(tmp_path / "marker", 2), Execution(workers=2))
     assert results == [Seeds([index]) for index in range(8)]
     notes = [line for line in capsys.readouterr().err.splitlines() if "died" in line]
     assert len(notes) == 2 and notes[0].startswith("experiment dying: a worker process died (killed, or out of "
                                                    "memory); running its pool's ")
-    assert notes[1].endswith(f"in a new pool (2 of {runner.POOL_RESTARTS})")
+    assert notes[1].endswith(f"in a new pool (2 of {pool.POOL_RESTARTS})")
 
 
 @pytest.mark.processes
 def test_a_task_that_keeps_killing_its_worker_ends_the_study_in_one_line(tmp_path: Path) -> None:
     with pytest.raises(UsageError) as raised:
-        runner.run_study(dying_study(tmp_path / "marker", 99), runner.Execution(workers=2))
+        runner.run_study(dying_study(tmp_path / "marker", 99), Execution(workers=2))
     assert str(raised.value) == (
-        f"experiment dying: a worker process died {runner.POOL_RESTARTS + 1} times (killed, or out of memory: try "
+        f"experiment dying: a worker process died {pool.POOL_RESTARTS + 1} times (killed, or out of memory: try "
         "fewer --workers or a smaller --batch); the tasks finished are in the journal of --json or --csv, which "
         "--resume continues")
 
@@ -310,7 +312,7 @@ def test_a_task_that_keeps_killing_its_dask_workers_ends_the_study_in_one_line(t
     """The scheduler gives up on a task after ``allowed-failures`` deaths of its workers (here 1)."""
     with (local_cluster(1, **{"distributed.scheduler.allowed-failures": 1}) as address,
           pytest.raises(UsageError) as raised):
-        runner.run_study(dying_study(tmp_path / "marker", 99), runner.Execution(cluster=address))
+        runner.run_study(dying_study(tmp_path / "marker", 99), Execution(cluster=address))
     assert (tmp_path / "marker").stat().st_size == 2  # it died twice, the second time for good
     assert str(raised.value) == (
         "experiment dying: the workers that ran task 'task 3' kept dying (killed, or out of memory); the tasks "
@@ -395,6 +397,6 @@ def test_a_journal_where_files_cannot_be_locked_is_written_unguarded(monkeypatch
     def refuse(file: object, operation: int) -> None:
         raise OSError(errno.ENOLCK, "No locks available")
 
-    monkeypatch.setattr(runner.fcntl, "flock", refuse)
+    monkeypatch.setattr(fcntl, "flock", refuse)
     assert main([*STUDIES["stationary"], "--workers", "1", "--quiet", "--json", str(tmp_path / "s.json")]) == 0
     assert len((tmp_path / "s.journal.jsonl").read_bytes().splitlines()) == 1 + 4  # header, 2 strategies x 2 chunks

@@ -12,7 +12,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
-from ringtrack.tools.studies.runner import Execution
+from ringtrack.tools.studies.study import Execution
 from ringtrack.tools.studies.tracking import (
     TrackingRow,
     decentralized_strategies,

@@ -19,17 +19,10 @@ from ringtrack.agents import engine
 from ringtrack.tools.bench.bench import machine
 from ringtrack.tools.output.console import err
 from ringtrack.tools.studies.experiment import random_start_scenarios, stationary_experiment
+from ringtrack.tools.studies.pool import worker_pool
 from ringtrack.tools.studies.robustness import Cell, faults_experiment
-from ringtrack.tools.studies.runner import (
-    Execution,
-    Study,
-    Task,
-    available_cores,
-    chunks,
-    run_study,
-    seed_range,
-    worker_pool,
-)
+from ringtrack.tools.studies.runner import run_study
+from ringtrack.tools.studies.study import Execution, Study, Task, available_cores, chunks, seed_range
 from ringtrack.tools.team.launcher import PRELOADED
 from ringtrack.world.scenario import Scenario, load_scenario
 

@@ -52,7 +52,7 @@ USER_ERRORS = (
     ("ringtrack.bus.lives", "Superseded"),
     ("ringtrack.bus.lives", "NoLife"),
     ("ringtrack.tools.runlog.log", "LogError"),
-    ("ringtrack.tools.studies.runner", "StudyStopped"),
+    ("ringtrack.tools.studies.study", "StudyStopped"),
 )
 
 

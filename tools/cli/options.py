@@ -18,7 +18,9 @@ from ringtrack.agents.strategy import (
     strategy_class,
 )
 from ringtrack.tools.output.files import unwritable, write_csv, write_json
-from ringtrack.tools.studies.runner import BATCH, CLUSTER_EXTRA, Execution, available_cores, journal_path
+from ringtrack.tools.studies.cluster import CLUSTER_EXTRA
+from ringtrack.tools.studies.journal import journal_path
+from ringtrack.tools.studies.study import BATCH, Execution, available_cores
 from ringtrack.world.params import StrategyValue
 from ringtrack.world.scenario import OverrideError, Scenario, ScenarioError, load_scenario
 

@@ -17,7 +17,8 @@ from ringtrack.agents import engine
 from ringtrack.agents.strategy import StrategyError, check_strategy, strategy_for
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
-from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
+from ringtrack.tools.studies.runner import run_study
+from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import convergence_step, settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve

@@ -14,7 +14,8 @@ import msgspec
 from ringtrack.agents import engine
 from ringtrack.tools.studies.experiment import StepTotals, combined, step_totals, strategy_labels
 from ringtrack.tools.studies.figures import drawn
-from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
+from ringtrack.tools.studies.runner import run_study
+from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
 from ringtrack.world.metrics import settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, load_scenario, resolve
 

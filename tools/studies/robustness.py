@@ -29,7 +29,8 @@ from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.runlog.log import history_from_log, read_log
 from ringtrack.tools.studies.experiment import strategy_labels
-from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
+from ringtrack.tools.studies.runner import run_study
+from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
 from ringtrack.tools.team.plan import TeamPlan
 from ringtrack.tools.team.spawn import spawn_team
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve

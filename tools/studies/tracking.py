@@ -40,7 +40,8 @@ from ringtrack.tools.studies.experiment import (
     strategy_name,
 )
 from ringtrack.tools.studies.figures import colour, drawn
-from ringtrack.tools.studies.runner import IN_PROCESS, Execution, Study, Task, chunks, run_study, seed_range
+from ringtrack.tools.studies.runner import run_study
+from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
 from ringtrack.world.bounds import random_walk_bound
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import settled_mean, target_error

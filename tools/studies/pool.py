@@ -1,0 +1,70 @@
+"""Tasks in a pool of local processes (``--workers``), forked ready from a fork server; a worker that
+dies costs only the tasks its pool had not finished, which run again in a new pool."""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+from collections.abc import Generator, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+
+from ringtrack.tools.output.console import UsageError, err
+from ringtrack.tools.studies.study import KEPT_TASKS, Study, execute
+
+POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that died (as Dask retries them)
+
+
+def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
+    """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`); the pool is shut
+    down, its queued tasks cancelled, however the loop ends (an error, Ctrl-C). A worker that dies
+    (killed, out of memory) breaks the pool and every task it had not finished: those run again in a
+    new pool (a task's result does not depend on where or how often it ran), saying so on stderr,
+    at most :data:`POOL_RESTARTS` times in a study."""
+    restarts = 0
+    while pending:
+        lost = []
+        with worker_pool(study.work.__module__, min(workers, len(pending))) as pool:
+            futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
+            for future in as_completed(futures):
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    lost.append(futures[future])
+                    continue
+                yield futures[future], result
+        if lost:
+            restarts += 1
+            if restarts > POOL_RESTARTS:
+                raise UsageError(f"experiment {study.experiment}: a worker process died {restarts} times (killed, or "
+                                 f"out of memory: try fewer --workers or a smaller --batch); {KEPT_TASKS}")
+            err.print(f"experiment {study.experiment}: a worker process died (killed, or out of memory); running "
+                      f"its pool's {len(lost)} unfinished tasks in a new pool ({restarts} of {POOL_RESTARTS})",
+                      highlight=False, markup=False)
+        pending = [index for index in pending if index in lost]  # in the order given
+
+
+@contextlib.contextmanager
+def worker_pool(module: str, workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A pool of ``workers`` local processes started by a fork server (this process may run a
+    progress thread, which a fork would copy mid-flight) that has imported ``module`` (the work's:
+    numpy, the engine) once, so that each worker forks from it ready (a preload counts when this
+    process starts its fork server, at its first pool); shut down on leaving, queued tasks cancelled."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([module])
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    try:
+        yield pool
+    except BaseException:  # Ctrl-C, SIGTERM, an error, or the caller leaving: the tasks in flight are lost
+        end_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def end_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop the pool's worker processes now (SIGTERM), whatever task they run, so that leaving a pool
+    early never waits for its running tasks nor leaves them running (``terminate_workers`` from
+    Python 3.14; its table of processes before)."""
+    for process in list((pool._processes or {}).values()):
+        process.terminate()
