@@ -25,7 +25,7 @@ from ringtrack.tools.studies.journal import PACKAGE_ROOT, RESULT_SOURCES
 from ringtrack.tools.studies.study import Study, execute
 from tests.helpers import RINGTRACK
 from tests.test_strategy import example
-from tests.test_studies_at_scale import counted_tasks, local_cluster, run, without_wall
+from tests.test_studies_at_scale import counted_tasks, journalled_a_task, local_cluster, run, without_wall
 
 pytest.importorskip("dask.distributed")
 
@@ -78,11 +78,7 @@ def test_a_scheduler_that_goes_away_stops_the_study_in_one_line_and_resume_finis
             study = subprocess.Popen([*RINGTRACK, *STUDY, "--cluster", address, "--json", str(output)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
             try:
-                deadline = time.monotonic() + 120
-                while study.poll() is None and time.monotonic() < deadline:
-                    if journal.exists() and journal.read_bytes().count(b"\n") >= 2:  # the header and a task
-                        break
-                    time.sleep(0.05)
+                journalled_a_task(study, journal)
                 scheduler.kill()  # as a crash or a lost host does: no goodbye
                 _, errors = study.communicate(timeout=120)
             finally:

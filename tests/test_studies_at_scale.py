@@ -15,7 +15,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -145,6 +145,17 @@ def test_resume_after_a_torn_journal_runs_only_the_missing_tasks(monkeypatch: py
     assert len(journal.read_bytes().splitlines()) == 7
 
 
+def journalled_a_task(child: subprocess.Popen, journal: Path, also: Callable[[], bool] = lambda: True,
+                      timeout_s: float = 120) -> None:
+    """Wait until ``child``'s study has journalled a task (its header and a task line) and ``also()``
+    holds, or the study ended, or ``timeout_s`` passed (a hang guard: the caller asserts the rest)."""
+    deadline = time.monotonic() + timeout_s
+    while child.poll() is None and time.monotonic() < deadline:
+        if journal.exists() and journal.read_bytes().count(b"\n") >= 2 and also():
+            return
+        time.sleep(0.05)
+
+
 @pytest.mark.processes
 def test_a_study_killed_mid_way_resumes_to_the_bytes_of_an_uninterrupted_one(monkeypatch: pytest.MonkeyPatch,
                                                                               tmp_path: Path) -> None:
@@ -154,11 +165,7 @@ def test_a_study_killed_mid_way_resumes_to_the_bytes_of_an_uninterrupted_one(mon
     child = subprocess.Popen([*RINGTRACK, *arguments, "--json", str(output)], stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 60
-        while child.poll() is None and time.monotonic() < deadline:
-            if journal.exists() and journal.read_bytes().count(b"\n") >= 2:  # the header and a task
-                break
-            time.sleep(0.05)
+        journalled_a_task(child, journal)
         child.send_signal(signal.SIGKILL)
     finally:
         child.wait(timeout=30)
@@ -352,13 +359,13 @@ def test_a_signal_to_a_study_ends_its_workers_and_keeps_its_journal(stop: signal
                               "5", "--workers", "2", "--quiet", "--json", str(output)],
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     workers: set[int] = set()
+
+    def all_started() -> bool:  # the fork server and 2 workers
+        workers.update(descendants(child.pid))
+        return len(workers) >= 3
+
     try:
-        deadline = time.monotonic() + 60
-        while child.poll() is None and time.monotonic() < deadline:
-            workers |= descendants(child.pid)
-            if journal.exists() and journal.read_bytes().count(b"\n") >= 2 and len(workers) >= 3:  # fork server, 2 workers
-                break
-            time.sleep(0.05)
+        journalled_a_task(child, journal, all_started)
         child.send_signal(stop)
         _, errors = child.communicate(timeout=60)
     finally:
