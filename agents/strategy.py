@@ -382,10 +382,10 @@ def _strategy(choice: StrategyChoice) -> Strategy:
     return cls(values, where)
 
 
-@cache
 def strategy_class(name_or_path: str) -> type[Strategy]:
     """The class of the strategy registered as ``name_or_path`` or defined by the Python file at
-    that path (imported once); :class:`StrategyError` otherwise."""
+    that path (imported once per content of the file, so that a process that lives on, such as a
+    cluster's worker, runs a file edited since as it is now); :class:`StrategyError` otherwise."""
     if name_or_path in REGISTRY:
         module, _, attribute = REGISTRY[name_or_path].partition(":")
         found: type[Strategy] = getattr(importlib.import_module(module), attribute)
@@ -396,17 +396,19 @@ def strategy_class(name_or_path: str) -> type[Strategy]:
         raise StrategyError(f"'{name_or_path}' is not a registered strategy nor a Python file; {fix}")
     if not path.is_file():
         raise StrategyError(f"{name_or_path}: no such file; {fix}")
-    return _load_file(path.resolve())
+    return _load_file(path.resolve(), path.read_bytes())
 
 
-def _load_file(path: Path) -> type[Strategy]:
-    """Import a strategy file as a module of its own and find its one Strategy subclass."""
+@cache
+def _load_file(path: Path, source: bytes) -> type[Strategy]:
+    """Import a strategy file (its ``source`` as read from ``path``) as a module of its own and find
+    its one Strategy subclass."""
     digest = hashlib.sha1(str(path).encode()).hexdigest()[:12]
     spec = importlib.util.spec_from_file_location(f"ringtrack_strategy_{digest}", path)
-    assert spec is not None and spec.loader is not None
+    assert spec is not None
     module = importlib.util.module_from_spec(spec)
     try:
-        spec.loader.exec_module(module)
+        exec(compile(source, path, "exec"), vars(module))  # the bytes read, not the file as it may be by now
     except Exception as error:  # a researcher's file: report any failure in one line
         raise StrategyError(f"{path}: the strategy file failed to load ({type(error).__name__}: {error}); "
                             "fix the file") from None

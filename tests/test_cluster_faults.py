@@ -86,9 +86,8 @@ def test_a_scheduler_that_goes_away_stops_the_study_in_one_line_and_resume_finis
                 study.wait()
     assert study.returncode == 1 and "Traceback" not in errors
     assert errors.splitlines()[-1] == (
-        f"ringtrack: error: --cluster {address}: the Dask scheduler went away mid-study (lost the connection); the "
-        "tasks finished are in the journal of --json or --csv, which --resume continues, here or on a scheduler "
-        "started again")
+        f"ringtrack: error: --cluster {address}: the Dask scheduler went away mid-study (lost the connection); its "
+        f"finished tasks are kept in {journal}: run the same command with --resume to continue")
     finished = journal.read_bytes().count(b"\n") - 1
     assert not output.exists() and journal.read_bytes().endswith(b"\n") and 1 <= finished < 30
     keys = counted_tasks(monkeypatch)
@@ -177,3 +176,12 @@ def test_a_study_on_a_scheduler_without_workers_says_so_and_waits_for_one(tmp_pa
             study.wait()
     assert study.returncode == 0 and "Traceback" not in errors
     assert without_wall(output) == run(STUDY, tmp_path, "local", "--workers", "1")[0]
+
+
+def test_resuming_a_finished_study_on_a_cluster_connects_to_none(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Nothing left to run: the study is written from its journal, and no scheduler is asked (none
+    answers at the address given)."""
+    whole = run(STUDY, tmp_path, "s", "--workers", "1")
+    assert run(STUDY, tmp_path, "s", "--resume", "--cluster", "tcp://127.0.0.1:1") == whole
+    assert "30 of 30 tasks done, 0 to run" in capsys.readouterr().err

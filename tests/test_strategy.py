@@ -14,6 +14,7 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.agents.laws import Trigger
+from ringtrack.agents.strategy import strategy_class
 from ringtrack.agents.summary import summarise
 from ringtrack.bus.messages import robot_message_bytes
 from ringtrack.tools.team.plan import TeamPlan
@@ -161,3 +162,13 @@ def test_every_strategy_runs_in_realtime_with_faults_and_counts_every_message(tm
         traffic = result.by_kind["reply"]
         assert traffic["messages"] > 0
         assert traffic["bytes"] > traffic["messages"] * int(robot_message_bytes("reply", 1, 0, 1))
+
+
+def test_a_strategy_file_is_loaded_as_it_is_now(tmp_path: Path) -> None:
+    """A process that lives on (a cluster's worker) runs a strategy file edited since it first
+    loaded it as the file is now, and loads an unchanged file once."""
+    path = example(tmp_path)
+    first = strategy_class(str(path))
+    assert strategy_class(str(path)) is first and first.name == "heartbeat"
+    path.write_text(path.read_text().replace('name = "heartbeat"', 'name = "heartbeat_edited"'))
+    assert strategy_class(str(path)).name == "heartbeat_edited"

@@ -24,12 +24,11 @@ import pytest
 from rich.console import Console
 
 from ringtrack.tools.cli import main
-from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.progress import TrialProgress, duration
 from ringtrack.tools.studies import pool, runner
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, stationary_task
 from ringtrack.tools.studies.journal import PACKAGE_ROOT, RESULT_SOURCES, inputs_digest
-from ringtrack.tools.studies.study import Execution, Study, Task
+from ringtrack.tools.studies.study import Execution, Study, StudyStopped, Task
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK
 
@@ -306,24 +305,26 @@ def test_the_tasks_of_a_worker_that_died_run_again_in_a_new_pool(tmp_path: Path,
 
 @pytest.mark.processes
 def test_a_task_that_keeps_killing_its_worker_ends_the_study_in_one_line(tmp_path: Path) -> None:
-    with pytest.raises(UsageError) as raised:
-        runner.run_study(dying_study(tmp_path / "marker", 99), Execution(workers=2))
+    journal = tmp_path / "s.journal.jsonl"
+    with pytest.raises(StudyStopped) as raised:
+        runner.run_study(dying_study(tmp_path / "marker", 99), Execution(workers=2, journal=journal))
     assert str(raised.value) == (
         f"experiment dying: a worker process died {pool.POOL_RESTARTS + 1} times (killed, or out of memory: try "
-        "fewer --workers or a smaller --batch); the tasks finished are in the journal of --json or --csv, which "
-        "--resume continues")
+        f"fewer --workers or a smaller --batch); its finished tasks are kept in {journal}: run the same command "
+        "with --resume to continue")
+    assert StudyStopped.exit_code == 1
 
 
 @pytest.mark.processes
 def test_a_task_that_keeps_killing_its_dask_workers_ends_the_study_in_one_line(tmp_path: Path) -> None:
     """The scheduler gives up on a task after ``allowed-failures`` deaths of its workers (here 1)."""
     with (local_cluster(1, **{"distributed.scheduler.allowed-failures": 1}) as address,
-          pytest.raises(UsageError) as raised):
+          pytest.raises(StudyStopped) as raised):
         runner.run_study(dying_study(tmp_path / "marker", 99), Execution(cluster=address))
     assert (tmp_path / "marker").stat().st_size == 2  # it died twice, the second time for good
     assert str(raised.value) == (
-        "experiment dying: the workers that ran task 'task 3' kept dying (killed, or out of memory); the tasks "
-        "finished are in the journal of --json or --csv, which --resume continues")
+        "experiment dying: the workers that ran task 'task 3' kept dying (killed, or out of memory); its finished "
+        "tasks are not kept (give --json or --csv: their journal keeps them for --resume)")
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full (a device whose writes find the disk full)")

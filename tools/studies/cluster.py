@@ -18,7 +18,7 @@ import msgspec
 
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.studies.journal import code_digest, file_digest, named_files
-from ringtrack.tools.studies.study import KEPT_TASKS, Study, StudyStopped, TaskT, execute
+from ringtrack.tools.studies.study import WORKER_DEATH, Study, StudyStopped, TaskT, execute
 
 CLUSTER_EXTRA = "pip install 'ringtrack[cluster]'"
 
@@ -39,13 +39,13 @@ def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tupl
     The scheduler runs again the tasks of a worker that died; a task whose workers kept dying
     (Dask's ``allowed-failures``) ends the study in one line, and so does a scheduler that goes away."""
     distributed = dask_distributed()
+    read = worker_files(study)
+    expected = provenance(read)
     try:
         client = distributed.Client(address, timeout="20s")
     except (OSError, TimeoutError) as error:
         raise UsageError(f"--cluster {address}: no Dask scheduler answers there ({error}); start one with "
                          "'dask scheduler' and give its tcp://HOST:PORT") from None
-    read = worker_files(study)
-    expected = provenance(read)
     lost = False
     try:
         if not client.scheduler_info()["workers"]:
@@ -58,14 +58,13 @@ def on_cluster(study: Study, pending: list[int], address: str) -> Generator[tupl
             try:
                 host, found, result = future.result()
             except distributed.KilledWorker:
-                raise UsageError(f"experiment {study.experiment}: the workers that ran task "
-                                 f"'{study.tasks[index_of[future.key]].key}' kept dying (killed, or out of memory); "
-                                 f"{KEPT_TASKS}") from None
+                raise StudyStopped(f"experiment {study.experiment}: the workers that ran task "
+                                   f"'{study.tasks[index_of[future.key]].key}' kept dying ({WORKER_DEATH})") from None
             except (distributed.comm.CommClosedError, CancelledError):
                 # the client lost its scheduler: it cancels every future, and a result it was fetching fails
                 lost = True
                 raise StudyStopped(f"--cluster {address}: the Dask scheduler went away mid-study (lost the "
-                                   f"connection); {KEPT_TASKS}, here or on a scheduler started again") from None
+                                   "connection)") from None
             if result is None:
                 raise UsageError(f"--cluster {address}: {difference(host, found, expected, read)}")
             yield index_of[future.key], result

@@ -1,7 +1,7 @@
 """A study's journal: ``PATH.journal.jsonl`` beside the study's ``--json`` or ``--csv`` output, JSON
 lines: a header (:class:`JournalHeader`: the experiment, every parameter that changes results, the
 chunk size, a digest of the code and files that compute them), then one :class:`JournalTask` per
-finished task, each flushed and fsync'd, so a killed study loses only its tasks in flight; a last
+finished task, each written whole and fsync'd, so a killed study loses only its tasks in flight; a last
 line cut by the kill is left out. ``--resume`` continues only a journal of the same study computed
 by the same code from the same files. A study holds its journal under an exclusive lock.
 """
@@ -25,6 +25,14 @@ from ringtrack.tools.studies.study import Study
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
 RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # what computes a study's results
+
+
+def kept_tasks(journal: Path | None) -> str:
+    """What a study stopped half-way says of its finished tasks: where ``journal`` keeps them for
+    ``--resume``, or that a study without one (no ``--json``, no ``--csv``) keeps none."""
+    if journal is None:
+        return "its finished tasks are not kept (give --json or --csv: their journal keeps them for --resume)"
+    return f"its finished tasks are kept in {journal}: run the same command with --resume to continue"
 
 
 def journal_path(*outputs: Path | None) -> Path | None:

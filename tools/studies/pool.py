@@ -9,8 +9,8 @@ from collections.abc import Generator, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 
-from ringtrack.tools.output.console import UsageError, err
-from ringtrack.tools.studies.study import KEPT_TASKS, Study, execute
+from ringtrack.tools.output.console import err
+from ringtrack.tools.studies.study import WORKER_DEATH, Study, StudyStopped, execute
 
 POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that died (as Dask retries them)
 
@@ -36,9 +36,9 @@ def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[i
         if lost:
             restarts += 1
             if restarts > POOL_RESTARTS:
-                raise UsageError(f"experiment {study.experiment}: a worker process died {restarts} times (killed, or "
-                                 f"out of memory: try fewer --workers or a smaller --batch); {KEPT_TASKS}")
-            err.print(f"experiment {study.experiment}: a worker process died (killed, or out of memory); running "
+                raise StudyStopped(f"experiment {study.experiment}: a worker process died {restarts} times "
+                                   f"({WORKER_DEATH}: try fewer --workers or a smaller --batch)")
+            err.print(f"experiment {study.experiment}: a worker process died ({WORKER_DEATH}); running "
                       f"its pool's {len(lost)} unfinished tasks in a new pool ({restarts} of {POOL_RESTARTS})",
                       highlight=False, markup=False)
         pending = [index for index in pending if index in lost]  # in the order given

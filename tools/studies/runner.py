@@ -18,9 +18,9 @@ import msgspec
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.progress import TrialProgress
 from ringtrack.tools.studies.cluster import dask_distributed, on_cluster
-from ringtrack.tools.studies.journal import JournalTask, append, header_of, journal_file, read_journal
+from ringtrack.tools.studies.journal import JournalTask, append, header_of, journal_file, kept_tasks, read_journal
 from ringtrack.tools.studies.pool import in_pool
-from ringtrack.tools.studies.study import Execution, ResultT, Study, TaskT, execute
+from ringtrack.tools.studies.study import Execution, ResultT, Study, StudyStopped, TaskT, execute
 from ringtrack.tools.team.supervisor import terminate_as_exception
 
 
@@ -40,22 +40,27 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
                   f"{len(pending)} to run", highlight=False, markup=False)
     total = sum(len(task.seeds) for task in study.tasks)
     done = sum(len(study.tasks[index].seeds) for index in results)
-    with (terminate_as_exception(),  # a SIGTERM ends the workers and keeps the journal, as Ctrl-C does
-          journal_file(execution.journal, header, execution.resume) as journal,
-          TrialProgress(label, total, done, execution.quiet) as progress,
-          contextlib.closing(finished(study, pending, execution)) as outcomes):
-        for index, result in outcomes:
-            if journal is not None:
-                append(journal, msgspec.json.encode(JournalTask(index, study.tasks[index].key, msgspec.Raw(result))))
-            results[index] = result
-            progress.advance(len(study.tasks[index].seeds))
+    try:
+        with (terminate_as_exception(),  # a SIGTERM ends the workers and keeps the journal, as Ctrl-C does
+              journal_file(execution.journal, header, execution.resume) as journal,
+              TrialProgress(label, total, done, execution.quiet) as progress,
+              contextlib.closing(finished(study, pending, execution)) as outcomes):
+            for index, result in outcomes:
+                if journal is not None:
+                    append(journal, msgspec.json.encode(JournalTask(index, study.tasks[index].key,
+                                                                    msgspec.Raw(result))))
+                results[index] = result
+                progress.advance(len(study.tasks[index].seeds))
+    except StudyStopped as stopped:
+        raise StudyStopped(f"{stopped}; {kept_tasks(execution.journal)}") from None
     decoder = msgspec.json.Decoder(study.result)
     return [decoder.decode(results[index]) for index in range(len(study.tasks))]
 
 
 def finished(study: Study, pending: list[int], execution: Execution) -> Generator[tuple[int, bytes], None, None]:
-    """``(task index, result)`` of the ``pending`` tasks as they finish, wherever they run."""
-    if execution.cluster is not None:
+    """``(task index, result)`` of the ``pending`` tasks as they finish, wherever they run (none
+    pending: nothing is started, not even a cluster's client)."""
+    if execution.cluster is not None and pending:
         return on_cluster(study, costliest_first(study, pending), execution.cluster)
     if execution.workers > 1 and len(pending) > 1:
         return in_pool(study, costliest_first(study, pending), execution.workers)

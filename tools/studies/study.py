@@ -19,12 +19,14 @@ from typing import Generic, TypeVar
 import msgspec
 
 BATCH = 50  # trials per task unless --batch says otherwise (speed only: see this module's docstring)
-KEPT_TASKS = "the tasks finished are in the journal of --json or --csv, which --resume continues"  # a stop's hint
+WORKER_DEATH = "killed, or out of memory"  # what ends a worker process that was not asked to end
 
 
 class StudyStopped(ValueError):
-    """A study stopped by what it ran on rather than by its input (the Dask scheduler went away):
-    the message is one line saying what and how to continue; the command exits with ``exit_code``."""
+    """A study stopped by what it ran on rather than by its input (workers that kept dying, a Dask
+    scheduler that went away): the message is one line saying what, to which the runner adds where
+    the finished tasks are kept (:func:`tools.studies.journal.kept_tasks`); the command exits with
+    ``exit_code``."""
 
     exit_code = 1
 
