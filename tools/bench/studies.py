@@ -16,7 +16,7 @@ from typing import Any, TypeVar
 import msgspec
 
 from ringtrack.agents import engine
-from ringtrack.tools.bench.bench import machine
+from ringtrack.tools.bench.bench import BenchFailed, machine
 from ringtrack.tools.output.console import err
 from ringtrack.tools.studies.experiment import random_start_scenarios, stationary_experiment
 from ringtrack.tools.studies.pool import worker_pool
@@ -93,9 +93,7 @@ def bench_task(task: BenchTask) -> BenchPart:
 
 def pid_and_seconds(work: Callable[[T], object], task: T) -> tuple[int, float]:
     """Run ``work(task)`` and return the pid that ran it and its wall seconds there."""
-    started = time.perf_counter()
-    work(task)
-    return os.getpid(), time.perf_counter() - started
+    return os.getpid(), timed(lambda: work(task))
 
 
 def two_process_ceiling(work: Callable[[T], object], task: T, repeats: int) -> float:
@@ -103,7 +101,8 @@ def two_process_ceiling(work: Callable[[T], object], task: T, repeats: int) -> f
     over the seconds each of two takes when both run a copy at once (2.0: two free cores of their
     own; two hyperthreads of one core, or a host busy with other tenants, give less), no worker's
     start counted. Each timing is the best of ``repeats`` rounds, alone and together taking turns,
-    in a warm pool of two (a round in which one worker took both copies is run again). ``work``
+    in a warm pool of two (a round in which one worker took both copies is run again, up to
+    ``4 * repeats`` rounds in all). ``work``
     must be a module's function (the pool's processes import it)."""
     alone: list[float] = []
     together: list[float] = []
@@ -118,7 +117,8 @@ def two_process_ceiling(work: Callable[[T], object], task: T, repeats: int) -> f
             if len(together) == repeats:
                 break
     if not together:
-        raise RuntimeError("the pool of two never ran two tasks at once")
+        raise BenchFailed("bench studies: a pool of two workers never ran two tasks at once (is this process "
+                          "allowed a single core?)")
     return 2 * min(alone) / min(together)
 
 
@@ -133,11 +133,15 @@ def scenario_of(base: str, strategy: str, mode: str | None, sizes: Sizes) -> Sce
 def trials_per_s(scenario: Scenario, trials: int, batch: int, workers: int) -> float:
     """Trials per second of a study of ``trials`` trials of ``scenario`` in tasks of ``batch`` on
     ``workers`` local processes (pool start-up included)."""
-    tasks = [BenchTask(seed_range(seeds), first, seeds, scenario)
-             for first, seeds in chunks(list(range(trials)), batch)]
+    tasks = bench_tasks(scenario, trials, batch)
     started = time.perf_counter()
     run_study(Study("bench", {}, tasks, bench_task, BenchPart), Execution(workers=workers, batch=batch))
     return trials / (time.perf_counter() - started)
+
+
+def bench_tasks(scenario: Scenario, trials: int, batch: int) -> list[BenchTask]:
+    """The tasks of a benchmarked study: ``trials`` trials of ``scenario`` (seeds 0..) in chunks of ``batch``."""
+    return [BenchTask(seed_range(seeds), first, seeds, scenario) for first, seeds in chunks(list(range(trials)), batch)]
 
 
 def engine_batch(scenario: Scenario, trials: int) -> Callable[[], object]:
@@ -229,7 +233,7 @@ def studies_results(sizes: Sizes) -> dict[str, Any]:
     runs = [(workers, trials_per_s(stationary, sizes.speedup_trials, speedup_batch, workers))
             for _ in range(2) for workers in (1, 2)]
     one, two = (max(rate for count, rate in runs if count == workers) for workers in (1, 2))
-    first_task = BenchTask(seed_range(list(range(speedup_batch))), 0, list(range(speedup_batch)), stationary)
+    first_task = bench_tasks(stationary, sizes.speedup_trials, speedup_batch)[0]
     return {
         "benchmark": "studies",
         "machine": machine(),

@@ -285,7 +285,11 @@ def studies_table(results: dict[str, Any]) -> Table:
 
 
 def run_studies_bench(args: argparse.Namespace) -> int:
-    results = studies_results(QUICK if args.quick else FULL)
+    try:
+        results = studies_results(QUICK if args.quick else FULL)
+    except BenchFailed as failure:
+        err.print(str(failure), highlight=False)
+        return 1
     show(studies_table(results))
     if args.json:
         write_json(args.json, results)

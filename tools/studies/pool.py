@@ -16,8 +16,9 @@ POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that d
 
 
 def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
-    """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`); the pool is shut
-    down, its queued tasks cancelled, however the loop ends (an error, Ctrl-C). A worker that dies
+    """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`); however the loop
+    ends early (an error, Ctrl-C, SIGTERM) the pool's workers are ended and its queued tasks
+    cancelled. A worker that dies
     (killed, out of memory) breaks the pool and every task it had not finished: those run again in a
     new pool (a task's result does not depend on where or how often it ran), saying so on stderr,
     at most :data:`POOL_RESTARTS` times in a study."""
@@ -49,7 +50,8 @@ def worker_pool(module: str, workers: int) -> Iterator[ProcessPoolExecutor]:
     """A pool of ``workers`` local processes started by a fork server (this process may run a
     progress thread, which a fork would copy mid-flight) that has imported ``module`` (the work's:
     numpy, the engine) once, so that each worker forks from it ready (a preload counts when this
-    process starts its fork server, at its first pool); shut down on leaving, queued tasks cancelled."""
+    process starts its fork server, at its first pool); shut down on leaving, queued tasks cancelled,
+    and its workers ended at once (:func:`end_workers`) when the block is left by an exception."""
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([module])
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
