@@ -14,18 +14,28 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from ringtrack.tools.cli import main
-from ringtrack.tools.studies import cluster
+from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, random_start_scenarios, stationary_task
-from ringtrack.tools.studies.journal import PACKAGE_ROOT, RESULT_SOURCES
-from ringtrack.tools.studies.study import Study, execute
+from ringtrack.tools.studies.provenance import PACKAGE_ROOT, RESULT_SOURCES, checked, execute_checked, origin
+from ringtrack.tools.studies.runner import run_study
+from ringtrack.tools.studies.study import Execution, Study, Task, execute
 from tests.helpers import RINGTRACK
 from tests.test_strategy import example
-from tests.test_studies_at_scale import counted_tasks, journalled_a_task, local_cluster, run, without_wall
+from tests.test_studies_at_scale import (
+    STUDIES,
+    Seeds,
+    counted_tasks,
+    journalled_a_task,
+    local_cluster,
+    run,
+    without_wall,
+)
 
 pytest.importorskip("dask.distributed")
 
@@ -116,16 +126,16 @@ def test_a_worker_with_other_ringtrack_code_runs_no_task(bare_scheduler: str, tm
     with worker(bare_scheduler, code=copy.parent):
         assert main([*STUDY, "--cluster", bare_scheduler, "--json", str(output)]) == 2
     assert capsys.readouterr().err.splitlines()[-1] == (
-        f"ringtrack: error: --cluster {bare_scheduler}: the worker on {socket.gethostname()} runs other ringtrack "
-        "code than this machine (its results would differ from a local run's); install the same ringtrack on every "
-        "worker")
+        f"ringtrack: error: --cluster {bare_scheduler}: ringtrack's source on {socket.gethostname()} is not the one "
+        "the study began with (its results would differ): give every worker the study's ringtrack, unchanged until "
+        "the study ends")
     assert not output.exists() and (tmp_path / "s.journal.jsonl").read_bytes().count(b"\n") == 1  # the header
 
 
 @pytest.mark.parametrize(("there", "problem"), [
-    (None, "the worker on {host} has no heartbeat.py (a worker reads it at that path); copy it to every worker's host"),
-    (b"\n# edited there\n", "heartbeat.py on the worker on {host} differs from this machine's; copy this one to every "
-                            "worker's host"),
+    (None, "heartbeat.py is missing on {host}, where the study's tasks read it (at that path): copy it there"),
+    (b"\n# edited there\n", "heartbeat.py on {host} is not the file the study began with (its results would differ): "
+                            "give every host the same file, unchanged until the study ends"),
     (b"", None),
 ], ids=["missing", "edited", "same"])
 def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, problem: str | None,
@@ -142,17 +152,53 @@ def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, 
     monkeypatch.chdir(here)
     scenario = random_start_scenarios("paper-stationary", 4, [strategy.name])["heartbeat"]
     task = StationaryTask("N=4 heartbeat 0..1", 0, [0, 1], 4, "heartbeat", scenario)
-    study = Study("stationary", {"strategies": [strategy.name]}, [task], stationary_task, StationaryPart)
-    files = cluster.worker_files(study)
-    expected = cluster.provenance(files)
+    began = origin(Study("stationary", {"strategies": [strategy.name]}, [task], stationary_task, StationaryPart))
     local = execute(stationary_task, task)
     monkeypatch.chdir(elsewhere)
-    host, found, result = cluster.execute_checked(stationary_task, task, files, expected)
-    assert files == (strategy.name,) and host == socket.gethostname()
+    outcome = execute_checked(stationary_task, task, began)
+    assert began.files == (strategy.name,) and outcome[0] == socket.gethostname()
     if problem is None:
-        assert found == expected and result == local
+        assert outcome[1:] == (began.provenance, local) and checked(outcome, began, "here") == local
     else:
-        assert result is None and cluster.difference(host, found, expected, files) == problem.format(host=host)
+        assert outcome[2] is None
+        with pytest.raises(UsageError) as raised:
+            checked(outcome, began, "--cluster tcp://host:8786")
+        assert str(raised.value) == "--cluster tcp://host:8786: " + problem.format(host=outcome[0])
+
+
+@dataclass(frozen=True)
+class EditingTask(Task):
+    """A task of a study whose strategy file (``strategy``, a path) its first task edits."""
+
+    strategy: str
+
+
+def edit_then_answer(task: EditingTask) -> Seeds:
+    """The first task appends a line to the strategy file; every other waits until it has (so that
+    it finishes after the edit, whichever worker ran the first), then each returns its seeds."""
+    strategy = Path(task.strategy)
+    if task.first == 0:
+        with strategy.open("a") as file:
+            file.write("# edited mid-study\n")
+    deadline = time.monotonic() + 60
+    while not strategy.read_text().endswith("# edited mid-study\n") and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return Seeds(task.seeds)
+
+
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.processes)])
+def test_a_strategy_file_edited_mid_study_stops_it(workers: int, tmp_path: Path) -> None:
+    """A file the tasks read is edited while the study runs (a researcher trying a change): the
+    tasks that would run with the edited file run nothing, in this process or in a pool's workers,
+    and the study stops in one line rather than mix two versions of the strategy in its results."""
+    strategy = example(tmp_path)
+    tasks = [EditingTask(f"task {index}", index, [index], str(strategy)) for index in range(6)]
+    study = Study("editing", {"strategies": [str(strategy)]}, tasks, edit_then_answer, Seeds)
+    with pytest.raises(UsageError) as raised:
+        run_study(study, Execution(workers=workers))
+    assert str(raised.value) == (
+        f"experiment editing: {strategy} on {socket.gethostname()} is not the file the study began with (its results "
+        "would differ): give every host the same file, unchanged until the study ends")
 
 
 @pytest.mark.processes
@@ -182,6 +228,7 @@ def test_resuming_a_finished_study_on_a_cluster_connects_to_none(tmp_path: Path,
                                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """Nothing left to run: the study is written from its journal, and no scheduler is asked (none
     answers at the address given)."""
-    whole = run(STUDY, tmp_path, "s", "--workers", "1")
-    assert run(STUDY, tmp_path, "s", "--resume", "--cluster", "tcp://127.0.0.1:1") == whole
-    assert "30 of 30 tasks done, 0 to run" in capsys.readouterr().err
+    small = [*STUDIES["stationary"], "--quiet"]  # 4 tasks
+    whole = run(small, tmp_path, "s", "--workers", "1")
+    assert run(small, tmp_path, "s", "--resume", "--cluster", "tcp://127.0.0.1:1") == whole
+    assert "4 of 4 tasks done, 0 to run" in capsys.readouterr().err

@@ -25,9 +25,10 @@ from rich.console import Console
 
 from ringtrack.tools.cli import main
 from ringtrack.tools.output.progress import TrialProgress, duration
-from ringtrack.tools.studies import pool, runner
+from ringtrack.tools.studies import pool, provenance, runner
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, stationary_task
-from ringtrack.tools.studies.journal import PACKAGE_ROOT, RESULT_SOURCES, inputs_digest
+from ringtrack.tools.studies.journal import inputs_digest
+from ringtrack.tools.studies.provenance import PACKAGE_ROOT, RESULT_SOURCES
 from ringtrack.tools.studies.study import Execution, Study, StudyStopped, Task
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import RINGTRACK
@@ -118,13 +119,13 @@ def test_cluster_without_dask_names_the_extra(monkeypatch: pytest.MonkeyPatch, t
 def counted_tasks(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The keys of the tasks this process runs from now on (the runner's in-process path)."""
     keys: list[str] = []
-    execute = runner.execute
+    execute = provenance.execute
 
     def counting(work, task):  # type: ignore[no-untyped-def]
         keys.append(task.key)
         return execute(work, task)
 
-    monkeypatch.setattr(runner, "execute", counting)
+    monkeypatch.setattr(provenance, "execute", counting)
     return keys
 
 

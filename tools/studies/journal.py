@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import functools
 import hashlib
 import os
 from collections.abc import Iterator, Mapping
@@ -21,10 +20,8 @@ import msgspec
 
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.files import OutputError
+from ringtrack.tools.studies.provenance import code_digest, file_digest, named_files
 from ringtrack.tools.studies.study import Study
-
-PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
-RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # what computes a study's results
 
 
 def kept_tasks(journal: Path | None) -> str:
@@ -82,38 +79,6 @@ def inputs_digest(parameters: Mapping[str, object]) -> str:
     for name in sorted(set(named_files(parameters))):
         digest.update(f"{name}\0{file_digest(name)}\0".encode())
     return digest.hexdigest()
-
-
-@functools.cache
-def code_digest() -> str:
-    """SHA-256 (hex) of ringtrack's source that computes a study's results (:data:`RESULT_SOURCES`)
-    as installed where this runs: equal on two machines exactly when they compute the same results."""
-    digest = hashlib.sha256()
-    for folder in RESULT_SOURCES:
-        for path in sorted((PACKAGE_ROOT / folder).rglob("*")):
-            if path.suffix in (".py", ".toml") and path.is_file():
-                digest.update(f"{path.relative_to(PACKAGE_ROOT).as_posix()}\0".encode())
-                digest.update(hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()
-
-
-def file_digest(name: str) -> str | None:
-    """SHA-256 (hex) of the file at path ``name`` where this runs; None where there is none."""
-    path = Path(name)
-    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
-
-
-def named_files(value: object) -> Iterator[str]:
-    """The strings in ``value`` (nested lists and mappings) that name existing files."""
-    if isinstance(value, str):
-        if value and Path(value).is_file():
-            yield value
-    elif isinstance(value, Mapping):
-        for item in value.values():
-            yield from named_files(item)
-    elif isinstance(value, list | tuple):
-        for item in value:
-            yield from named_files(item)
 
 
 def header_difference(found: JournalHeader, wanted: JournalHeader) -> str | None:

@@ -10,13 +10,16 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 
 from ringtrack.tools.output.console import err
-from ringtrack.tools.studies.study import WORKER_DEATH, Study, StudyStopped, execute
+from ringtrack.tools.studies.provenance import Origin, checked, execute_checked
+from ringtrack.tools.studies.study import WORKER_DEATH, Study, StudyStopped
 
 POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that died (as Dask retries them)
 
 
-def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[int, bytes], None, None]:
-    """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`); however the loop
+def in_pool(study: Study, pending: list[int], workers: int,
+            began: Origin) -> Generator[tuple[int, bytes], None, None]:
+    """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`), each only where it
+    computes with what the study ``began`` with (:func:`tools.studies.provenance.checked`); however the loop
     ends early (an error, Ctrl-C, SIGTERM) the pool's workers are ended and its queued tasks
     cancelled. A worker that dies
     (killed, out of memory) breaks the pool and every task it had not finished: those run again in a
@@ -26,14 +29,14 @@ def in_pool(study: Study, pending: list[int], workers: int) -> Generator[tuple[i
     while pending:
         lost = []
         with worker_pool(study.work.__module__, min(workers, len(pending))) as pool:
-            futures = {pool.submit(execute, study.work, study.tasks[index]): index for index in pending}
+            futures = {pool.submit(execute_checked, study.work, study.tasks[index], began): index for index in pending}
             for future in as_completed(futures):
                 try:
-                    result = future.result()
+                    outcome = future.result()
                 except BrokenProcessPool:
                     lost.append(futures[future])
                     continue
-                yield futures[future], result
+                yield futures[future], checked(outcome, began, f"experiment {study.experiment}")
         if lost:
             restarts += 1
             if restarts > POOL_RESTARTS:

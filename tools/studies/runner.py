@@ -20,7 +20,8 @@ from ringtrack.tools.output.progress import TrialProgress
 from ringtrack.tools.studies.cluster import dask_distributed, on_cluster
 from ringtrack.tools.studies.journal import JournalTask, append, header_of, journal_file, kept_tasks, read_journal
 from ringtrack.tools.studies.pool import in_pool
-from ringtrack.tools.studies.study import Execution, ResultT, Study, StudyStopped, TaskT, execute
+from ringtrack.tools.studies.provenance import Origin, checked, execute_checked, origin
+from ringtrack.tools.studies.study import Execution, ResultT, Study, StudyStopped, TaskT
 from ringtrack.tools.team.supervisor import terminate_as_exception
 
 
@@ -38,13 +39,14 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
     if execution.resume:
         err.print(f"{label}: resuming {execution.journal}: {len(results)} of {len(study.tasks)} tasks done, "
                   f"{len(pending)} to run", highlight=False, markup=False)
+    began = origin(study)
     total = sum(len(task.seeds) for task in study.tasks)
     done = sum(len(study.tasks[index].seeds) for index in results)
     try:
         with (terminate_as_exception(),  # a SIGTERM ends the workers and keeps the journal, as Ctrl-C does
               journal_file(execution.journal, header, execution.resume) as journal,
               TrialProgress(label, total, done, execution.quiet) as progress,
-              contextlib.closing(finished(study, pending, execution)) as outcomes):
+              contextlib.closing(finished(study, pending, execution, began)) as outcomes):
             for index, result in outcomes:
                 if journal is not None:
                     append(journal, msgspec.json.encode(JournalTask(index, study.tasks[index].key,
@@ -57,14 +59,18 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
     return [decoder.decode(results[index]) for index in range(len(study.tasks))]
 
 
-def finished(study: Study, pending: list[int], execution: Execution) -> Generator[tuple[int, bytes], None, None]:
-    """``(task index, result)`` of the ``pending`` tasks as they finish, wherever they run (none
-    pending: nothing is started, not even a cluster's client)."""
+def finished(study: Study, pending: list[int], execution: Execution,
+             began: Origin) -> Generator[tuple[int, bytes], None, None]:
+    """``(task index, result)`` of the ``pending`` tasks as they finish, wherever they run, each
+    computed with what the study ``began`` with (:mod:`tools.studies.provenance`; none pending:
+    nothing is started, not even a cluster's client)."""
     if execution.cluster is not None and pending:
-        return on_cluster(study, costliest_first(study, pending), execution.cluster)
+        return on_cluster(study, costliest_first(study, pending), execution.cluster, began)
     if execution.workers > 1 and len(pending) > 1:
-        return in_pool(study, costliest_first(study, pending), execution.workers)
-    return ((index, execute(study.work, study.tasks[index])) for index in pending)
+        return in_pool(study, costliest_first(study, pending), execution.workers, began)
+    where = f"experiment {study.experiment}"
+    return ((index, checked(execute_checked(study.work, study.tasks[index], began), began, where))
+            for index in pending)
 
 
 def costliest_first(study: Study, pending: list[int]) -> list[int]:
