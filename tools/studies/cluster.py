@@ -1,8 +1,7 @@
 """Tasks on a Dask distributed cluster (``--cluster``, the optional extra ``ringtrack[cluster]``):
 each worker runs a task only where it computes with what the study began with
-(:mod:`tools.studies.provenance`), and what a
-cluster meets (no worker yet, workers that keep dying, a scheduler that goes away) is said in one
-line."""
+(:mod:`tools.studies.provenance`), and what a cluster meets (no worker yet, workers that keep
+dying, a scheduler that goes away) is said in one line."""
 
 from __future__ import annotations
 

@@ -19,12 +19,11 @@ POOL_RESTARTS = 3  # new pools a study may start for the tasks of workers that d
 def in_pool(study: Study, pending: list[int], workers: int,
             began: Origin) -> Generator[tuple[int, bytes], None, None]:
     """Run the tasks in up to ``workers`` local processes (:func:`worker_pool`), each only where it
-    computes with what the study ``began`` with (:func:`tools.studies.provenance.checked`); however the loop
-    ends early (an error, Ctrl-C, SIGTERM) the pool's workers are ended and its queued tasks
-    cancelled. A worker that dies
-    (killed, out of memory) breaks the pool and every task it had not finished: those run again in a
-    new pool (a task's result does not depend on where or how often it ran), saying so on stderr,
-    at most :data:`POOL_RESTARTS` times in a study."""
+    computes with what the study ``began`` with (:func:`tools.studies.provenance.checked`). However
+    the loop ends early (an error, Ctrl-C, SIGTERM), the pool's workers are ended and its queued
+    tasks cancelled. A worker that dies (killed, out of memory) breaks the pool and every task it
+    had not finished: those run again in a new pool (a task's result does not depend on where or
+    how often it ran), saying so on stderr, at most :data:`POOL_RESTARTS` times in a study."""
     restarts = 0
     while pending:
         lost = []
