@@ -44,7 +44,7 @@ def on_cluster(study: Study, pending: list[int], address: str,
     lost = False
     try:
         if not client.scheduler_info()["workers"]:
-            err.print(f"experiment {study.experiment}: the Dask scheduler at {address} has no worker yet; the tasks "
+            err.print(f"{study.label}: the Dask scheduler at {address} has no worker yet; the tasks "
                       f"wait for one ('dask worker {address}' on a host with ringtrack)", highlight=False, markup=False)
         futures = [client.submit(execute_checked, study.work, study.tasks[index], began, pure=False)
                    for index in pending]
@@ -53,7 +53,7 @@ def on_cluster(study: Study, pending: list[int], address: str,
             try:
                 outcome = future.result()
             except distributed.KilledWorker:
-                raise StudyStopped(f"experiment {study.experiment}: the workers that ran task "
+                raise StudyStopped(f"{study.label}: the workers that ran task "
                                    f"'{study.tasks[index_of[future.key]].key}' kept dying ({WORKER_DEATH})") from None
             except (distributed.comm.CommClosedError, CancelledError):
                 # the client lost its scheduler: it cancels every future, and a result it was fetching fails

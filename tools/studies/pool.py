@@ -35,13 +35,13 @@ def in_pool(study: Study, pending: list[int], workers: int,
                 except BrokenProcessPool:
                     lost.append(futures[future])
                     continue
-                yield futures[future], checked(outcome, began, f"experiment {study.experiment}")
+                yield futures[future], checked(outcome, began, study.label)
         if lost:
             restarts += 1
             if restarts > POOL_RESTARTS:
-                raise StudyStopped(f"experiment {study.experiment}: a worker process died {restarts} times "
+                raise StudyStopped(f"{study.label}: a worker process died {restarts} times "
                                    f"({WORKER_DEATH}: try fewer --workers or a smaller --batch)")
-            err.print(f"experiment {study.experiment}: a worker process died ({WORKER_DEATH}); running "
+            err.print(f"{study.label}: a worker process died ({WORKER_DEATH}); running "
                       f"its pool's {len(lost)} unfinished tasks in a new pool ({restarts} of {POOL_RESTARTS})",
                       highlight=False, markup=False)
         pending = [index for index in pending if index in lost]  # in the order given

@@ -29,7 +29,6 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
     """Run the study's tasks not yet journalled (all unless ``execution.resume``), journal each as it
     finishes and return every task's result in the study's order."""
     header = header_of(study, execution.batch)
-    label = f"experiment {study.experiment}"
     if execution.resume and execution.journal is None:
         raise UsageError("--resume: give the --json or --csv of the interrupted study (its journal lies beside it)")
     if execution.cluster is not None:
@@ -37,7 +36,7 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
     results = read_journal(execution.journal, study, header) if execution.resume and execution.journal else {}
     pending = [index for index in range(len(study.tasks)) if index not in results]
     if execution.resume:
-        err.print(f"{label}: resuming {execution.journal}: {len(results)} of {len(study.tasks)} tasks done, "
+        err.print(f"{study.label}: resuming {execution.journal}: {len(results)} of {len(study.tasks)} tasks done, "
                   f"{len(pending)} to run", highlight=False, markup=False)
     began = origin(study)
     total = sum(len(task.seeds) for task in study.tasks)
@@ -45,7 +44,7 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
     try:
         with (terminate_as_exception(),  # a SIGTERM ends the workers and keeps the journal, as Ctrl-C does
               journal_file(execution.journal, header, execution.resume) as journal,
-              TrialProgress(label, total, done, execution.quiet) as progress,
+              TrialProgress(study.label, total, done, execution.quiet) as progress,
               contextlib.closing(finished(study, pending, execution, began)) as outcomes):
             for index, result in outcomes:
                 if journal is not None:
@@ -68,8 +67,7 @@ def finished(study: Study, pending: list[int], execution: Execution,
         return on_cluster(study, costliest_first(study, pending), execution.cluster, began)
     if execution.workers > 1 and len(pending) > 1:
         return in_pool(study, costliest_first(study, pending), execution.workers, began)
-    where = f"experiment {study.experiment}"
-    return ((index, checked(execute_checked(study.work, study.tasks[index], began), began, where))
+    return ((index, checked(execute_checked(study.work, study.tasks[index], began), began, study.label))
             for index in pending)
 
 

@@ -68,6 +68,11 @@ class Study(Generic[TaskT, ResultT]):
     work: Callable[[TaskT], ResultT]
     result: type[ResultT]
 
+    @property
+    def label(self) -> str:
+        """How the study's lines on stderr and its errors name it: ``experiment NAME``."""
+        return f"experiment {self.experiment}"
+
 
 @dataclass(frozen=True)
 class Execution:
