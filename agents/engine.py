@@ -240,12 +240,12 @@ def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
     return ring_traffic(np.stack([polled, polled], axis=-1))
 
 
-def fault_totals(history: History, trial: int = 0) -> dict[str, int]:
-    """Robot-to-robot messages sent, delivered, dropped, duplicated, delayed and published over a
-    trial, and probes."""
-    totals = history.faults[:, trial].sum(axis=0)
+def fault_totals(history: History, trial: int = 0, steps: slice = slice(None)) -> dict[str, int]:
+    """Robot-to-robot messages sent, delivered, dropped, duplicated, delayed and published over the
+    ``steps`` (rows of the history; default all) of a trial, and probes."""
+    totals = history.faults[steps, trial].sum(axis=0)
     return {**{name: int(value) for name, value in zip(FAULT_COLUMNS, totals, strict=True)},
-            "probes": int(history.probes[:, trial].sum())}
+            "probes": int(history.probes[steps, trial].sum())}
 
 
 def link_traffic(history: History, trial: int = 0) -> list[tuple[str, str, str, int, None]]:

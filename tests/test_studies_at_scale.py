@@ -38,7 +38,7 @@ STUDIES = {
     "stationary": ["experiment", "stationary", "--robots", "4", "--trials", "3", "--batch", "2"],
     "moving": ["experiment", "moving", "authors-moving", "--no-velocities", "--trials", "3", "--steps", "100",
                "--settle", "20", "--batch", "2"],
-    "faults": ["experiment", "faults", "--drop", "0,0.3", "--trials", "3", "--steps", "150", "--batch", "2"],
+    "faults": ["experiment", "faults", "--drop", "0,0.3", "--trials", "3", "--steps", "400", "--batch", "2"],
     "gates": ["experiment", "gates", "--gates", "1,2", "--trials", "3", "--steps", "100", "--settle", "20",
               "--batch", "2"],
     "tracking": ["experiment", "tracking", "authors-moving", "--strategies", "self,belief", "--trials", "3", "--steps",

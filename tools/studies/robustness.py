@@ -7,9 +7,10 @@ A *cell* is one value of each swept quantity; a *variant* one strategy (and, for
 one estimation mode). Trial t of every cell and variant uses seed ``SEED + t`` for its start, noise
 and fault draws (:func:`agents.engine.fault_seeds`). An outage of L steps cuts the ring into two
 halves: links ``(N/2 - 1, N/2)`` and ``(N - 1, 0)`` are down for steps ``OUTAGE_START ..
-OUTAGE_START + L - 1``. Costs (robot-to-robot messages, bytes, radio energy) of a stationary-target
-run count steps 1..Ctime (every step run when it did not converge); of a moving-target run every
-step, with Cerr (true, degrees) and Terr (metres) averaged from ``--settle`` on.
+OUTAGE_START + L - 1``. Costs (robot-to-robot messages, bytes, radio energy) and the fault layer's
+counts of a stationary-target run count steps 1..Ctime (every step run when it did not converge), as
+the trial run alone would; of a moving-target run every step, with Cerr (true, degrees) and Terr
+(metres) averaged from ``--settle`` on.
 """
 
 from __future__ import annotations
@@ -257,7 +258,7 @@ def trial_rows(history: engine.History, settle: int, variant: FaultVariant, firs
             bytes=int(history.sent_bytes[window, trial].sum()),
             energy_j=float(history.energy[window, trial].sum()),
             energy_per_robot=float(history.energy[window, trial].sum()) / robots,
-            faults=engine.fault_totals(history, trial),
+            faults=engine.fault_totals(history, trial, window),
             cerr=float(history.cerr_true[settle:, trial].mean()) if scenario.moving else UNSET,
             terr=float(history.terr[settle:, trial].mean()) if scenario.moving else UNSET,
         ))
