@@ -81,6 +81,19 @@ def test_batching_does_not_change_a_study(study: str, tmp_path: Path) -> None:
     assert pairs == whole
 
 
+@pytest.mark.parametrize(("study", "run_name"), [("moving", "a run"), ("faults", "a run"), ("gates", "a run"),
+                                               ("tracking", "authors-moving")])
+def test_a_settle_past_the_run_gets_one_line(study: str, run_name: str, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Every study that averages from --settle on refuses one that leaves no step (the gates study
+    crashed on its empty means), before it runs or writes anything."""
+    command = ["experiment", study, "authors-moving", "--trials", "1", "--steps", "80", "--settle", "80"]
+    assert main([*command, "--json", str(tmp_path / "s.json"), "--workers", "1", "--quiet"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"ringtrack: error: --settle 80: must be below the 80 steps of {run_name}"]
+    assert list(tmp_path.iterdir()) == []
+
+
 @contextlib.contextmanager
 def local_cluster(workers: int, **config: object) -> Iterator[str]:
     """A Dask LocalCluster of ``workers`` single-threaded worker processes, its scheduler's HTTP

@@ -417,6 +417,13 @@ def exact_sum(series: Sequence[list[int]]) -> list[int]:
     return functools.reduce(np.add, (np.asarray(values, dtype=np.int64) for values in series)).tolist()
 
 
+def check_settle(settle: int, steps: int, run: str = "a run") -> None:
+    """Raise a :class:`UsageError` unless ``--settle`` leaves some of the ``steps`` of ``run`` to
+    average: means are taken from step ``settle + 1`` on (1-based)."""
+    if settle >= steps:
+        raise UsageError(f"--settle {settle}: must be below the {steps} steps of {run}")
+
+
 def moving_figures(totals: StepTotals, robots: int, settle: int, mode: str) -> MovingFigures:
     """The figures of a moving-target run of ``robots`` robots over the trials ``totals`` sums, means
     from step ``settle`` on (:func:`world.metrics.settled_mean` of the trial-mean series): see
@@ -499,8 +506,7 @@ def moving_experiment(
     for group, (speed, angular_speed), (strategy, mode) in plan:
         key = (speed, angular_speed, strategy, mode)
         scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
-        if settle >= scenario.max_steps:
-            raise UsageError(f"--settle {settle}: must be below the {scenario.max_steps} steps of a run")
+        check_settle(settle, scenario.max_steps)
         setting: dict[str, Any] = {  # MovingSetting's own fields
             "group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
             "strategy": strategy_name(strategy), "estimation": mode,

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import msgspec
 
 from ringtrack.agents import engine
-from ringtrack.tools.studies.experiment import StepTotals, combined, step_totals, strategy_labels
+from ringtrack.tools.studies.experiment import StepTotals, check_settle, combined, step_totals, strategy_labels
 from ringtrack.tools.studies.figures import drawn
 from ringtrack.tools.studies.runner import run_study
 from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
@@ -92,6 +92,7 @@ def gates_experiment(base: str, gates: list[float], trials: int, settle: int, st
     reference, mode = REFERENCE
     gated = load_scenario(base, strategy=GATED, estimation="decentralized", max_steps=steps)
     runs = [(reference, load_scenario(base, strategy=reference, estimation=mode, max_steps=steps))]
+    check_settle(settle, gated.max_steps)
     runs += [(f"{GATED} g={gate:g} (gate {number})", with_gate(gated, gate)) for number, gate in enumerate(gates)]
     parts = chunks(list(range(trials)), execution.batch)
     tasks = [GatesTask(f"{name} {seed_range(seeds)}", first, seeds, scenario)

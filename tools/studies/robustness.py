@@ -26,10 +26,9 @@ import numpy as np
 from msgspec import UNSET, UnsetType
 
 from ringtrack.agents import engine
-from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.runlog.log import history_from_log, read_log
-from ringtrack.tools.studies.experiment import strategy_labels
+from ringtrack.tools.studies.experiment import check_settle, strategy_labels
 from ringtrack.tools.studies.runner import run_study
 from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
 from ringtrack.tools.team.plan import TeamPlan
@@ -322,8 +321,8 @@ def faults_experiment(
     spec, label = base_spec(base)
     seeds = list(range(seed, seed + trials))
     probe = cell_scenario(spec, label, cells[0], strategies[0], None, steps)
-    if probe.moving and settle >= probe.max_steps:
-        raise UsageError(f"--settle {settle}: must be below the {probe.max_steps} steps of a run")
+    if probe.moving:
+        check_settle(settle, probe.max_steps)
     keys = [key for key, _, _ in METRICS + (MOVING_METRICS if probe.moving else ())]
     started = time.perf_counter()
     tasks = []

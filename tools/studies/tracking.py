@@ -30,6 +30,7 @@ from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.studies.experiment import (
     FIXED_POINT,
     StepTotals,
+    check_settle,
     combined,
     exact_sum,
     fixed_point_sums,
@@ -216,8 +217,8 @@ def tracking_experiment(sources: Sequence[str], trials: int, seed: int, strategi
         if any(name == base.name for name, *_ in runs):
             raise UsageError(f"SCENARIO {source}: another scenario given is named {base.name!r} too; give each once")
         length = base.max_steps
-        if settle is not None and settle >= length:
-            raise UsageError(f"--settle {settle}: must be below the {length} steps of {base.name}")
+        if settle is not None:
+            check_settle(settle, length, base.name)
         settled = min(SETTLE, length - 1) if settle is None else settle
         plan = [(strategy, "decentralized") for strategy in compared] + [(reference_strategy(base), "centralized")]
         runs += [(base.name, run_scenario(source, strategy, mode, steps), strategy, mode, settled)
