@@ -204,6 +204,14 @@ class TeamEstimate:
         packed = np.stack([covariance[..., 0, 0], covariance[..., 0, 1], covariance[..., 1, 1]], axis=-1)
         return np.broadcast_to(packed, (self.trials, self.robots, 3))
 
+    def target_error(self, centres: FloatArray, targets: FloatArray) -> FloatArray:
+        """Terr of every trial (metres, (T,)) of the ``centres`` the robots steer about (T, N, 2)
+        against the true ``targets`` (T, 2): :func:`world.metrics.target_error`, which is exactly 0
+        where the robots steer about the target itself (known)."""
+        if self.mode == "known":
+            return np.zeros(self.trials)
+        return target_error(centres, targets)
+
     def fuse(self, fresh_minus: NDArray[np.bool_], fresh_plus: NDArray[np.bool_], centres: FloatArray) -> bool:
         """Decentralized robots fuse the beliefs of the neighbours whose replies reached them (beliefs
         as they were before anyone fused this step) and steer by the result; ``centres`` is updated
@@ -577,7 +585,7 @@ def run(
         requests[row], faults[row], probes[row] = outcome.requests, outcome.faults, outcome.probes
         sent_bytes[row], energy[row] = outcome.sent_bytes, outcome.energy
         offsets[row] = np.where(controller.offset_known, controller.guaranteed_offset, np.nan)
-        terr[row] = target_error(centres, targets)
+        terr[row] = team.target_error(centres, targets)
         if estimates is not None and covariances is not None:
             estimates[row], covariances[row] = centres, team.covariances()
         positions = motion_step(scenario, positions, goal)
