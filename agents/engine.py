@@ -577,7 +577,8 @@ def run(
             told = predecessor_values(reached[..., 1], axis=1), successor_values(reached[..., 0], axis=1)
         if team.relay is not None:  # requests and replies carry ranges
             team.relay.hand_over(told[0] | outcome.fresh_minus, told[1] | outcome.fresh_plus)
-        pushes[row] = outcome.pushes
+        if strategy.pushes:  # else none pushed: the rows stay zero
+            pushes[row] = outcome.pushes
         strategy.receive(controller, *replies(neighbours, outcome, content))
         if team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres):
             controller.recentre(centres)
@@ -596,6 +597,7 @@ def run(
             steps = k
             break
 
+    traffic = ring_traffic(requests[:steps])  # each robot's requests and replies: as many sent as received
     return History(
         scenario=scenario,
         seeds=seeds,
@@ -609,8 +611,8 @@ def run(
         targets=np.swapaxes(paths[:, :steps], 0, 1),
         terr=terr[:steps],
         estimates=None if estimates is None else estimates[:steps],
-        sent=ring_traffic(requests[:steps]) + pushes[:steps, ..., 0] + pushes[:steps, ..., 1],
-        received=ring_traffic(requests[:steps]) + _to_neighbours(pushes[:steps]),
+        sent=traffic + pushes[:steps, ..., 0] + pushes[:steps, ..., 1] if strategy.pushes else traffic,
+        received=traffic + _to_neighbours(pushes[:steps]) if strategy.pushes else traffic.copy(),
         requests=requests[:steps],
         faults=faults[:steps],
         probes=probes[:steps],
