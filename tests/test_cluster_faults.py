@@ -22,7 +22,14 @@ import pytest
 from ringtrack.tools.cli import main
 from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, random_start_scenarios, stationary_task
-from ringtrack.tools.studies.provenance import PACKAGE_ROOT, RESULT_SOURCES, checked, execute_checked, origin
+from ringtrack.tools.studies.provenance import (
+    PACKAGE_ROOT,
+    RESULT_SOURCES,
+    checked,
+    execute_checked,
+    origin,
+    study_files,
+)
 from ringtrack.tools.studies.runner import run_study
 from ringtrack.tools.studies.study import Execution, Study, Task, execute
 from tests.helpers import RINGTRACK
@@ -164,6 +171,18 @@ def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, 
         with pytest.raises(UsageError) as raised:
             checked(outcome, began, "--cluster tcp://host:8786")
         assert str(raised.value) == "--cluster tcp://host:8786: " + problem.format(host=outcome[0])
+
+
+def test_a_studys_files_are_also_the_strategy_files_its_scenarios_name(monkeypatch: pytest.MonkeyPatch,
+                                                                      tmp_path: Path) -> None:
+    """A scenario file's ``[strategy] name = "my.py"`` is read by every task that runs the scenario,
+    though no flag of the study names it."""
+    monkeypatch.chdir(tmp_path)
+    strategy = example(tmp_path)
+    scenario = random_start_scenarios("paper-stationary", 4, [strategy.name])["heartbeat"]
+    task = StationaryTask("N=4 heartbeat 0..1", 0, [0, 1], 4, "heartbeat", scenario)
+    assert study_files(Study("stationary", {}, [task], stationary_task, StationaryPart)) == (strategy.name,)
+    assert study_files(Study("stationary", {"strategies": ["self"]}, [], stationary_task, StationaryPart)) == ()
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,8 @@ from ringtrack.tools.studies.journal import inputs_digest
 from ringtrack.tools.studies.provenance import PACKAGE_ROOT, RESULT_SOURCES
 from ringtrack.tools.studies.study import Execution, Study, StudyStopped, Task
 from ringtrack.world.scenario import load_scenario
-from tests.helpers import RINGTRACK
+from tests.helpers import MOVING, RINGTRACK
+from tests.test_strategy import example
 
 # Small studies of several tasks each (--batch 2), one per experiment command.
 STUDIES = {
@@ -231,6 +232,26 @@ def test_resume_refuses_a_journal_of_other_code_or_files(tmp_path: Path, capsys:
     journal.write_bytes(json.dumps(decoded).encode() + b"\n" + b"".join(tasks))
     assert main([*arguments, "--resume"]) == 2
     assert capsys.readouterr().err.splitlines()[-1] == refused
+
+
+def test_resume_refuses_a_journal_whose_scenario_names_an_edited_strategy_file(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A strategy file that a scenario file names (rather than the command) is read by the study's
+    tasks too: edited between a run and its ``--resume``, the journal is refused, as when the scenario
+    file itself is edited (before, the study resumed and mixed the trials of both versions)."""
+    monkeypatch.chdir(tmp_path)
+    strategy = example(tmp_path)
+    (tmp_path / "mine.toml").write_text(MOVING.replace('[strategy]\nname = "self"', f'[strategy]\nname = "{strategy.name}"'))
+    journal = tmp_path / "t.journal.jsonl"
+    arguments = ["experiment", "tracking", "mine.toml", "--strategies", "self", "--trials", "2", "--steps", "60",
+                 "--settle", "10", "--batch", "1", "--workers", "1", "--quiet", "--json", "t.json"]
+    assert main(arguments) == 0
+    whole = journal.read_bytes()
+    journal.write_bytes(whole[: whole.rstrip(b"\n").rfind(b"\n") + 1])  # the last task lost
+    strategy.write_bytes(strategy.read_bytes() + b"\n# edited\n")
+    assert main([*arguments, "--resume"]) == 2
+    assert capsys.readouterr().err.splitlines()[-1].startswith(
+        f"ringtrack: error: --resume: {journal.name} was written by other code or from other files")
 
 
 def test_inputs_digest_covers_the_code_and_the_named_files(tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ import contextlib
 import fcntl
 import hashlib
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -20,7 +20,7 @@ import msgspec
 
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.files import OutputError
-from ringtrack.tools.studies.provenance import code_digest, file_digest, named_files
+from ringtrack.tools.studies.provenance import code_digest, file_digest, named_files, study_files
 from ringtrack.tools.studies.study import Study
 
 
@@ -68,15 +68,16 @@ def header_of(study: Study, batch: int) -> JournalHeader:
     gives them back (tuples as lists), so that a header read from a journal compares equal."""
     parameters = msgspec.json.decode(msgspec.json.encode(dict(study.parameters)))
     return JournalHeader(experiment=study.experiment, batch=batch, parameters=parameters,
-                         inputs=inputs_digest(parameters))
+                         inputs=inputs_digest(parameters, study_files(study)))
 
 
-def inputs_digest(parameters: Mapping[str, object]) -> str:
+def inputs_digest(parameters: Mapping[str, object], files: Iterable[str] = ()) -> str:
     """What a study's results depend on besides its parameters' values, as a SHA-256 (hex): the
-    source of the code that computes them (:func:`code_digest`) and the contents of every file the
-    ``parameters`` name (a scenario's TOML, a strategy's Python file)."""
+    source of the code that computes them (:func:`code_digest`), the contents of every file the
+    ``parameters`` name (a scenario's TOML, a strategy's Python file) and of the other ``files``
+    its tasks read (:func:`provenance.study_files`: strategy files a scenario names)."""
     digest = hashlib.sha256(code_digest().encode())
-    for name in sorted(set(named_files(parameters))):
+    for name in sorted(set(named_files(parameters)).union(files)):
         digest.update(f"{name}\0{file_digest(name)}\0".encode())
     return digest.hexdigest()
 

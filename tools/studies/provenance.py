@@ -7,6 +7,7 @@ what differs: its results never mix two versions.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import socket
@@ -17,7 +18,8 @@ from typing import NamedTuple
 import msgspec
 
 from ringtrack.tools.output.console import UsageError
-from ringtrack.tools.studies.study import Study, TaskT, execute
+from ringtrack.tools.studies.study import Study, Task, TaskT, execute
+from ringtrack.world.scenario import Scenario
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]  # ringtrack's own folder
 RESULT_SOURCES = ("agents", "bus", "world", "tools/studies", "scenarios")  # what computes a study's results
@@ -55,6 +57,25 @@ def named_files(value: object) -> Iterator[str]:
             yield from named_files(item)
 
 
+def scenario_files(task: Task) -> Iterator[str]:
+    """The strategy files (paths of ``.py`` files) that the scenarios a ``task`` runs name (its
+    fields holding a :class:`Scenario` or a list of them): a task reads them where it runs."""
+    for field in dataclasses.fields(task):
+        value = getattr(task, field.name)
+        for scenario in value if isinstance(value, list) else [value]:
+            if isinstance(scenario, Scenario) and scenario.strategy.name.endswith(".py"):
+                yield scenario.strategy.name
+
+
+def study_files(study: Study) -> tuple[str, ...]:
+    """The files ``study``'s tasks read where they run, as the study names them, sorted: the strategy
+    files its parameters name (``--strategies my.py``) and those its tasks' scenarios name (a
+    scenario file's ``[strategy] name = "my.py"``). A scenario's TOML is read where the study
+    starts, and its content travels in the task."""
+    names = {name for name in named_files(study.parameters) if name.endswith(".py")}
+    return tuple(sorted(names.union(*(scenario_files(task) for task in study.tasks))))
+
+
 class Provenance(NamedTuple):
     """What a machine computes a study's results with: ringtrack's source there (:func:`code_digest`)
     and the :func:`file_digest` there of each file the study's tasks read where they run."""
@@ -77,9 +98,8 @@ def provenance(files: tuple[str, ...]) -> Provenance:
 
 
 def origin(study: Study) -> Origin:
-    """What ``study`` begins with here: the files its tasks read where they run are its strategy
-    files (``.py``; a scenario's TOML is read here, and its content travels in the task)."""
-    files = tuple(sorted({name for name in named_files(study.parameters) if name.endswith(".py")}))
+    """What ``study`` begins with here: its :func:`study_files` and their digests now."""
+    files = study_files(study)
     return Origin(files, provenance(files))
 
 
