@@ -95,6 +95,33 @@ def test_a_settle_past_the_run_gets_one_line(study: str, run_name: str, tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize(("arguments", "error"), [
+    (["gates", "paper-stationary", "--gates", "1"],
+     "paper-stationary: experiment gates needs a moving target (target.motion = 'circle', 'random_walk' or "
+     "'waypoints'); give a moving scenario such as authors-moving"),
+    (["moving", "--strategies", "self,plan"],
+     "--strategies: the plan strategy needs estimation.mode = 'known', and a moving target's runs estimate it "
+     "(centralized or decentralized); leave it out"),
+    (["moving", "authors-moving"],
+     "the velocity setting v = 1 m/s, w = 0.4 rad/s puts the target of authors-moving on a circle of radius 2.5 m "
+     "that leaves the region; give --no-velocities to run the scenario's own circle only"),
+    (["stationary", "--strategies", "self,belief"],
+     "--strategies: the belief strategy needs estimation.mode = 'decentralized' and paper-stationary has 'known'; "
+     "give a scenario with estimation.mode = 'decentralized', or compare it with experiment moving or tracking"),
+    (["stationary", "--sigma-deg", "-1"], "--sigma-deg -1.0 (control.sigma_deg): expected a finite number >= 0; "
+                                          "fix the value"),
+], ids=["gates-stationary", "moving-plan", "moving-velocity-off-region", "stationary-belief", "stationary-sigma"])
+def test_a_study_it_cannot_run_gets_one_line(arguments: list[str], error: str, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """What a study cannot run is refused before it runs, in one line naming the fix (each of these
+    ended in a traceback, ran without the strategy, or named a flag the command does not have)."""
+    command = ["experiment", *arguments, "--trials", "1", "--steps", "20", "--json", str(tmp_path / "s.json")]
+    settle = ["--settle", "0"] if arguments[0] in ("gates", "moving") else []
+    assert main([*command, *settle, "--workers", "1", "--quiet"]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"ringtrack: error: {error}"]
+    assert list(tmp_path.iterdir()) == []
+
+
 @contextlib.contextmanager
 def local_cluster(workers: int, **config: object) -> Iterator[str]:
     """A Dask LocalCluster of ``workers`` single-threaded worker processes, its scheduler's HTTP

@@ -17,6 +17,7 @@ from ringtrack.tools.cli.options import (
     add_study_arguments,
     at_least,
     execution_of,
+    overrides_named_by_flag,
     strategy_argument,
     strategy_parameters,
     team_sizes,
@@ -117,8 +118,9 @@ def robot_list(text: str) -> list[int]:
 def run_stationary(args: argparse.Namespace) -> int:
     overrides = {"sigma_deg": args.sigma_deg, "law": args.law, "max_steps": args.steps,
                  "strategy_parameters": strategy_parameters(args)}
-    result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, args.strategies,
-                                   execution_of(args, args.json, args.csv), **overrides)
+    with overrides_named_by_flag():
+        result = stationary_experiment(args.scenario, args.robots, args.trials, args.seed, args.strategies,
+                                       execution_of(args, args.json, args.csv), **overrides)
     show(results_table(result))
     write_study(args, result, stationary_comparison, result.rows, STATIONARY_COLUMNS)
     failed = [entry for entry in result.summary if entry.converged < entry.trials]

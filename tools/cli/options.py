@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TypeVar
 
@@ -75,10 +76,20 @@ def add_from_step_argument(parser: argparse.ArgumentParser) -> None:
                         "(default 300, as experiment moving --settle)")
 
 
+@contextlib.contextmanager
+def overrides_named_by_flag() -> Iterator[None]:
+    """Report a scenario override's bad value (:class:`OverrideError`) by the flag that gave it, e.g.
+    ``--drop 1.5 (faults.drop): expected a probability ...``."""
+    try:
+        yield
+    except OverrideError as error:
+        raise ScenarioError(f"{flag(error.name)} {error.value} ({error.path}){error.problem}") from None
+
+
 def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
     """Load ``args.scenario`` with the flags applied (``--steps`` sets ``max_steps``); a bad flag
-    value is reported by its flag, e.g. ``--drop 1.5 (faults.drop): expected a probability ...``."""
-    try:
+    value is reported by its flag (:func:`overrides_named_by_flag`)."""
+    with overrides_named_by_flag():
         scenario = load_scenario(
             args.scenario,
             strategy=strategy_argument(args.strategy),
@@ -93,8 +104,6 @@ def scenario_from_arguments(args: argparse.Namespace) -> Scenario:
             duplicate=args.duplicate,
             communication_range=args.communication_range,
         )
-    except OverrideError as error:
-        raise ScenarioError(f"{flag(error.name)} {error.value} ({error.path}){error.problem}") from None
     checked_strategy(scenario, args.strategy, args.scenario)
     return scenario
 

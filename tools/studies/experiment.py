@@ -22,6 +22,7 @@ from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, ch
 from ringtrack.world.geometry import FloatArray
 from ringtrack.world.metrics import convergence_step, settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
+from ringtrack.world.scenario_errors import ScenarioError
 from ringtrack.world.target import Circle
 
 STRATEGIES = ("constant", "self")  # compared by default; the first is the baseline of the ratios
@@ -192,6 +193,11 @@ def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = S
     scenarios = {}
     for strategy in strategies:
         scenario = resolve(apply_overrides(spec, robots=robots, strategy=strategy, **overrides), label)
+        needed = strategy_for(strategy).estimation
+        if needed not in (None, scenario.estimation.mode):
+            raise UsageError(f"--strategies: the {strategy_name(strategy)} strategy needs estimation.mode = "
+                             f"'{needed}' and {base} has '{scenario.estimation.mode}'; give a scenario with "
+                             f"estimation.mode = '{needed}', or compare it with experiment moving or tracking")
         try:
             check_strategy(scenario)
         except StrategyError as error:
@@ -505,7 +511,14 @@ def moving_experiment(
     owners: list[tuple] = []  # the key of each task's run
     for group, (speed, angular_speed), (strategy, mode) in plan:
         key = (speed, angular_speed, strategy, mode)
-        scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
+        try:
+            scenario = moving_scenario(base, strategy, mode, speed, angular_speed, steps, fusion)
+        except ScenarioError:
+            if group != "velocities":
+                raise
+            raise UsageError(f"the velocity setting v = {speed:g} m/s, w = {angular_speed:g} rad/s puts the target "
+                             f"of {base} on a circle of radius {speed / angular_speed:g} m that leaves the region; "
+                             "give --no-velocities to run the scenario's own circle only") from None
         check_settle(settle, scenario.max_steps)
         setting: dict[str, Any] = {  # MovingSetting's own fields
             "group": group, "speed": speed, "angular_speed": angular_speed, "radius": speed / angular_speed,
@@ -585,7 +598,12 @@ def moving_variants(strategies: Sequence[str]) -> list[tuple[str, str]]:
     variants = []
     for strategy in strategies:
         needed = strategy_for(strategy).estimation
-        variants += [(strategy, mode) for mode in ("centralized", "decentralized") if needed in (None, mode)]
+        modes = [mode for mode in ("centralized", "decentralized") if needed in (None, mode)]
+        if not modes:
+            raise UsageError(f"--strategies: the {strategy_name(strategy)} strategy needs estimation.mode = "
+                             f"'{needed}', and a moving target's runs estimate it (centralized or decentralized); "
+                             "leave it out")
+        variants += [(strategy, mode) for mode in modes]
     return variants
 
 

@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt
 import msgspec
 
 from ringtrack.agents import engine
+from ringtrack.tools.output.console import UsageError
 from ringtrack.tools.studies.experiment import StepTotals, check_settle, combined, step_totals, strategy_labels
 from ringtrack.tools.studies.figures import drawn
 from ringtrack.tools.studies.runner import run_study
@@ -91,6 +92,9 @@ def gates_experiment(base: str, gates: list[float], trials: int, settle: int, st
     started = time.perf_counter()
     reference, mode = REFERENCE
     gated = load_scenario(base, strategy=GATED, estimation="decentralized", max_steps=steps)
+    if not gated.moving:
+        raise UsageError(f"{base}: experiment gates needs a moving target (target.motion = 'circle', 'random_walk' "
+                         "or 'waypoints'); give a moving scenario such as authors-moving")
     runs = [(reference, load_scenario(base, strategy=reference, estimation=mode, max_steps=steps))]
     check_settle(settle, gated.max_steps)
     runs += [(f"{GATED} g={gate:g} (gate {number})", with_gate(gated, gate)) for number, gate in enumerate(gates)]
