@@ -12,9 +12,11 @@ import pytest
 
 from ringtrack.agents import engine
 from ringtrack.tools.cli import main
+from ringtrack.tools.cli.experiment_tracking import verdict_line
 from ringtrack.tools.studies.study import Execution
 from ringtrack.tools.studies.tracking import (
     TrackingRow,
+    TrackingVerdict,
     decentralized_strategies,
     tracking_experiment,
     tracking_verdict,
@@ -131,3 +133,14 @@ def test_a_verdict_counts_the_scenarios_that_meet_the_goal_and_names_the_worst()
     assert (verdict.worst_terr_ratio, verdict.worst_terr_scenario) == (pytest.approx(1.3), "b")
     assert (verdict.worst_message_ratio, verdict.worst_message_scenario) == (pytest.approx(1.2), "c")
     assert (verdict.worst_cerr_excess_deg, verdict.worst_cerr_scenario) == (pytest.approx(1.5), "b")
+
+
+def test_a_verdict_line_says_unknown_where_no_scenario_has_a_figure() -> None:
+    """A scenario whose centralized Terr is 0 (a stationary target the robots know from the start)
+    has no Terr ratio: the verdict says so rather than printing an empty one."""
+    verdict = TrackingVerdict(strategy="self", scenarios=1, met=0, cerr_met=1, worst_terr_ratio=None,
+                              worst_terr_scenario="", worst_message_ratio=8.3333, worst_message_scenario="square",
+                              worst_cerr_excess_deg=0.0, worst_cerr_scenario="square")
+    assert verdict_line(verdict, "self-triggered") == (
+        "self-triggered: Terr <= 1.2x centralized on no more messages on 0 of 1 scenarios, true Cerr within 1 deg "
+        "on 1; worst Terr unknown, messages 8.33x (square), Cerr +0.00 deg (square)")

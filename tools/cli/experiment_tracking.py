@@ -93,6 +93,12 @@ def verdict_line(verdict: TrackingVerdict, label: str) -> str:
     """One line on how a decentralized strategy fared against the centralized filter."""
     return (f"{label}: Terr <= {TERR_GOAL}x centralized on no more messages on {verdict.met} of {verdict.scenarios} "
             f"scenarios, true Cerr within {CERR_GOAL_DEG:g} deg on {verdict.cerr_met}; worst Terr "
-            f"{_figure(verdict.worst_terr_ratio, '.2f')}x ({verdict.worst_terr_scenario}), messages "
-            f"{_figure(verdict.worst_message_ratio, '.2f')}x ({verdict.worst_message_scenario}), Cerr "
-            f"{_figure(verdict.worst_cerr_excess_deg, '+.2f')} deg ({verdict.worst_cerr_scenario})")
+            f"{_worst(verdict.worst_terr_ratio, '.2f', 'x', verdict.worst_terr_scenario)}, messages "
+            f"{_worst(verdict.worst_message_ratio, '.2f', 'x', verdict.worst_message_scenario)}, Cerr "
+            f"{_worst(verdict.worst_cerr_excess_deg, '+.2f', ' deg', verdict.worst_cerr_scenario)}")
+
+
+def _worst(value: float | None, spec: str, unit: str, scenario: str) -> str:
+    """A verdict's worst figure and where it was, e.g. ``1.34x (gazebo-moving)``; ``unknown`` where no
+    scenario had it (a ratio to a centralized Terr of 0, a mean of no settled step)."""
+    return "unknown" if value is None else f"{value:{spec}}{unit} ({scenario})"
