@@ -412,11 +412,14 @@ def descendants(pid: int) -> set[int]:
 
 @pytest.mark.processes
 @pytest.mark.parametrize(("stop", "code", "line"), [(signal.SIGTERM, 143, "ringtrack: terminated (SIGTERM)"),
-                                                    (signal.SIGINT, 130, "ringtrack: interrupted")])
-def test_a_signal_to_a_study_ends_its_workers_and_keeps_its_journal(stop: signal.Signals, code: int, line: str,
+                                                    (signal.SIGINT, 130, "ringtrack: interrupted"),
+                                                    (signal.SIGKILL, -9, None)])
+def test_a_signal_to_a_study_ends_its_workers_and_keeps_its_journal(stop: signal.Signals, code: int, line: str | None,
                                                                    tmp_path: Path) -> None:
-    """SIGTERM (a batch system, systemd, docker stop) or SIGINT to the study's process alone: its
-    workers end with it, whatever they were running, and the journal holds whole lines only."""
+    """SIGTERM (a batch system, systemd, docker stop), SIGINT or SIGKILL (the out-of-memory killer,
+    ``kill -9``) to the study's process alone: its workers, the fork server and multiprocessing's
+    resource tracker end with it, whatever they were running (after a SIGKILL they were left waiting
+    for tasks for ever), and the journal holds whole lines only."""
     output, journal = tmp_path / "s.json", tmp_path / "s.journal.jsonl"
     child = subprocess.Popen([*RINGTRACK, "experiment", "stationary", "--robots", "8-12", "--trials", "40", "--batch",
                               "5", "--workers", "2", "--quiet", "--json", str(output)],
@@ -429,16 +432,21 @@ def test_a_signal_to_a_study_ends_its_workers_and_keeps_its_journal(stop: signal
 
     try:
         journalled_a_task(child, journal, all_started)
+        assert len(workers) >= 3
         child.send_signal(stop)
         _, errors = child.communicate(timeout=60)
+        deadline = time.monotonic() + 30
+        while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left = [pid for pid in workers if Path(f"/proc/{pid}").exists()]
     finally:
         child.kill()
         child.wait()
-    assert child.returncode == code and errors.splitlines()[-1] == line
-    deadline = time.monotonic() + 30
-    while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+        for pid in workers:  # whatever the study left, ended here (they are this test's)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    assert child.returncode == code and (line is None or errors.splitlines()[-1] == line)
+    assert not left
     assert not output.exists() and journal.read_bytes().endswith(b"\n")
 
 

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
+import select
+import threading
+import time
 from collections.abc import Generator, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -56,7 +60,7 @@ def worker_pool(module: str, workers: int) -> Iterator[ProcessPoolExecutor]:
     and its workers ended at once (:func:`end_workers`) when the block is left by an exception."""
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([module])
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=end_with, initargs=(os.getpid(),))
     try:
         yield pool
     except BaseException:  # Ctrl-C, SIGTERM, an error, or the caller leaving: the tasks in flight are lost
@@ -64,6 +68,30 @@ def worker_pool(module: str, workers: int) -> Iterator[ProcessPoolExecutor]:
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def end_with(study: int) -> None:
+    """Make this worker end as soon as the process ``study`` (a pid) does, however it ends: a worker
+    forked by the fork server is no child of the study's process, and it waits for tasks on a queue
+    whose other end it holds itself, so after a ``kill -9`` of the study nothing else would end it.
+    The fork server and multiprocessing's resource tracker end once the last of its workers has."""
+    threading.Thread(target=_exit_after, args=(study,), name="end-with-study", daemon=True).start()
+
+
+def _exit_after(pid: int) -> None:
+    """Wait until the process ``pid`` has ended, then end this one at once (its work is nobody's)."""
+    try:
+        handle = os.pidfd_open(pid)  # Linux 5.3 and later: readable once the process has ended
+    except ProcessLookupError:
+        pass
+    except (AttributeError, OSError):  # no pidfd here: look every second
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            while True:
+                os.kill(pid, 0)
+                time.sleep(1.0)
+    else:
+        select.select([handle], [], [])
+    os._exit(1)
 
 
 def end_workers(pool: ProcessPoolExecutor) -> None:
