@@ -19,7 +19,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from ringtrack.tools.cli import build_parser
+from ringtrack.tools.cli import build_parser, main
 from ringtrack.world.scenario_schema import ScenarioSpec
 
 pytestmark = [pytest.mark.processes, pytest.mark.timeout(300)]
@@ -139,3 +139,14 @@ def test_no_diaries_and_no_missing_documents() -> None:
         for name in ("ALGORITHMS.md", "DESIGN.md"):
             assert name not in text, f"{path.name} cites {name}, which is not in the repository"
         assert not re.search(r"\bshared/", text), f"{path.name} cites a folder named shared"
+
+
+@pytest.mark.parametrize(("page", "command"), [("strategies.md", "simulate --strategy lazy"),
+                                                ("tutorial.md", "spawn --drop 1.5")])
+def test_a_quoted_error_is_the_one_printed(page: str, command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """An error line a page quotes under ``$ ringtrack COMMAND`` is the line that command prints."""
+    quoted = re.search(rf"^\$ ringtrack {re.escape(command)}\n(ringtrack: error: .*)$", (ROOT / "docs" / page).read_text(),
+                       re.M)
+    assert quoted, f"docs/{page} quotes no error of ringtrack {command}"
+    assert main(command.split()) == 2
+    assert capsys.readouterr().err.splitlines()[-1] == quoted.group(1)

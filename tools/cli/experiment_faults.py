@@ -147,7 +147,7 @@ def faults_table(result: FaultStudy) -> Table:
     """Mean +- sd per cell and variant."""
     moving = result.moving
     table = Table(title=f"{result.scenario}: {result.trials} trials per cell (seeds {result.seed}..), "
-                  "mean ± sd; costs to Ctime" + (f", Cerr/Terr from step {result.settle}" if moving else ""),
+                  f"mean ± sd; {result.costs_span}" + (f", Cerr/Terr from step {result.settle}" if moving else ""),
                   title_justify="left", box=box.SIMPLE_HEAD)
     headers = ["drop", "outage", "r_c", "strategy", "done", "Ctime", "Com-bar", "msgs", "J/robot"]
     headers += ["Cerr deg", "Terr m"] if moving else []

@@ -44,6 +44,7 @@ class TrialProgress:
         self.label, self.total, self.done, self.first = label, total, done, done
         self.quiet, self.console, self.every_s = quiet, console, every_s
         self.started = self.last_line = time.monotonic()
+        self.shown: int | None = None  # the count the last plain line showed
         self.bar: Progress | None = None
         self.task: TaskID | None = None
 
@@ -65,7 +66,7 @@ class TrialProgress:
 
     def line(self) -> None:
         """Write the plain progress line now."""
-        self.last_line = time.monotonic()
+        self.last_line, self.shown = time.monotonic(), self.done
         share = self.done / self.total if self.total else 1.0
         self.console.print(f"{self.label}: {self.done}/{self.total} trials, {share:.0%}, eta {self.eta()}",
                            highlight=False, markup=False)
@@ -83,5 +84,5 @@ class TrialProgress:
                  trace: TracebackType | None) -> None:
         if self.bar is not None:
             self.bar.stop()
-        elif not self.quiet and kind is None:
+        elif not self.quiet and kind is None and self.shown != self.done:  # the end, unless just shown
             self.line()

@@ -203,9 +203,8 @@ def robustness_curves(result: FaultStudy, path: Path) -> None:
             ticks = sorted(set(finite)) + [unlimited]
             axis.set_xticks(ticks, [f"{tick:g}" for tick in ticks[:-1]] + ["none"])
     axes.flat[0].legend(fontsize=7)
-    costs = "costs over each whole run" if result.moving else "costs to Ctime"
     figure.suptitle(f"{result.scenario}, N = {result.robots}: mean ± 1 sd (error bars) over "
-                    f"{result.trials} trials per point; {costs}", fontsize=11)
+                    f"{result.trials} trials per point; {result.costs_span}", fontsize=11)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=110)
     plt.close(figure)

@@ -197,6 +197,11 @@ class FaultStudy(msgspec.Struct, frozen=True, kw_only=True):
     rows: list[FaultTrial]
     verify: Verification | UnsetType = UNSET
 
+    @property
+    def costs_span(self) -> str:
+        """Which steps the costs count, as tables and figures say it (see the module docstring)."""
+        return "costs over each whole run" if self.moving else "costs to Ctime"
+
 
 def summary_columns(study: FaultStudy) -> list[str]:
     """The CSV columns of a sweep's summary: a moving target's metrics only for a moving target."""

@@ -35,9 +35,6 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
         dask_distributed()  # a missing extra is reported before any journal is touched
     results = read_journal(execution.journal, study, header) if execution.resume and execution.journal else {}
     pending = [index for index in range(len(study.tasks)) if index not in results]
-    if execution.resume:
-        err.print(f"{study.label}: resuming {execution.journal}: {len(results)} of {len(study.tasks)} tasks done, "
-                  f"{len(pending)} to run", highlight=False, markup=False)
     began = origin(study)
     total = sum(len(task.seeds) for task in study.tasks)
     done = sum(len(study.tasks[index].seeds) for index in results)
@@ -46,6 +43,9 @@ def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[Result
               journal_file(execution.journal, header, execution.resume) as journal,
               TrialProgress(study.label, total, done, execution.quiet) as progress,
               contextlib.closing(finished(study, pending, execution, began)) as outcomes):
+            if execution.resume:  # said once the journal is this study's to continue (locked)
+                err.print(f"{study.label}: resuming {execution.journal}: {len(results)} of {len(study.tasks)} tasks "
+                          f"done, {len(pending)} to run", highlight=False, markup=False)
             for index, result in outcomes:
                 if journal is not None:
                     append(journal, msgspec.json.encode(JournalTask(index, study.tasks[index].key,
