@@ -14,11 +14,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
+import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
 from ringtrack.agents.controller import CentreUncertainty
 from ringtrack.agents.estimation import Estimators, Told, team_steady_variance
+from ringtrack.agents.layout import Layout
 from ringtrack.agents.relay import VELOCITY_WINDOW_S, RangeRelay
 from ringtrack.agents.strategy import Received, Strategy, check_strategy, strategy_for
 from ringtrack.bus.faults import FAULT_COUNTERS, FAULTS, Fates, FaultPlan, fate_counts, published_copies
@@ -36,7 +38,7 @@ from ringtrack.world.metrics import (
     target_error,
 )
 from ringtrack.world.ranges import link_distance
-from ringtrack.world.ring import midpoint_errors, predecessor_values, successor_values
+from ringtrack.world.ring import midpoint_errors
 from ringtrack.world.scenario import Scenario
 from ringtrack.world.sensing import RangeSensors
 from ringtrack.world.state import motion_step
@@ -140,8 +142,9 @@ class TeamEstimate:
     robots steer about the true stationary target), one per trial (the fusion centre), or one per
     robot (decentralized); all of them one batch of filters (:class:`agents.estimation.Estimators`)."""
 
-    def __init__(self, scenario: Scenario, seeds: list[int], paths: FloatArray) -> None:
+    def __init__(self, scenario: Scenario, seeds: list[int], paths: FloatArray, layout: Layout) -> None:
         self.mode = scenario.estimation.mode
+        self.layout = layout
         self.robots = scenario.robots
         self.trials = len(seeds)
         sensing = scenario.spec.sensing
@@ -161,7 +164,7 @@ class TeamEstimate:
         beliefs ``told_beliefs`` (every robot's, as it told them) that their predecessor and successor
         told them (``told``, per side) in the previous step, predecessor first."""
         if self.mode == "known":
-            return np.repeat(targets[:, None, :], self.robots, axis=1)
+            return self.layout.spread(targets)
         ranges = self.sensors.measure(positions, targets)  # (T, N)
         self.step += 1
         if self.mode == "centralized":
@@ -186,7 +189,8 @@ class TeamEstimate:
         who told (T, N) per side, ``beliefs`` every robot's told belief (T, N, 2), (T, N, 2, 2)."""
         means, covariances = beliefs
         robots = self.trials * self.robots
-        return Told(_sides_of(means).reshape(robots, 2, 2), _sides_of(covariances).reshape(robots, 2, 2, 2),
+        return Told(self.layout.sides(means).reshape(robots, 2, 2),
+                    self.layout.sides(covariances).reshape(robots, 2, 2, 2),
                     _pair(*sides).reshape(robots, 2))
 
     def beliefs(self) -> tuple[FloatArray, FloatArray]:
@@ -227,19 +231,22 @@ class TeamEstimate:
 FAULT_COLUMNS = FAULT_COUNTERS  # sent, delivered, dropped, duplicated, delayed, published
 
 
-def ring_traffic(requests: NDArray[np.int64]) -> NDArray[np.int64]:
+def ring_traffic(requests: NDArray[np.int64], layout: Layout | None = None) -> NDArray[np.int64]:
     """Robot-to-robot messages each robot publishes in a step, from the request copies each one
-    published to its predecessor (``[..., 0]``) and successor (``[..., 1]``), robots on axis -2:
+    published to its predecessor (``[..., 0]``) and successor (``[..., 1]``), robots on axis -2
+    (laid out by ``layout``; default: one ring of them):
     its requests, and one reply to each request copy its neighbours sent it
     (:func:`bus.faults.request_traffic`). By symmetry each robot also receives exactly as many."""
     requests = requests.astype(np.int64)
-    return requests[..., 0] + requests[..., 1] + _to_neighbours(requests)
+    return requests[..., 0] + requests[..., 1] + _to_neighbours(requests, layout)
 
 
-def _to_neighbours(per_side: NDArray) -> NDArray:
+def _to_neighbours(per_side: NDArray, layout: Layout | None = None) -> NDArray:
     """Values of each robot's (predecessor, successor) sides, shape (..., T, N, 2), summed onto the
-    neighbour at the other end of each link, shape (..., T, N)."""
-    return successor_values(per_side[..., 0]) + predecessor_values(per_side[..., 1])
+    neighbour at the other end of each link, shape (..., T, N) (robots laid out by ``layout``;
+    default: one ring of them)."""
+    rings = Layout.uniform(1, per_side.shape[-2]) if layout is None else layout
+    return rings.successor(per_side[..., 0], axis=-1) + rings.predecessor(per_side[..., 1], axis=-1)
 
 
 def robot_to_robot_sent(polled: np.ndarray) -> np.ndarray:
@@ -301,7 +308,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
              distance_plus: FloatArray | None = None, seeds: NDArray[np.int64] | None = None,
              belief: bool = False, pushed: NDArray[np.bool_] | None = None,
              request_belief: bool = False, content: FloatArray | None = None,
-             relayed: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None) -> Exchange:
+             relayed: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
+             layout: Layout | None = None) -> Exchange:
     """Settle the requests and replies of a step as the robots' fault layers do (:mod:`bus.faults`,
     :class:`bus.shim.LinkShim`, counted by the same rule, :func:`bus.faults.fate_counts`), for every
     robot of every trial at once: a polling robot requests both neighbours; a robot also probes
@@ -320,22 +328,23 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     radio for all). Energy, from the same fates: every copy put on the
     bus costs its sender transmission (a request dropped before publishing was still sent once),
     every copy delivered costs its receiver reception (:mod:`bus.radio`), with the exact encoded
-    size of each message."""
-    trials, robots = polled.shape
+    size of each message. ``layout`` lays the teams out (default: uniform, ``polled`` (T, N))."""
+    layout = Layout.uniform(*polled.shape) if layout is None else layout
+    trials = layout.trials
     reach = _pair(reach_minus, reach_plus)
     requested = polled[..., None] | ~reach
     if not anywhere(requested) and (pushed is None or not anywhere(pushed)):
-        return _silent(reach.shape)
+        return _silent(reach.shape, trials)
     distance = (np.zeros(reach.shape) if distance_minus is None or distance_plus is None
                 else _pair(distance_minus, distance_plus))
-    robot, neighbour = _ring_sides(robots)
+    robot, neighbour = layout.ids
     groups = [(plan, np.arange(trials))] if isinstance(plan, FaultPlan) else plan
     pushing = pushed is not None and anywhere(pushed)
     if not pushing and not any(group.active for group, _ in groups) and everywhere(reach):
         # No fault, no push, every neighbour in reach: each request is delivered once and answered by
         # one delivered reply, so every message sent is delivered and published (fate_counts' rule).
         requests = requested.astype(np.int64)
-        sent = 2 * requests.sum(axis=(1, 2))
+        sent = 2 * layout.per_team(_robots_and_sides_sum, requests)
         faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
         for column in ("sent", "delivered", "published"):
             faults[:, FAULT_COLUMNS.index(column)] = sent
@@ -357,16 +366,17 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
             of_pushes = push.counts(pushes)
             counts = {name: counts[name] + of_pushes[name] for name in counts}
         counts["sent"] = requested.astype(np.int64) + requests + pushes
-        counts["published"] = ring_traffic(requests) + pushes[..., 0] + pushes[..., 1]
-        per_message = np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1).sum(axis=(1, 2))  # (T, 5)
-        faults = np.concatenate([per_message, counts["published"].sum(axis=1)[:, None]], axis=1)
+        counts["published"] = ring_traffic(requests, layout) + pushes[..., 0] + pushes[..., 1]
+        per_message = layout.per_team(_robots_and_sides_sum,
+                                      np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1))  # (T, 5)
+        faults = np.concatenate([per_message, layout.per_team(_robots_sum, counts["published"])[:, None]], axis=1)
         fresh = (requests > 0) & ~reply.dropped
         replies_delivered, on_air = of_replies["delivered"], np.where(requested, np.maximum(requests, 1), 0)
         push_delivered = (pushes > 0) & ~push.dropped
     radio = groups[0][0].radio
-    request_bytes = _ring_message_bytes("request", step, robots, request_belief)
-    sides = None if content is None else _sides_of(content)  # what (predecessor, successor) carry
-    reply_bytes = (_ring_message_bytes("reply", step, robots, belief) if sides is None
+    request_bytes = _ring_message_bytes("request", step, layout, request_belief)
+    sides = None if content is None else layout.sides(content)  # what (predecessor, successor) carry
+    reply_bytes = (_ring_message_bytes("reply", step, layout, belief) if sides is None
                    else robot_message_bytes("reply", step, neighbour, robot, belief, sides))
     if relayed is not None:
         request_bytes, reply_bytes = relayed
@@ -378,25 +388,26 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
     other = np.array([requests * reply_bytes, requests * transmit_energy(radio, reply_bits, distance),
                       requests * receive_energy(radio, request_bits)])
     if pushing:
-        push_bytes = _ring_message_bytes("push", step, robots, False)
+        push_bytes = _ring_message_bytes("push", step, layout, False)
         push_bits = message_bits(radio, push_bytes)
         own = own + np.array([pushes * push_bytes, pushes * transmit_energy(radio, push_bits, distance),
                               np.zeros(reach.shape)])
         other = other + np.array([np.zeros(reach.shape), np.zeros(reach.shape),
                                   of_pushes["delivered"] * receive_energy(radio, push_bits)])
-    totals = own[..., 0] + own[..., 1] + _to_neighbours(other)  # both sides
-    return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64), (~reach).sum(axis=(1, 2)),
+    totals = own[..., 0] + own[..., 1] + _to_neighbours(other, layout)  # both sides
+    return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64),
+                    layout.per_team(_robots_and_sides_sum, ~reach),
                     totals[0].astype(np.int64), _pair(totals[1], totals[2]), pushes, push_delivered)
 
 
-def _silent(shape: tuple[int, int, int]) -> Exchange:
-    """The exchange of a step in which no robot requests or pushes anything (shape (T, N, 2)): no
-    message, no fault, no energy."""
-    trials, robots = shape[:2]
+def _silent(shape: tuple[int, int, int], trials: int) -> Exchange:
+    """The exchange of a step in which no robot of ``trials`` teams requests or pushes anything
+    (per-robot shape (T, N, 2)): no message, no fault, no energy."""
+    robots = shape[:2]
     nothing = np.zeros(shape, dtype=np.int64)
-    return Exchange(np.zeros((trials, robots), dtype=bool), np.zeros((trials, robots), dtype=bool), nothing,
+    return Exchange(np.zeros(robots, dtype=bool), np.zeros(robots, dtype=bool), nothing,
                     np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64), np.zeros(trials, dtype=np.int64),
-                    np.zeros((trials, robots), dtype=np.int64), np.zeros(shape), nothing.copy(),
+                    np.zeros(robots, dtype=np.int64), np.zeros(shape), nothing.copy(),
                     np.zeros(shape, dtype=bool))
 
 
@@ -408,28 +419,33 @@ def _pair(minus: NDArray, plus: NDArray) -> NDArray:
     return pair
 
 
-def _ring_message_bytes(kind: str, step: int, robots: int, belief: bool) -> NDArray[np.int64]:
-    """:func:`bus.messages.robot_message_bytes` of a step's ``kind`` messages from every robot of a
-    ring of ``robots`` to its (predecessor, successor) (replies: from them), shape (1, N, 2), read-only;
-    they depend on the step only through its encoded size, which keys a cache."""
-    key = (kind, int(uint_bytes(step)), robots, belief)
-    if key not in _RING_MESSAGE_BYTES:
-        robot, neighbour = _ring_sides(robots)
+def _ring_message_bytes(kind: str, step: int, layout: Layout, belief: bool) -> NDArray[np.int64]:
+    """:func:`bus.messages.robot_message_bytes` of a step's ``kind`` messages from every robot of
+    the ``layout``'s rings to its (predecessor, successor) (replies: from them), shape (1, N, 2),
+    read-only; they depend on the step only through its encoded size, which keys a cache (a uniform
+    layout's by its team size, shared by every batch; a ragged one's its own)."""
+    key = (kind, int(uint_bytes(step)), layout.robots, belief)
+    cache = layout.cache if layout.ragged else _RING_MESSAGE_BYTES
+    if key not in cache:
+        robot, neighbour = layout.ids
         sender, receiver = (neighbour, robot) if kind == "reply" else (robot, neighbour)
         sizes = np.asarray(robot_message_bytes(kind, step, sender, receiver, belief), dtype=np.int64)
         sizes.setflags(write=False)
-        _RING_MESSAGE_BYTES[key] = sizes
-    return _RING_MESSAGE_BYTES[key]
+        cache[key] = sizes
+    return cache[key]
 
 
 _RING_MESSAGE_BYTES: dict[tuple[str, int, int, bool], NDArray[np.int64]] = {}  # see _ring_message_bytes
 
 
-@lru_cache(maxsize=8)
-def _ring_sides(robots: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Each robot's id and its (predecessor, successor) ids, shapes (1, N, 1) and (1, N, 2)."""
-    robot = np.arange(robots)[None, :, None]
-    return robot, (robot + np.array([-1, 1])) % robots
+def _robots_sum(values: NDArray) -> NDArray:
+    """Sums over the robots (axis 1) of ``(T, N, ...)`` values."""
+    return values.sum(axis=1)
+
+
+def _robots_and_sides_sum(values: NDArray) -> NDArray:
+    """Sums over the robots and their sides (axes 1 and 2) of ``(T, N, 2, ...)`` values."""
+    return values.sum(axis=(1, 2))
 
 
 def _group_fates(groups: PlanGroups, kind: str, sender: NDArray[np.int64], receiver: NDArray[np.int64], step: int,
@@ -477,6 +493,152 @@ def fault_seeds(scenario: Scenario, seeds: Sequence[int]) -> NDArray[np.int64]:
     return np.array([fixed if fixed is not None else seed for seed in seeds], dtype=np.int64)
 
 
+@dataclass
+class StepRecord:
+    """What one step of a :class:`Batch` came to: the step-start ``positions`` (metres), the
+    robots' true ``angles`` about the target (radians) and each team's true Cerr (degrees), the
+    ``centres`` the robots steered about (metres), their trigger ``reasons``, their memory ages
+    (steps, predecessor and successor) after observing, the step's robot-to-robot :class:`Exchange`,
+    each robot's ``gV - theta`` from memory before polling (radians, NaN while unknown) and each
+    team's Terr (metres). Per robot: the layout's shape; per team: (T,)."""
+
+    positions: FloatArray
+    angles: FloatArray
+    cerr_true: FloatArray
+    centres: FloatArray
+    reasons: NDArray[np.int64]
+    ages: tuple[NDArray[np.int64], NDArray[np.int64]]
+    outcome: Exchange
+    offsets: FloatArray
+    terr: FloatArray
+
+
+def true_cerr_of_angles(angles: FloatArray) -> FloatArray:
+    """Cerr_true (degrees) of whole rings from their robots' true ``angles`` (radians, robots on the
+    last axis): :func:`world.metrics.true_cerr`, of angles already at hand."""
+    return convergence_error(midpoint_errors(angles))
+
+
+class Batch:
+    """A batch of runs of a scenario between steps: the robots' true positions and the targets'
+    paths, the robots' memories (the strategy's controller), their estimators and what they last
+    told one another, for teams laid out by a :class:`agents.layout.Layout`. :meth:`step` runs one
+    step of every robot at once, as :func:`run` records it.
+
+    ``seeds`` start the trials (one team each); ``steps`` bounds the targets' paths; ``plans``
+    gives each trial its own fault plan (default: the scenario's for all); ``layout`` (default: a
+    uniform one) lays the teams out, all of the scenario's size unless ``scenarios`` gives each
+    trial's own (a ragged layout of teams that differ only in size: see :meth:`of_teams`)."""
+
+    def __init__(self, scenario: Scenario, seeds: list[int], steps: int, plans: Sequence[FaultPlan] | None = None,
+                 layout: Layout | None = None, scenarios: Sequence[Scenario] | None = None) -> None:
+        own = [scenario] * len(seeds) if scenarios is None else list(scenarios)
+        self.scenario, self.seeds = scenario, seeds
+        self.paths = np.stack([each.target_path(seed, steps) for each, seed in zip(own, seeds, strict=True)])
+        if layout is None:
+            layout = Layout.uniform(len(seeds), scenario.robots)
+            self.positions = np.stack([scenario.start_positions(seed) for seed in seeds])  # (T, N, 2)
+        else:
+            self.positions = np.concatenate([each.start_positions(seed) for each, seed in zip(own, seeds,
+                                                                                              strict=True)])[None]
+        self.layout = layout
+        trials = layout.trials
+        self.strategy = strategy = check_strategy(scenario)
+        self.team = TeamEstimate(scenario, seeds, self.paths, layout)
+        self.controller = strategy.controller(scenario.region, scenario.control, self.positions)
+        # A listening strategy: what each robot was told in the previous step (per side) and everyone's
+        # belief as told; a pushing one: the belief each robot last told its neighbours.
+        no_one = np.zeros(layout.shape, dtype=bool)
+        self.told, self.told_beliefs = (no_one, no_one), self.team.beliefs()
+        self.last_told = self.team.beliefs() if strategy.pushes else None
+        self.plan_seeds = fault_seeds(scenario, seeds)
+        self.groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)
+        self.belief = scenario.estimation.mode == "decentralized"
+        reads_uncertainty = strategy.reads_uncertainty and self.belief
+        self.steady_variance = (team_steady_variance(scenario.estimation, scenario.robots) if reads_uncertainty
+                                else None)
+        self.limit = scenario.communication_range
+
+    @classmethod
+    def of_teams(cls, scenarios: Sequence[Scenario], seeds: Sequence[int], steps: int) -> Batch:
+        """Trial t runs ``scenarios[t]`` from ``seeds[t]``, the teams laid out ragged (teams of one
+        size best given together): scenarios that differ only in their team (its size, its start),
+        whose robots know the target and whose strategy neither listens, pushes nor relays, and
+        with no fault. Each team's run is the same as in a uniform batch of its own scenario."""
+        first = scenarios[0]
+        strategy = check_strategy(first)
+        unlike = next((each for each in scenarios
+                       if msgspec.structs.replace(each.spec, team=first.spec.team) != first.spec), None)
+        if unlike is not None:
+            raise ValueError(f"{unlike.name}: teams of one ragged batch may differ only in [team]")
+        if first.estimation.mode != "known" or strategy.listens or strategy.pushes or strategy.relays:
+            raise ValueError("a ragged batch runs robots that know the target, with a strategy that neither "
+                             "listens, pushes nor relays")
+        if first.faults.active:
+            raise ValueError("a ragged batch runs without faults")
+        return cls(first, list(seeds), steps, layout=Layout.of_teams([each.robots for each in scenarios]),
+                   scenarios=scenarios)
+
+    def step(self, k: int, watch: Callable[[int, Any, FloatArray], None] | None = None) -> StepRecord:
+        """Run step ``k`` (1-based) of every robot: measure and estimate, observe and poll, settle
+        the exchange, take the replies, fuse and move; ``watch(k, controller, positions)`` is called
+        after observing (see :func:`run`)."""
+        layout, team, controller, strategy, limit = self.layout, self.team, self.controller, self.strategy, self.limit
+        positions = self.positions
+        row = k - 1
+        targets = self.paths[:, row]
+        angles = angle_of(positions, layout.per_robot(targets))
+        cerr_true = layout.per_team(true_cerr_of_angles, angles)
+        if strategy.listens:
+            centres = team.measure(positions, targets, strategy, self.told, self.told_beliefs)
+            self.told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry
+        else:
+            centres = team.measure(positions, targets)
+        neighbours = layout.predecessor(positions), layout.successor(positions)
+        lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
+        reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
+        uncertainty = (None if self.steady_variance is None
+                       else CentreUncertainty(team.beliefs()[1], self.steady_variance))
+        # a team: an array
+        reasons = np.asarray(controller.observe(k, positions, centres, reach, uncertainty=uncertainty))
+        ages = controller.predecessor_age, controller.successor_age
+        if watch is not None:
+            watch(k, controller, positions)
+        polled = reasons != 0
+        # What each robot's replies of this step carry, read once it has observed the step.
+        content = strategy.reply_content(controller) if strategy.reply_fields else None
+        pushed = None
+        if self.last_told is not None:
+            told_beliefs, last_told = self.told_beliefs, self.last_told
+            pushing = ~polled & strategy.wants_push(told_beliefs[0], *last_told, self.scenario.estimation)
+            pushed = pushing[..., None] & _pair(*reach)
+            telling = polled | pushing
+            self.last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
+                              np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
+        relayed = None if team.relay is None else team.relay.message_bytes(k)
+        outcome = exchange(self.groups, k, polled, *reach, *lengths, self.plan_seeds, self.belief, pushed,
+                           strategy.listens, content, relayed, layout)
+        if strategy.listens or team.relay is not None:
+            # told by the predecessor's message to its successor, and the other way
+            reached = (outcome.requests > 0) | outcome.push_delivered
+            self.told = layout.predecessor(reached[..., 1]), layout.successor(reached[..., 0])
+        if team.relay is not None:  # requests and replies carry ranges
+            team.relay.hand_over(self.told[0] | outcome.fresh_minus, self.told[1] | outcome.fresh_plus)
+        strategy.receive(controller, *replies(neighbours, outcome, content, layout))
+        if team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres):
+            controller.recentre(centres)
+        goal = controller.goal(reach if limit else None, limit)
+        offsets = np.where(controller.offset_known, controller.guaranteed_offset, np.nan)
+        terr = team.target_error(centres, targets)
+        self.positions = motion_step(self.scenario, positions, goal)
+        return StepRecord(positions, angles, cerr_true, centres, reasons, ages, outcome, offsets, terr)
+
+    def cerr(self, record: StepRecord) -> FloatArray:
+        """The paper's Cerr of every team at a step (degrees, (T,)): its strategy's
+        (:func:`world.metrics.strategy_cerr`)."""
+        return strategy_cerr(self.strategy.cerr, self.layout.per_team(memory_cerr, record.offsets), record.cerr_true)
+
+
 def run(
     scenario: Scenario,
     seeds: Sequence[int] | int | None = None,
@@ -498,15 +660,10 @@ def run(
     """
     seeds = [scenario.seed] if seeds is None else [seeds] if isinstance(seeds, int) else list(seeds)
     steps = scenario.max_steps if steps is None else steps
-    region, params = scenario.region, scenario.control
     threshold_deg = np.rad2deg(scenario.threshold)
-
-    paths = np.stack([scenario.target_path(seed, steps) for seed in seeds])  # (T, K, 2)
-    positions = np.stack([scenario.start_positions(seed) for seed in seeds])
-    trials, robots = positions.shape[:2]
-    strategy = check_strategy(scenario)
-    team = TeamEstimate(scenario, seeds, paths)
-    controller = strategy.controller(region, params, positions)
+    batch = Batch(scenario, seeds, steps, plans)
+    trials, robots = batch.layout.shape
+    strategy, team = batch.strategy, batch.team
     angles = np.empty((steps, trials, robots))
     triggers = np.empty((steps, trials, robots), dtype=np.uint8)
     offsets = np.empty((steps, trials, robots))
@@ -519,17 +676,6 @@ def run(
     sent_bytes = np.empty((steps, trials, robots), dtype=np.int64)
     energy = np.empty((steps, trials, robots, 2))
     pushes = np.zeros((steps, trials, robots, 2), dtype=np.int64)
-    # A listening strategy: what each robot was told in the previous step (per side) and everyone's
-    # belief as told; a pushing one: the belief each robot last told its neighbours.
-    no_one = np.zeros((trials, robots), dtype=bool)
-    told, told_beliefs = (no_one, no_one), team.beliefs()
-    last_told = team.beliefs() if strategy.pushes else None
-    plan_seeds = fault_seeds(scenario, seeds)
-    groups = _plan_groups([scenario.faults] * trials if plans is None else list(plans), trials)
-    belief = scenario.estimation.mode == "decentralized"
-    reads_uncertainty = strategy.reads_uncertainty and belief
-    steady_variance = team_steady_variance(scenario.estimation, robots) if reads_uncertainty else None
-    limit = scenario.communication_range
     recorded = np.empty((steps, trials, robots, 2)) if record_positions else None
     estimates = np.empty((steps, trials, robots, 2)) if record_positions else None
     covariances = np.empty((steps, trials, robots, 3)) if record_positions else None
@@ -537,62 +683,22 @@ def run(
 
     for k in range(1, steps + 1):
         row = k - 1
-        targets = paths[:, row]
+        record = batch.step(k, watch)
+        outcome = record.outcome
         if recorded is not None:
-            recorded[row] = positions
-        angles[row] = angle_of(positions, targets[:, None, :])
-        cerr_true[row] = convergence_error(midpoint_errors(angles[row]))  # world.metrics.true_cerr, of these angles
-        if strategy.listens:
-            centres = team.measure(positions, targets, strategy, told, told_beliefs)
-            told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry
-        else:
-            centres = team.measure(positions, targets)
-        neighbours = _to_sides(positions)
-        lengths = link_distance(positions, neighbours[0]), link_distance(positions, neighbours[1])
-        reach = lengths[0] <= (limit or np.inf), lengths[1] <= (limit or np.inf)
-        uncertainty = (None if steady_variance is None
-                       else CentreUncertainty(team.beliefs()[1], steady_variance))
-        # a team: an array
-        reasons = np.asarray(controller.observe(k, positions, centres, reach, uncertainty=uncertainty))
-        triggers[row] = reasons
-        ages[row, ..., 0], ages[row, ..., 1] = controller.predecessor_age, controller.successor_age
-        if watch is not None:
-            watch(k, controller, positions)
-        polled = reasons != 0
-        # What each robot's replies of this step carry, read once it has observed the step.
-        content = strategy.reply_content(controller) if strategy.reply_fields else None
-        pushed = None
-        if last_told is not None:
-            pushing = ~polled & strategy.wants_push(told_beliefs[0], *last_told, scenario.estimation)
-            pushed = pushing[..., None] & _pair(*reach)
-            telling = polled | pushing
-            last_told = (np.where(telling[..., None], told_beliefs[0], last_told[0]),
-                         np.where(telling[..., None, None], told_beliefs[1], last_told[1]))
-        relayed = None if team.relay is None else team.relay.message_bytes(k)
-        outcome = exchange(groups, k, polled, *reach, *lengths, plan_seeds, belief, pushed, strategy.listens,
-                           content, relayed)
-        if strategy.listens or team.relay is not None:
-            # told by the predecessor's message to its successor, and the other way
-            reached = (outcome.requests > 0) | outcome.push_delivered
-            told = predecessor_values(reached[..., 1], axis=1), successor_values(reached[..., 0], axis=1)
-        if team.relay is not None:  # requests and replies carry ranges
-            team.relay.hand_over(told[0] | outcome.fresh_minus, told[1] | outcome.fresh_plus)
+            recorded[row] = record.positions
+        angles[row], cerr_true[row], triggers[row] = record.angles, record.cerr_true, record.reasons
+        ages[row, ..., 0], ages[row, ..., 1] = record.ages
         if strategy.pushes:  # else none pushed: the rows stay zero
             pushes[row] = outcome.pushes
-        strategy.receive(controller, *replies(neighbours, outcome, content))
-        if team.fuse(outcome.fresh_minus, outcome.fresh_plus, centres):
-            controller.recentre(centres)
-        goal = controller.goal(reach if limit else None, limit)
         requests[row], faults[row], probes[row] = outcome.requests, outcome.faults, outcome.probes
         sent_bytes[row], energy[row] = outcome.sent_bytes, outcome.energy
-        offsets[row] = np.where(controller.offset_known, controller.guaranteed_offset, np.nan)
-        terr[row] = team.target_error(centres, targets)
+        offsets[row], terr[row] = record.offsets, record.terr
         if estimates is not None and covariances is not None:
-            estimates[row], covariances[row] = centres, team.covariances()
-        positions = motion_step(scenario, positions, goal)
+            estimates[row], covariances[row] = record.centres, team.covariances()
         if on_step is not None:
             on_step(k)
-        done |= converged(strategy_cerr(strategy.cerr, memory_cerr(offsets[row]), cerr_true[row]), threshold_deg)
+        done |= converged(batch.cerr(record), threshold_deg)
         if until_converged and everywhere(done):
             steps = k
             break
@@ -608,7 +714,7 @@ def run(
         offsets=offsets[:steps],
         ages=ages[:steps],
         cerr_true=cerr_true[:steps],
-        targets=np.swapaxes(paths[:, :steps], 0, 1),
+        targets=np.swapaxes(batch.paths[:, :steps], 0, 1),
         terr=terr[:steps],
         estimates=None if estimates is None else estimates[:steps],
         sent=traffic + pushes[:steps, ..., 0] + pushes[:steps, ..., 1] if strategy.pushes else traffic,
@@ -624,23 +730,13 @@ def run(
 
 
 def replies(neighbours: tuple[FloatArray, FloatArray], outcome: Exchange,
-            content: FloatArray | None) -> tuple[Received, Received]:
+            content: FloatArray | None, layout: Layout) -> tuple[Received, Received]:
     """What came back to every robot from its predecessor and successor in a step: their step-start
     ``neighbours`` positions (metres) where the reply came, and the ``content`` every robot's
-    replies carry (``(T, N, fields)``, robots on axis 1; None: a strategy whose replies carry nothing)."""
-    carried = (None, None) if content is None else _to_sides(content)
+    replies carry (``(T, N, fields)``, robots on axis 1 as ``layout`` lays them out; None: a
+    strategy whose replies carry nothing)."""
+    carried = (None, None) if content is None else (layout.predecessor(content), layout.successor(content))
     return (Received(neighbours[0], outcome.fresh_minus, np.zeros(outcome.fresh_minus.shape, dtype=np.int64),
                      carried[0]),
             Received(neighbours[1], outcome.fresh_plus, np.zeros(outcome.fresh_plus.shape, dtype=np.int64),
                      carried[1]))
-
-
-def _to_sides(values: NDArray) -> tuple[NDArray, NDArray]:
-    """What each robot's predecessor and successor hold of ``values`` (robots on axis 1)."""
-    return predecessor_values(values, axis=1), successor_values(values, axis=1)
-
-
-def _sides_of(values: NDArray) -> NDArray:
-    """:func:`_to_sides` as one array, the sides on a new axis 2 (predecessor, successor): shape
-    (T, N, 2, ...) of ``values`` (T, N, ...)."""
-    return np.take(values, _ring_sides(values.shape[1])[1][0], axis=1)
