@@ -176,6 +176,17 @@ class MidpointController:
         if came:
             self._remembered_angles()
 
+    def keep(self, robots: NDArray[np.intp]) -> None:
+        """Keep the memory of the robots at ``robots`` only (an index along the last axis of the
+        leading shape ``S``): the others left the batch."""
+        axis = np.ndim(self.theta) - 1
+        for name in ("own_position", "predecessor_position", "successor_position", "predecessor_age", "successor_age",
+                     "guaranteed_offset", "offset_known", "predecessor_known", "successor_known", "centre", "theta",
+                     "m_minus", "m_plus"):
+            setattr(self, name, np.take(getattr(self, name), robots, axis=axis))
+        if self.uncertainty is not None:
+            self.uncertainty = self.uncertainty._replace(covariance=np.take(self.uncertainty.covariance, robots, axis))
+
     def forget(self, predecessor: ArrayLike = False, successor: ArrayLike = False) -> None:
         """Drop what is remembered of a side whose neighbour changed (the ring re-formed around a
         robot that left, or one that came back): that side is unknown until the new neighbour

@@ -4,7 +4,11 @@ It runs exactly the per-robot sequence of a robot process for every robot at onc
 scenario's strategy (:mod:`agents.strategy`): measure and estimate (:mod:`agents.estimation`),
 observe and poll (the strategy's controller) with neighbour replies read straight from the true
 step-start positions and beliefs, fuse, move
-(:meth:`world.geometry.ConvexRegion.move_along`). Arrays are indexed ``[step - 1, trial, robot]``.
+(:meth:`world.geometry.ConvexRegion.move_along`). A :class:`Batch` holds the state between steps
+and runs one (:meth:`Batch.step`); :func:`run` records every step of a uniform batch as a
+:class:`History` (arrays indexed ``[step - 1, trial, robot]``); :func:`run_until_converged` runs
+teams of several sizes as one ragged batch (:mod:`agents.layout`), keeping per team only what a
+stationary study reads (:class:`TeamSeries`).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.agents.controller import CentreUncertainty
+from ringtrack.agents.controller import CentreUncertainty, MidpointController
 from ringtrack.agents.estimation import Estimators, Told, team_steady_variance
 from ringtrack.agents.layout import Layout
 from ringtrack.agents.relay import VELOCITY_WINDOW_S, RangeRelay
@@ -344,7 +348,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
         # No fault, no push, every neighbour in reach: each request is delivered once and answered by
         # one delivered reply, so every message sent is delivered and published (fate_counts' rule).
         requests = requested.astype(np.int64)
-        sent = 2 * layout.per_team(_robots_and_sides_sum, requests)
+        sent = 2 * layout.team_sum(requests).sum(axis=-1)
         faults = np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64)
         for column in ("sent", "delivered", "published"):
             faults[:, FAULT_COLUMNS.index(column)] = sent
@@ -367,9 +371,8 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
             counts = {name: counts[name] + of_pushes[name] for name in counts}
         counts["sent"] = requested.astype(np.int64) + requests + pushes
         counts["published"] = ring_traffic(requests, layout) + pushes[..., 0] + pushes[..., 1]
-        per_message = layout.per_team(_robots_and_sides_sum,
-                                      np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1))  # (T, 5)
-        faults = np.concatenate([per_message, layout.per_team(_robots_sum, counts["published"])[:, None]], axis=1)
+        per_message = layout.team_sum(np.stack([counts[name] for name in FAULT_COLUMNS[:-1]], axis=-1)).sum(axis=1)
+        faults = np.concatenate([per_message, layout.team_sum(counts["published"])[:, None]], axis=1)  # (T, 6)
         fresh = (requests > 0) & ~reply.dropped
         replies_delivered, on_air = of_replies["delivered"], np.where(requested, np.maximum(requests, 1), 0)
         push_delivered = (pushes > 0) & ~push.dropped
@@ -396,7 +399,7 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
                                   of_pushes["delivered"] * receive_energy(radio, push_bits)])
     totals = own[..., 0] + own[..., 1] + _to_neighbours(other, layout)  # both sides
     return Exchange(fresh[..., 0], fresh[..., 1], requests, faults.astype(np.int64),
-                    layout.per_team(_robots_and_sides_sum, ~reach),
+                    layout.team_sum(~reach).sum(axis=-1),
                     totals[0].astype(np.int64), _pair(totals[1], totals[2]), pushes, push_delivered)
 
 
@@ -436,16 +439,6 @@ def _ring_message_bytes(kind: str, step: int, layout: Layout, belief: bool) -> N
 
 
 _RING_MESSAGE_BYTES: dict[tuple[str, int, int, bool], NDArray[np.int64]] = {}  # see _ring_message_bytes
-
-
-def _robots_sum(values: NDArray) -> NDArray:
-    """Sums over the robots (axis 1) of ``(T, N, ...)`` values."""
-    return values.sum(axis=1)
-
-
-def _robots_and_sides_sum(values: NDArray) -> NDArray:
-    """Sums over the robots and their sides (axes 1 and 2) of ``(T, N, 2, ...)`` values."""
-    return values.sum(axis=(1, 2))
 
 
 def _group_fates(groups: PlanGroups, kind: str, sender: NDArray[np.int64], receiver: NDArray[np.int64], step: int,
@@ -513,12 +506,6 @@ class StepRecord:
     terr: FloatArray
 
 
-def true_cerr_of_angles(angles: FloatArray) -> FloatArray:
-    """Cerr_true (degrees) of whole rings from their robots' true ``angles`` (radians, robots on the
-    last axis): :func:`world.metrics.true_cerr`, of angles already at hand."""
-    return convergence_error(midpoint_errors(angles))
-
-
 class Batch:
     """A batch of runs of a scenario between steps: the robots' true positions and the targets'
     paths, the robots' memories (the strategy's controller), their estimators and what they last
@@ -542,6 +529,7 @@ class Batch:
             self.positions = np.concatenate([each.start_positions(seed) for each, seed in zip(own, seeds,
                                                                                               strict=True)])[None]
         self.layout = layout
+        self.kept: NDArray[np.intp] | None = None  # the trials (of paths, seeds) a ragged batch still runs
         trials = layout.trials
         self.strategy = strategy = check_strategy(scenario)
         self.team = TeamEstimate(scenario, seeds, self.paths, layout)
@@ -579,6 +567,26 @@ class Batch:
         return cls(first, list(seeds), steps, layout=Layout.of_teams([each.robots for each in scenarios]),
                    scenarios=scenarios)
 
+    @property
+    def keeps(self) -> bool:
+        """Whether :meth:`keep` can let teams leave: a ragged batch whose strategy's memory can drop
+        robots (:meth:`agents.controller.MidpointController.keep`)."""
+        return self.layout.ragged and isinstance(self.controller, MidpointController)
+
+    def keep(self, teams: NDArray[np.bool_]) -> None:
+        """Go on with the ``teams`` kept only (a mask of the batch's teams, in its order; see
+        :attr:`keeps`): the robots of the others leave the batch, the rest run on as before."""
+        assert isinstance(self.controller, MidpointController)
+        self.layout, robots = self.layout.keep(teams)
+        self.kept = np.flatnonzero(teams) if self.kept is None else self.kept[teams]
+        self.positions = self.positions[:, robots]
+        self.controller.keep(robots)
+        self.team.layout, self.team.trials = self.layout, self.layout.trials
+        no_one = np.zeros(self.layout.shape, dtype=bool)
+        self.told = (no_one, no_one)  # nobody listens in a ragged batch
+        self.plan_seeds = self.plan_seeds[teams]
+        self.groups = [(self.groups[0][0], np.arange(self.layout.trials))]  # one plan, which drops nothing
+
     def step(self, k: int, watch: Callable[[int, Any, FloatArray], None] | None = None) -> StepRecord:
         """Run step ``k`` (1-based) of every robot: measure and estimate, observe and poll, settle
         the exchange, take the replies, fuse and move; ``watch(k, controller, positions)`` is called
@@ -586,9 +594,10 @@ class Batch:
         layout, team, controller, strategy, limit = self.layout, self.team, self.controller, self.strategy, self.limit
         positions = self.positions
         row = k - 1
-        targets = self.paths[:, row]
+        targets = self.paths[:, row] if self.kept is None else self.paths[self.kept, row]
         angles = angle_of(positions, layout.per_robot(targets))
-        cerr_true = layout.per_team(true_cerr_of_angles, angles)
+        # world.metrics.true_cerr, of these angles
+        cerr_true = convergence_error(midpoint_errors(angles, layout.successor, layout.predecessor), layout.team_sum)
         if strategy.listens:
             centres = team.measure(positions, targets, strategy, self.told, self.told_beliefs)
             self.told_beliefs = team.beliefs()  # what this step's requests, replies and pushes carry
@@ -636,7 +645,8 @@ class Batch:
     def cerr(self, record: StepRecord) -> FloatArray:
         """The paper's Cerr of every team at a step (degrees, (T,)): its strategy's
         (:func:`world.metrics.strategy_cerr`)."""
-        return strategy_cerr(self.strategy.cerr, self.layout.per_team(memory_cerr, record.offsets), record.cerr_true)
+        return strategy_cerr(self.strategy.cerr, memory_cerr(record.offsets, team_sum=self.layout.team_sum),
+                             record.cerr_true)
 
 
 def run(
@@ -727,6 +737,112 @@ def run(
         pushes=pushes[:steps],
         covariances=None if covariances is None else covariances[:steps],
     )
+
+
+@dataclass
+class TeamSeries:
+    """Per step (row k - 1 for step k) and team (columns) of runs until each team converged
+    (:func:`run_until_converged`): the paper's Cerr of the team's strategy (``cerr``) and the true
+    Cerr (degrees), the robots that polled and the bytes of the robot-to-robot messages the team's
+    robots published; ``ctime`` is each team's Ctime (0: it did not converge, and ran every step).
+    A team's rows end at its Ctime: the rows after it hold NaN (Cerr) and 0."""
+
+    cerr: FloatArray
+    cerr_true: FloatArray
+    polls: NDArray[np.int64]
+    sent_bytes: NDArray[np.int64]
+    ctime: NDArray[np.int64]
+
+    @classmethod
+    def of_history(cls, history: History) -> TeamSeries:
+        """The series of a batch's history, each trial's rows ended at its Ctime."""
+        assert history.sent_bytes is not None, "engine runs count bytes"
+        return cls(history.cerr, history.cerr_true, (history.triggers != 0).sum(axis=2),
+                   history.sent_bytes.sum(axis=2), history.ctime).ended()
+
+    def ended(self) -> TeamSeries:
+        """These series with each team's rows after its Ctime blanked (NaN, 0)."""
+        after = np.arange(len(self.cerr))[:, None] >= np.where(self.ctime > 0, self.ctime, len(self.cerr))
+        return TeamSeries(np.where(after, np.nan, self.cerr), np.where(after, np.nan, self.cerr_true),
+                          np.where(after, 0, self.polls), np.where(after, 0, self.sent_bytes), self.ctime)
+
+    def trimmed(self, steps: int) -> TeamSeries:
+        """These series' first ``steps`` rows."""
+        return TeamSeries(self.cerr[:steps], self.cerr_true[:steps], self.polls[:steps], self.sent_bytes[:steps],
+                          self.ctime)
+
+    @staticmethod
+    def joined(parts: Sequence[tuple[NDArray[np.intp], TeamSeries]]) -> TeamSeries:
+        """One series of the teams of several (each ``(its teams' columns, its series)``), as long as
+        the longest."""
+        steps = max(len(part.cerr) for _, part in parts)
+        teams = sum(len(columns) for columns, _ in parts)
+        joined = TeamSeries(np.full((steps, teams), np.nan), np.full((steps, teams), np.nan),
+                            np.zeros((steps, teams), np.int64), np.zeros((steps, teams), np.int64),
+                            np.zeros(teams, np.int64))
+        for columns, part in parts:
+            rows = len(part.cerr)
+            joined.cerr[:rows, columns], joined.cerr_true[:rows, columns] = part.cerr, part.cerr_true
+            joined.polls[:rows, columns], joined.sent_bytes[:rows, columns] = part.polls, part.sent_bytes
+            joined.ctime[columns] = part.ctime
+        return joined
+
+
+# Teams that converged leave a ragged batch once their robots are this share of those it steps.
+LEAVING_SHARE = 0.1
+
+
+def run_until_converged(scenarios: Sequence[Scenario], seeds: Sequence[int]) -> TeamSeries:
+    """Run trial t, ``scenarios[t]`` from ``seeds[t]``, until it converges (at most its scenario's
+    ``max_steps``) and return the :class:`TeamSeries` of every trial, each the same as a batch of
+    its scenario alone gives (:func:`run` with ``until_converged``).
+
+    Teams of scenarios that differ only in their team (a sweep over team sizes) run as one ragged
+    batch (:meth:`Batch.of_teams`: robots that know the target, no fault, no communication range,
+    a strategy that neither listens, pushes nor relays), converged teams leaving it as it goes:
+    a step of it costs about its robots, not its number of team sizes. Other scenarios run as a
+    uniform batch each."""
+    try:
+        if any(each.communication_range is not None for each in scenarios):
+            raise ValueError("a ragged batch runs without a communication range")
+        batch = Batch.of_teams(scenarios, seeds, max(each.max_steps for each in scenarios))
+    except ValueError:
+        parts = []
+        for scenario in {id(each): each for each in scenarios}.values():  # each distinct scenario once, in order
+            columns = np.array([index for index, each in enumerate(scenarios) if each is scenario])
+            history = run(scenario, [seeds[index] for index in columns], until_converged=True, record_positions=False)
+            parts.append((columns, TeamSeries.of_history(history)))
+        return TeamSeries.joined(parts)
+    return _ragged_series(batch, np.rad2deg([each.threshold for each in scenarios]),
+                          max(each.max_steps for each in scenarios))
+
+
+def _ragged_series(batch: Batch, thresholds_deg: FloatArray, steps: int) -> TeamSeries:
+    """The :class:`TeamSeries` of a ragged ``batch`` run until every team converged below its
+    threshold (degrees) or ``steps`` ran; converged teams leave it (:meth:`Batch.keep`)."""
+    teams = batch.layout.trials
+    series = TeamSeries(np.full((steps, teams), np.nan), np.full((steps, teams), np.nan),
+                        np.zeros((steps, teams), np.int64), np.zeros((steps, teams), np.int64),
+                        np.zeros(teams, np.int64))
+    present = np.arange(teams)  # the batch's teams, in its order
+    running = np.ones(teams, dtype=bool)  # of those, the ones that have not converged
+    for k in range(1, steps + 1):
+        row = k - 1
+        record = batch.step(k)
+        cerr = batch.cerr(record)
+        on = present[running]
+        series.cerr[row, on], series.cerr_true[row, on] = cerr[running], record.cerr_true[running]
+        series.polls[row, on] = batch.layout.team_sum(record.reasons != 0)[running]
+        series.sent_bytes[row, on] = batch.layout.team_sum(record.outcome.sent_bytes)[running]
+        now = running & converged(cerr, thresholds_deg[present])
+        series.ctime[present[now]] = k
+        running &= ~now
+        if not anywhere(running):
+            return series.trimmed(k)
+        if batch.keeps and batch.layout.team_sizes[~running].sum() >= LEAVING_SHARE * batch.layout.robots:
+            batch.keep(running)
+            present, running = present[running], running[running]
+    return series
 
 
 def replies(neighbours: tuple[FloatArray, FloatArray], outcome: Exchange,

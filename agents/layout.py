@@ -13,7 +13,7 @@ numbers in the same order), so a team's run is the same in either layout, to the
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -21,9 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ringtrack.world.ring import _cyclic_index
-
-Reduce = Callable[[NDArray], NDArray]  # reduces axis 1 of a (T, N, ...) array of T teams of N robots
+from ringtrack.world.ring import cyclic_index
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,6 +45,11 @@ class Layout:
         if not sizes or min(sizes) < 1:
             raise ValueError(f"team sizes {list(sizes)}: give at least one team of at least one robot")
         return cls(tuple(int(size) for size in sizes), True)
+
+    @cached_property
+    def team_sizes(self) -> NDArray[np.int64]:
+        """:attr:`sizes` as an array."""
+        return np.asarray(self.sizes, dtype=np.int64)
 
     @property
     def trials(self) -> int:
@@ -88,7 +91,7 @@ class Layout:
     def _indices(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """The index along axis 1 of each robot's predecessor and successor."""
         if not self.ragged:
-            return _cyclic_index(self.robots, -1), _cyclic_index(self.robots, 1)
+            return cyclic_index(self.robots, -1), cyclic_index(self.robots, 1)
         size = np.repeat(np.asarray(self.sizes), self.sizes)
         first = np.arange(self.robots) - self._local
         predecessor, successor = first + (self._local - 1) % size, first + (self._local + 1) % size
@@ -138,14 +141,23 @@ class Layout:
             return np.repeat(values[:, None], self.robots, axis=1)
         return np.repeat(values, self.sizes, axis=0)[None]
 
-    def per_team(self, reduce: Reduce, values: NDArray) -> NDArray:
-        """``reduce`` (over axis 1 of a ``(T, N, ...)`` array) of each team's robots' ``values``
-        (``(*shape, ...)``), ``(T, ...)``: ragged, on each group's ``(teams, size, ...)`` view."""
+    def team_sum(self, values: NDArray) -> NDArray:
+        """Each team's sum over its robots of per-robot ``values`` (robots on axis 1), ``(T, ...)``:
+        a uniform batch's reduction over axis 1; a ragged one's, for floats, the same reduction of
+        each group's ``(teams, size, ...)`` view (so each team's sum has the bits of a uniform
+        batch's), for whole numbers one cut of the axis at each team's first robot."""
         if not self.ragged:
-            return reduce(values)
+            return np.add.reduce(values, axis=1)
+        if not np.issubdtype(values.dtype, np.floating):  # whole numbers (or flags, counted)
+            return np.add.reduceat(values, self._firsts, axis=1, dtype=np.int64)[0]
         rest = values.shape[2:]
-        return np.concatenate([reduce(values[0, first:first + teams * size].reshape((teams, size, *rest)))
-                               for first, teams, size in self.groups])
+        return np.concatenate([np.add.reduce(values[0, first:first + teams * size].reshape((teams, size, *rest)),
+                                             axis=1) for first, teams, size in self.groups])
+
+    @cached_property
+    def _firsts(self) -> NDArray[np.intp]:
+        """The index along axis 1 of each team's first robot."""
+        return np.concatenate([[0], np.cumsum(self.sizes[:-1])]).astype(np.intp)
 
     def keep(self, teams: NDArray[np.bool_]) -> tuple[Layout, NDArray[np.intp]]:
         """The ragged layout of the ``teams`` kept (a mask of :attr:`trials`) and the index along

@@ -158,7 +158,7 @@ def test_a_strategy_file_a_worker_reads_must_be_the_studys(there: bytes | None, 
         (elsewhere / strategy.name).write_bytes(strategy.read_bytes() + there)
     monkeypatch.chdir(here)
     scenario = random_start_scenarios("paper-stationary", 4, [strategy.name])["heartbeat"]
-    task = StationaryTask("N=4 heartbeat 0..1", 0, [0, 1], 4, "heartbeat", scenario)
+    task = StationaryTask("heartbeat trials 0-1", 0, [0, 1], "heartbeat", [scenario, scenario], [0, 1])
     began = origin(Study("stationary", {"strategies": [strategy.name]}, [task], stationary_task, StationaryPart))
     local = execute(stationary_task, task)
     monkeypatch.chdir(elsewhere)
@@ -180,7 +180,7 @@ def test_a_studys_files_are_also_the_strategy_files_its_scenarios_name(monkeypat
     monkeypatch.chdir(tmp_path)
     strategy = example(tmp_path)
     scenario = random_start_scenarios("paper-stationary", 4, [strategy.name])["heartbeat"]
-    task = StationaryTask("N=4 heartbeat 0..1", 0, [0, 1], 4, "heartbeat", scenario)
+    task = StationaryTask("heartbeat trials 0-1", 0, [0, 1], "heartbeat", [scenario, scenario], [0, 1])
     assert study_files(Study("stationary", {}, [task], stationary_task, StationaryPart)) == (strategy.name,)
     assert study_files(Study("stationary", {"strategies": ["self"]}, [], stationary_task, StationaryPart)) == ()
 

@@ -296,8 +296,8 @@ def test_inputs_digest_covers_the_code_and_the_named_files(tmp_path: Path) -> No
 def test_pools_and_clusters_get_the_costliest_tasks_first() -> None:
     """A sweep's large teams start first (a long task started last would run alone at the end); tasks
     of equal cost keep the study's order."""
-    scenario = load_scenario("paper-stationary")
-    tasks = [StationaryTask(f"N={robots} {strategy}", 0, seeds, robots, strategy, scenario)
+    tasks = [StationaryTask(f"N={robots} {strategy}", 0, seeds, strategy,
+                            [load_scenario("paper-stationary", robots=robots)] * len(seeds), list(range(len(seeds))))
              for robots, seeds in ((3, [0, 1]), (30, [0, 1]), (6, [0, 1]), (30, [2])) for strategy in ("constant", "self")]
     study = Study("stationary", {}, tasks, stationary_task, StationaryPart)
     order = runner.costliest_first(study, [0, 1, 2, 3, 4, 5, 7])

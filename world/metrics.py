@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -32,9 +33,15 @@ CerrSource = Literal["memory", "true"]
 CERR_SOURCES: tuple[CerrSource, ...] = ("memory", "true")
 
 
-def convergence_error(offsets: ArrayLike) -> FloatArray:
-    """``sum_i |offset_i|`` over the last axis, offsets in radians, result in degrees."""
-    return np.rad2deg(np.add.reduce(np.abs(offsets), axis=-1))  # np.sum's reduction, without its wrapper
+TeamSum = Callable[[NDArray], NDArray]  # per-robot values -> each team's sum over its robots
+
+
+def convergence_error(offsets: ArrayLike, team_sum: TeamSum | None = None) -> FloatArray:
+    """``sum_i |offset_i|`` over the last axis (or each team's, as ``team_sum`` adds them up),
+    offsets in radians, result in degrees."""
+    magnitudes = np.abs(offsets)
+    # np.sum's reduction, without its wrapper
+    return np.rad2deg(np.add.reduce(magnitudes, axis=-1) if team_sum is None else team_sum(magnitudes))
 
 
 def true_offsets(positions: ArrayLike, target: ArrayLike) -> FloatArray:
@@ -47,14 +54,15 @@ def true_cerr(positions: ArrayLike, target: ArrayLike) -> FloatArray:
     return convergence_error(true_offsets(positions, target))
 
 
-def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None) -> FloatArray:
+def memory_cerr(offsets: ArrayLike, live: ArrayLike | None = None, team_sum: TeamSum | None = None) -> FloatArray:
     """``Cerr_memory`` (degrees) from the robots' ``gV - theta`` (radians, robots on the last axis,
-    NaN where unknown) over the ``live`` robots (a boolean mask; default: every robot): NaN where
-    any live robot's offset is unknown, so missing values never count as zero error."""
+    or teams added up by ``team_sum``; NaN where unknown) over the ``live`` robots (a boolean mask;
+    default: every robot): NaN where any live robot's offset is unknown, so missing values never
+    count as zero error."""
     offsets = np.asarray(offsets, dtype=float)
     if live is not None:
         offsets = np.where(live, offsets, 0.0)  # a robot out of the ring is no part of the sum
-    return convergence_error(offsets)
+    return convergence_error(offsets, team_sum)
 
 
 def strategy_cerr(source: CerrSource, cerr_memory: ArrayLike, cerr_true: ArrayLike) -> FloatArray:
@@ -66,9 +74,9 @@ def strategy_cerr(source: CerrSource, cerr_memory: ArrayLike, cerr_true: ArrayLi
     return np.asarray(cerr_true if source == "true" else cerr_memory, dtype=float)
 
 
-def converged(cerr: ArrayLike, threshold_deg: float) -> NDArray[np.bool_]:
+def converged(cerr: ArrayLike, threshold_deg: ArrayLike) -> NDArray[np.bool_]:
     """Whether a step counts as converged: its Cerr (degrees) is known and below ``threshold_deg``
-    (an unknown, NaN, Cerr compares below nothing)."""
+    (one for all, or each run's; an unknown, NaN, Cerr compares below nothing)."""
     return np.asarray(cerr, dtype=float) < threshold_deg
 
 
@@ -117,11 +125,15 @@ def communications(triggers: ArrayLike, until: ArrayLike) -> NDArray[np.int64]:
 
 def mean_communication_rate(triggers: ArrayLike, ctime: ArrayLike) -> FloatArray:
     """Com-bar per run: ``sum_i com(i, Ctime) / (N Ctime)``; NaN where the run did not converge."""
+    return communication_rate(communications(triggers, ctime).sum(axis=-1), np.asarray(triggers).shape[-1], ctime)
+
+
+def communication_rate(polls: ArrayLike, robots: ArrayLike, ctime: ArrayLike) -> FloatArray:
+    """Com-bar per run of ``robots`` robots from ``polls``, the polls of its steps ``<= ctime``
+    (``sum_i com(i, Ctime)``): ``polls / (N Ctime)``; NaN where the run did not converge."""
     ctime = np.asarray(ctime)
-    count = communications(triggers, ctime).sum(axis=-1)
-    robots = np.asarray(triggers).shape[-1]
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(ctime > 0, count / (robots * ctime), np.nan)
+        return np.where(ctime > 0, np.asarray(polls) / (np.asarray(robots) * ctime), np.nan)
 
 
 def range_information(positions: ArrayLike, target: ArrayLike, sigma_z: float) -> FloatArray:

@@ -10,7 +10,7 @@ leading axes (robots, trials).
 from __future__ import annotations
 
 from bisect import bisect_left
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import lru_cache
 
 import numpy as np
@@ -50,34 +50,40 @@ def successor_values(values: ArrayLike, axis: int = -1) -> NDArray:
     """What each robot's CCW successor holds of ``values`` (robots along ``axis``): ``np.roll(values,
     -1, axis)``, as an indexed take, which costs a fifth of ``np.roll`` on a team's small arrays."""
     values = np.asarray(values)
-    return values.take(_cyclic_index(values.shape[axis], 1), axis=axis)
+    return values.take(cyclic_index(values.shape[axis], 1), axis=axis)
 
 
 def predecessor_values(values: ArrayLike, axis: int = -1) -> NDArray:
     """What each robot's CW predecessor holds of ``values`` (robots along ``axis``): ``np.roll(values,
     1, axis)`` (see :func:`successor_values`)."""
     values = np.asarray(values)
-    return values.take(_cyclic_index(values.shape[axis], -1), axis=axis)
+    return values.take(cyclic_index(values.shape[axis], -1), axis=axis)
 
 
 @lru_cache(maxsize=64)
-def _cyclic_index(count: int, shift: int) -> NDArray[np.intp]:
+def cyclic_index(count: int, shift: int) -> NDArray[np.intp]:
     """Indices ``(i + shift) mod count`` of a ring of ``count`` robots (read-only: shared by callers)."""
     index = (np.arange(count) + shift) % count
     index.setflags(write=False)
     return index
 
 
-def ring_gaps(angles: ArrayLike) -> FloatArray:
-    """CCW gaps ``d_i^+ = wrap(theta_{i+1} - theta_i)`` (radians) of a whole ring along the last axis."""
+Neighbours = Callable[[NDArray], NDArray]  # what each robot's neighbour on one side holds of values
+
+
+def ring_gaps(angles: ArrayLike, successor: Neighbours = successor_values) -> FloatArray:
+    """CCW gaps ``d_i^+ = wrap(theta_{i+1} - theta_i)`` (radians) of whole rings: robots along the
+    last axis, or laid out as ``successor`` (what each robot's successor holds) says."""
     angles = np.asarray(angles, dtype=float)
-    return wrap(successor_values(angles) - angles)
+    return wrap(successor(angles) - angles)
 
 
-def midpoint_errors(angles: ArrayLike) -> FloatArray:
-    """``e_i = V_i - theta_i = (d_i^+ - d_i^-) / 4`` (radians) of a whole ring with exact information."""
-    gaps = ring_gaps(angles)
-    return (gaps - predecessor_values(gaps)) / 4.0
+def midpoint_errors(angles: ArrayLike, successor: Neighbours = successor_values,
+                    predecessor: Neighbours = predecessor_values) -> FloatArray:
+    """``e_i = V_i - theta_i = (d_i^+ - d_i^-) / 4`` (radians) of whole rings with exact information
+    (robots along the last axis, or laid out as ``successor`` and ``predecessor`` say)."""
+    gaps = ring_gaps(angles, successor)
+    return (gaps - predecessor(gaps)) / 4.0
 
 
 def ring_neighbours(robot: int, alive: set[int] | frozenset[int]) -> tuple[int, int]:

@@ -26,6 +26,7 @@ from ringtrack.tools.cli.options import (
 from ringtrack.tools.output.console import err, show
 from ringtrack.tools.studies.experiment import (
     MOVING_COLUMNS,
+    STATIONARY_BATCH,
     STATIONARY_COLUMNS,
     STRATEGIES,
     MovingStudy,
@@ -61,7 +62,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     stationary.add_argument("--steps", type=at_least(1), help="step limit per trial (default: control.max_steps)")
     add_output_arguments(stationary, json="write per-trial rows and means", plot="draw the comparison figure",
                          csv="write the per-trial rows as CSV (robots, strategy, trial, seed, Ctime, Com-bar, ...)")
-    add_study_arguments(stationary)
+    add_study_arguments(stationary, STATIONARY_BATCH)
     stationary.set_defaults(handler=run_stationary)
 
     moving = kinds.add_parser(

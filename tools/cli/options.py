@@ -302,14 +302,15 @@ CSV_FILE = output_path((".csv",))  # tables of trials and summaries
 MCAP_FILE = output_path((".mcap",))  # recordings for Foxglove
 
 
-def add_study_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--workers --cluster --batch --resume --quiet``: how a study's tasks run (tools/studies/runner.py)."""
+def add_study_arguments(parser: argparse.ArgumentParser, batch: int = BATCH) -> None:
+    """``--workers --cluster --batch --resume --quiet``: how a study's tasks run (tools/studies/runner.py);
+    ``batch`` is the study's own trials per task."""
     parser.add_argument("--workers", type=at_least(1), metavar="N",
                         help="run the tasks in N processes (default: every core this process may use)")
     parser.add_argument("--cluster", type=scheduler_address, metavar="ADDRESS",
                         help=f"run the tasks on the Dask scheduler at ADDRESS, e.g. tcp://host:8786 ({CLUSTER_EXTRA})")
-    parser.add_argument("--batch", type=at_least(1), default=BATCH, metavar="TRIALS",
-                        help=f"trials per task, run as one engine batch (default {BATCH}); speed only: the results "
+    parser.add_argument("--batch", type=at_least(1), metavar="TRIALS",
+                        help=f"trials per task, run as one engine batch (default {batch}); speed only: the results "
                         "are the same for any batch")
     parser.add_argument("--resume", action="store_true",
                         help="continue an interrupted study from its journal (PATH.journal.jsonl beside --json or "

@@ -20,7 +20,7 @@ from ringtrack.tools.output.files import struct_columns
 from ringtrack.tools.studies.runner import run_study
 from ringtrack.tools.studies.study import IN_PROCESS, Execution, Study, Task, chunks, seed_range
 from ringtrack.world.geometry import FloatArray
-from ringtrack.world.metrics import convergence_step, settled_mean
+from ringtrack.world.metrics import communication_rate, convergence_step, settled_mean
 from ringtrack.world.scenario import Scenario, apply_overrides, parse_scenario, read_scenario_text, resolve
 from ringtrack.world.scenario_errors import ScenarioError
 from ringtrack.world.target import Circle
@@ -206,17 +206,24 @@ def random_start_scenarios(base: str, robots: int, strategies: Sequence[str] = S
     return scenarios
 
 
+# Trials of a stationary study's task unless --batch says otherwise: the more robots a batch steps at
+# once, the less its cost per step that does not grow with them weighs (about a third of a millisecond).
+STATIONARY_BATCH = 420
+
+
 @dataclass(frozen=True)
 class StationaryTask(Task):
-    """A chunk of the trials of one strategy at one team size (its reported name)."""
+    """A chunk of the trials of one strategy, its team sizes mixed (its reported name): its trial
+    ``i`` runs ``scenarios[i]`` (its team size's) from ``seeds[i]`` and is trial ``trials[i]`` of
+    its team size."""
 
-    robots: int
     strategy: str
-    scenario: Scenario
+    scenarios: list[Scenario]
+    trials: list[int]
 
     def cost(self) -> float:
-        """Robots times trials, which a batch's steps cost roughly in proportion to."""
-        return self.robots * len(self.seeds)
+        """The robots of its trials, which a batch's steps cost roughly in proportion to."""
+        return sum(scenario.robots for scenario in self.scenarios)
 
 
 class StationaryPart(msgspec.Struct, frozen=True):
@@ -226,30 +233,29 @@ class StationaryPart(msgspec.Struct, frozen=True):
 
 
 def stationary_task(task: StationaryTask) -> StationaryPart:
-    """Run a chunk of trials as one batch until all converged: a :class:`StationaryTrial` each."""
-    history = engine.run(task.scenario, task.seeds, until_converged=True, record_positions=False)
-    ctime, com_bar = history.ctime, history.com_bar
-    # a trial alone stops at its own Ctime: judge the true Cerr up to there, whatever its batch ran on
-    threshold_deg = np.rad2deg(task.scenario.threshold)
-    ctime_true = [int(convergence_step(history.cerr_true[: ctime[index] or None, index], threshold_deg))
-                  for index in range(len(task.seeds))]
-    assert history.sent_bytes is not None  # engine runs count bytes
-    sent_bytes = history.sent_bytes
-    return StationaryPart([
-        StationaryTrial(
-            robots=task.robots,
+    """Run a chunk of trials until each converged, as one batch (teams of one size together:
+    :func:`agents.engine.run_until_converged`): a :class:`StationaryTrial` each, in the chunk's order."""
+    order = sorted(range(len(task.seeds)), key=lambda index: task.scenarios[index].robots)
+    series = engine.run_until_converged([task.scenarios[index] for index in order],
+                                        [task.seeds[index] for index in order])
+    rows: list[StationaryTrial | None] = [None] * len(order)
+    for column, index in enumerate(order):
+        scenario, ctime = task.scenarios[index], int(series.ctime[column])
+        steps = slice(None, ctime or None)  # a trial alone stops at its own Ctime
+        polls = int(series.polls[steps, column].sum())
+        rows[index] = StationaryTrial(
+            robots=scenario.robots,
             strategy=task.strategy,
-            trial=task.first + index,
-            seed=trial_seed,
-            converged=bool(ctime[index] > 0),
-            ctime=int(ctime[index]) or None,
-            ctime_true=ctime_true[index] or None,
-            com_bar=None if ctime[index] == 0 else float(com_bar[index]),
-            triggers=int((history.triggers[: ctime[index] or None, index] != 0).sum()),
-            robot_bytes=int(sent_bytes[: ctime[index] or None, index].sum()),
+            trial=task.trials[index],
+            seed=task.seeds[index],
+            converged=ctime > 0,
+            ctime=ctime or None,
+            ctime_true=int(convergence_step(series.cerr_true[steps, column], np.rad2deg(scenario.threshold))) or None,
+            com_bar=float(communication_rate(polls, scenario.robots, ctime)) if ctime else None,
+            triggers=polls,
+            robot_bytes=int(series.sent_bytes[steps, column].sum()),
         )
-        for index, trial_seed in enumerate(task.seeds)
-    ])
+    return StationaryPart([row for row in rows if row is not None])
 
 
 def stationary_cell(rows: list[StationaryTrial], scenario: Scenario) -> StationaryCell:
@@ -283,7 +289,8 @@ def stationary_experiment(
     **overrides: object,
 ) -> StationaryStudy:
     """Run the ``strategies`` (default constant and self) for every team size on seeds ``seed ..
-    seed + trials - 1``, in tasks of ``execution.batch`` trials (:mod:`tools.studies.runner`).
+    seed + trials - 1``, in tasks of ``execution.trials_per_task(STATIONARY_BATCH)`` trials
+    (:mod:`tools.studies.runner`).
 
     Returns the study: a :class:`StationaryTrial` per trial, a :class:`StationaryCell` per team size
     and strategy (mean and standard deviation of Ctime and Com-bar), and per team size and strategy
@@ -294,16 +301,20 @@ def stationary_experiment(
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     started = time.perf_counter()
     scenarios = {size: random_start_scenarios(base, size, strategies, **overrides) for size in robots}
-    seeds = list(range(seed, seed + trials))
-    tasks = [StationaryTask(f"N={size} {strategy} {seed_range(part)}", first, part, size, strategy, scenario)
-             for size in robots for strategy, scenario in scenarios[size].items()
-             for first, part in chunks(seeds, execution.batch)]
+    # a strategy's trials, team sizes mixed in each chunk (so that chunks cost alike): (size, trial)
+    mixed = [(size, trial) for trial in range(trials) for size in robots]
+    tasks = [StationaryTask(f"{strategy} trials {first}-{first + len(part) - 1} of {len(mixed)}", first,
+                            [seed + trial for _, trial in part], strategy,
+                            [scenarios[size][strategy] for size, _ in part], [trial for _, trial in part])
+             for strategy in scenarios[robots[0]]
+             for first, part in chunks(mixed, execution.trials_per_task(STATIONARY_BATCH))]
     parameters = {"scenario": base, "robots": list(robots), "trials": trials, "seed": seed,
                   "strategies": list(strategies), **overrides}
     parts = run_study(Study("stationary", parameters, tasks, stationary_task, StationaryPart), execution)
-    by_cell: dict[tuple[int, str], list[StationaryTrial]] = {}
-    for task, part in zip(tasks, parts, strict=True):
-        by_cell.setdefault((task.robots, task.strategy), []).extend(part.rows)
+    by_cell: dict[tuple[int, str], list[StationaryTrial]] = {(size, strategy): [] for size in robots
+                                                             for strategy in scenarios[size]}
+    for row in sorted((row for part in parts for row in part.rows), key=lambda row: row.trial):
+        by_cell[row.robots, row.strategy].append(row)
     summary = [stationary_cell(rows, scenarios[size][strategy]) for (size, strategy), rows in by_cell.items()]
     return StationaryStudy(
         scenario=base,
@@ -490,7 +501,7 @@ def moving_experiment(
     execution: Execution = IN_PROCESS,
 ) -> MovingStudy:
     """Run the comparison at the base scenario's circle and (``velocities``) the paper's velocity
-    settings, in tasks of ``execution.batch`` trials (:mod:`tools.studies.runner`); returns the
+    settings, in tasks of ``execution.trials_per_task()`` trials (:mod:`tools.studies.runner`); returns the
     study with, per run (:class:`MovingRun`), means from step ``settle`` on and the trial-mean Cerr
     (true, degrees) and Terr (metres) series, and per-trial rows (:class:`MovingTrial`) of every
     distinct run (the velocity setting equal to the scenario's circle repeats the comparison's runs:
@@ -526,7 +537,8 @@ def moving_experiment(
             "fusion": scenario.estimation.fusion if mode == "decentralized" else None}
         if key not in owners:  # a velocity setting equal to the scenario's circle repeats two runs
             chunked = [MovingTask(f"v={speed} w={angular_speed} {strategy}+{mode} {seed_range(part)}", first, part,
-                                  scenario, setting, settle) for first, part in chunks(seeds, execution.batch)]
+                                  scenario, setting, settle)
+                       for first, part in chunks(seeds, execution.trials_per_task())]
             tasks += chunked
             owners += [key] * len(chunked)
         runs.append((setting, key))

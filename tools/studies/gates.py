@@ -87,7 +87,7 @@ def point(totals: StepTotals, robots: int, settle: int) -> GateFigures:
 def gates_experiment(base: str, gates: list[float], trials: int, settle: int, steps: int | None = None,
                      execution: Execution = IN_PROCESS) -> GatesStudy:
     """The reference run and the gated strategy at every gate on seeds ``0 .. trials - 1`` for
-    ``steps`` steps (default the scenario's), in tasks of ``execution.batch`` trials
+    ``steps`` steps (default the scenario's), in tasks of ``execution.trials_per_task()`` trials
     (:mod:`tools.studies.runner`), means from step ``settle`` on."""
     started = time.perf_counter()
     reference, mode = REFERENCE
@@ -98,7 +98,7 @@ def gates_experiment(base: str, gates: list[float], trials: int, settle: int, st
     runs = [(reference, load_scenario(base, strategy=reference, estimation=mode, max_steps=steps))]
     check_settle(settle, gated.max_steps)
     runs += [(f"{GATED} g={gate:g} (gate {number})", with_gate(gated, gate)) for number, gate in enumerate(gates)]
-    parts = chunks(list(range(trials)), execution.batch)
+    parts = chunks(list(range(trials)), execution.trials_per_task())
     tasks = [GatesTask(f"{name} {seed_range(seeds)}", first, seeds, scenario)
              for name, scenario in runs for first, seeds in parts]
     parameters = {"scenario": base, "gates": gates, "trials": trials, "steps": steps, "settle": settle}

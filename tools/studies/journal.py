@@ -47,7 +47,7 @@ class JournalHeader(msgspec.Struct, frozen=True, tag="study"):
     empty in journals written before it was kept)."""
 
     experiment: str
-    batch: int
+    batch: int | None  # --batch (None: the study's own)
     parameters: dict[str, Any]
     inputs: str = ""
 
@@ -63,8 +63,8 @@ class JournalTask(msgspec.Struct, frozen=True, tag="task"):
 JOURNAL_LINE = msgspec.json.Decoder(JournalHeader | JournalTask)
 
 
-def header_of(study: Study, batch: int) -> JournalHeader:
-    """The journal header of ``study`` cut in chunks of ``batch`` trials, its parameters as JSON
+def header_of(study: Study, batch: int | None) -> JournalHeader:
+    """The journal header of ``study`` cut in chunks of ``batch`` trials (None: its own), its parameters as JSON
     gives them back (tuples as lists), so that a header read from a journal compares equal."""
     parameters = msgspec.json.decode(msgspec.json.encode(dict(study.parameters)))
     return JournalHeader(experiment=study.experiment, batch=batch, parameters=parameters,

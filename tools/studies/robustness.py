@@ -322,7 +322,7 @@ def faults_experiment(
     execution: Execution = IN_PROCESS,
 ) -> FaultStudy:
     """Run every cell and variant of the ``strategies`` (the first the baseline of the savings) in
-    the engine, in tasks of ``execution.batch`` trials (:mod:`tools.studies.runner`)."""
+    the engine, in tasks of ``execution.trials_per_task()`` trials (:mod:`tools.studies.runner`)."""
     spec, label = base_spec(base)
     seeds = list(range(seed, seed + trials))
     probe = cell_scenario(spec, label, cells[0], strategies[0], None, steps)
@@ -339,7 +339,7 @@ def faults_experiment(
                                                     strategy=strategy, estimation=mode) for index in group],
                                 [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group],
                                 settle)
-                      for first, part in chunks(seeds, execution.batch)]
+                      for first, part in chunks(seeds, execution.trials_per_task())]
     parameters = {"scenario": base, "cells": [msgspec.to_builtins(cell) for cell in cells], "trials": trials,
                   "seed": seed, "steps": steps, "settle": settle, "strategies": list(strategies)}
     parts = run_study(Study("faults", parameters, tasks, fault_task, FaultPart), execution)

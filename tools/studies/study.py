@@ -53,6 +53,7 @@ class Task:
 
 
 TaskT = TypeVar("TaskT", bound=Task)
+ItemT = TypeVar("ItemT")
 ResultT = TypeVar("ResultT", bound=msgspec.Struct)
 
 
@@ -77,23 +78,30 @@ class Study(Generic[TaskT, ResultT]):
 @dataclass(frozen=True)
 class Execution:
     """How a study runs: ``workers`` local processes (1: this process), or the Dask scheduler at
-    ``cluster`` (``tcp://host:8786``); ``batch`` trials per task; the ``journal`` file (None: none),
-    continued with ``resume``; ``quiet``: no progress."""
+    ``cluster`` (``tcp://host:8786``); ``batch`` trials per task (None: the study's own,
+    :meth:`trials_per_task`); the ``journal`` file (None: none), continued with ``resume``;
+    ``quiet``: no progress."""
 
     workers: int = 1
     cluster: str | None = None
-    batch: int = BATCH
+    batch: int | None = None
     journal: Path | None = None
     resume: bool = False
     quiet: bool = True
 
 
-IN_PROCESS = Execution()  # a study run from code: in this process, chunks of BATCH, no journal, no progress
+    def trials_per_task(self, default: int = BATCH) -> int:
+        """The trials of a task: ``batch``, else the study's ``default``."""
+        return self.batch or default
 
 
-def chunks(seeds: list[int], size: int) -> list[tuple[int, list[int]]]:
-    """``(first trial index, seeds)`` of the consecutive chunks of ``size`` seeds (the last may be short)."""
-    return [(start, seeds[start:start + size]) for start in range(0, len(seeds), size)]
+IN_PROCESS = Execution()  # a study run from code: in this process, its own chunks, no journal, no progress
+
+
+def chunks(trials: list[ItemT], size: int) -> list[tuple[int, list[ItemT]]]:
+    """``(first trial index, trials)`` of the consecutive chunks of ``size`` trials (their seeds, or
+    what else names them; the last may be short)."""
+    return [(start, trials[start:start + size]) for start in range(0, len(trials), size)]
 
 
 def seed_range(seeds: list[int]) -> str:

@@ -203,7 +203,7 @@ def tracking_experiment(sources: Sequence[str], trials: int, seed: int, strategi
     """Run every strategy (default :func:`decentralized_strategies`) with decentralized estimation and
     the centralized reference on each scenario of ``sources`` (:func:`scenario_sources`), seeds
     ``seed .. seed + trials - 1``, ``steps`` steps (default each scenario's), means from step
-    ``settle`` on (default ``SETTLE`` capped below a run's length), in tasks of ``execution.batch``
+    ``settle`` on (default ``SETTLE`` capped below a run's length), in tasks of ``execution.trials_per_task()``
     trials (:mod:`tools.studies.runner`)."""
     if trials < 1:
         raise UsageError(f"--trials {trials}: give at least 1 trial")
@@ -223,7 +223,7 @@ def tracking_experiment(sources: Sequence[str], trials: int, seed: int, strategi
         plan = [(strategy, "decentralized") for strategy in compared] + [(reference_strategy(base), "centralized")]
         runs += [(base.name, run_scenario(source, strategy, mode, steps), strategy, mode, settled)
                  for strategy, mode in plan]
-    parts = chunks(seeds, execution.batch)
+    parts = chunks(seeds, execution.trials_per_task())
     tasks = [TrackingTask(f"{name} {strategy}+{mode} {seed_range(part)}", first, part, scenario)
              for name, scenario, strategy, mode, _ in runs for first, part in parts]
     parameters = {"scenarios": given, "trials": trials, "seed": seed, "strategies": compared,
