@@ -551,8 +551,9 @@ class Batch:
     def of_teams(cls, scenarios: Sequence[Scenario], seeds: Sequence[int], steps: int) -> Batch:
         """Trial t runs ``scenarios[t]`` from ``seeds[t]``, the teams laid out ragged (teams of one
         size best given together): scenarios that differ only in their team (its size, its start),
-        whose robots know the target and whose strategy neither listens, pushes nor relays, and
-        with no fault. Each team's run is the same as in a uniform batch of its own scenario."""
+        whose robots know the target and whose strategy neither listens, pushes nor relays, with
+        no fault and no communication range (:class:`ValueError` otherwise). Each team's run is the
+        same as in a uniform batch of its own scenario."""
         first = scenarios[0]
         strategy = check_strategy(first)
         unlike = next((each for each in scenarios
@@ -564,6 +565,8 @@ class Batch:
                              "listens, pushes nor relays")
         if first.faults.active:
             raise ValueError("a ragged batch runs without faults")
+        if first.communication_range is not None:
+            raise ValueError("a ragged batch runs without a communication range")
         return cls(first, list(seeds), steps, layout=Layout.of_teams([each.robots for each in scenarios]),
                    scenarios=scenarios)
 
@@ -803,8 +806,6 @@ def run_until_converged(scenarios: Sequence[Scenario], seeds: Sequence[int]) -> 
     a step of it costs about its robots, not its number of team sizes. Other scenarios run as a
     uniform batch each."""
     try:
-        if any(each.communication_range is not None for each in scenarios):
-            raise ValueError("a ragged batch runs without a communication range")
         batch = Batch.of_teams(scenarios, seeds, max(each.max_steps for each in scenarios))
     except ValueError:
         parts = []

@@ -97,6 +97,7 @@ def test_teams_leave_a_ragged_batch_once_converged() -> None:
 
 @pytest.mark.parametrize(("change", "error"), [
     ({"drop": 0.2}, "a ragged batch runs without faults"),
+    ({"communication_range": 8.0}, "a ragged batch runs without a communication range"),
     ({"estimation": "decentralized", "strategy": "belief"},
      "a ragged batch runs robots that know the target, with a strategy that neither listens, pushes nor relays"),
     ({"sigma_deg": 0.1}, "paper-stationary: teams of one ragged batch may differ only in [team]"),
