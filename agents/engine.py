@@ -147,6 +147,8 @@ class TeamEstimate:
     robot (decentralized); all of them one batch of filters (:class:`agents.estimation.Estimators`)."""
 
     def __init__(self, scenario: Scenario, seeds: list[int], paths: FloatArray, layout: Layout) -> None:
+        if layout.ragged and scenario.estimation.mode != "known":
+            raise ValueError("a ragged batch's robots know the target: its teams have no estimators")
         self.mode = scenario.estimation.mode
         self.layout = layout
         self.robots = scenario.robots
@@ -406,11 +408,11 @@ def exchange(plan: FaultPlan | PlanGroups, step: int, polled: NDArray[np.bool_],
 def _silent(shape: tuple[int, int, int], trials: int) -> Exchange:
     """The exchange of a step in which no robot of ``trials`` teams requests or pushes anything
     (per-robot shape (T, N, 2)): no message, no fault, no energy."""
-    robots = shape[:2]
+    per_robot = shape[:2]
     nothing = np.zeros(shape, dtype=np.int64)
-    return Exchange(np.zeros(robots, dtype=bool), np.zeros(robots, dtype=bool), nothing,
+    return Exchange(np.zeros(per_robot, dtype=bool), np.zeros(per_robot, dtype=bool), nothing,
                     np.zeros((trials, len(FAULT_COLUMNS)), dtype=np.int64), np.zeros(trials, dtype=np.int64),
-                    np.zeros(robots, dtype=np.int64), np.zeros(shape), nothing.copy(),
+                    np.zeros(per_robot, dtype=np.int64), np.zeros(shape), nothing.copy(),
                     np.zeros(shape, dtype=bool))
 
 
@@ -513,21 +515,21 @@ class Batch:
     step of every robot at once, as :func:`run` records it.
 
     ``seeds`` start the trials (one team each); ``steps`` bounds the targets' paths; ``plans``
-    gives each trial its own fault plan (default: the scenario's for all); ``layout`` (default: a
-    uniform one) lays the teams out, all of the scenario's size unless ``scenarios`` gives each
-    trial's own (a ragged layout of teams that differ only in size: see :meth:`of_teams`)."""
+    gives each trial its own fault plan (default: the scenario's for all). The teams are laid out
+    uniform, all of the scenario's size, unless ``scenarios`` gives each trial's own (a ragged batch:
+    build it with :meth:`of_teams`, which checks they may share one)."""
 
     def __init__(self, scenario: Scenario, seeds: list[int], steps: int, plans: Sequence[FaultPlan] | None = None,
-                 layout: Layout | None = None, scenarios: Sequence[Scenario] | None = None) -> None:
-        own = [scenario] * len(seeds) if scenarios is None else list(scenarios)
-        self.scenario, self.seeds = scenario, seeds
-        self.paths = np.stack([each.target_path(seed, steps) for each, seed in zip(own, seeds, strict=True)])
-        if layout is None:
-            layout = Layout.uniform(len(seeds), scenario.robots)
+                 scenarios: Sequence[Scenario] | None = None) -> None:
+        self.scenario = scenario
+        if scenarios is None:
+            own, layout = [scenario] * len(seeds), Layout.uniform(len(seeds), scenario.robots)
             self.positions = np.stack([scenario.start_positions(seed) for seed in seeds])  # (T, N, 2)
         else:
-            self.positions = np.concatenate([each.start_positions(seed) for each, seed in zip(own, seeds,
-                                                                                              strict=True)])[None]
+            own, layout = list(scenarios), Layout.of_teams([each.robots for each in scenarios])
+            self.positions = np.concatenate([each.start_positions(seed)
+                                             for each, seed in zip(own, seeds, strict=True)])[None]  # (1, R, 2)
+        self.paths = np.stack([each.target_path(seed, steps) for each, seed in zip(own, seeds, strict=True)])
         self.layout = layout
         self.kept: NDArray[np.intp] | None = None  # the trials (of paths, seeds) a ragged batch still runs
         trials = layout.trials
@@ -554,27 +556,17 @@ class Batch:
         whose robots know the target and whose strategy neither listens, pushes nor relays, with
         no fault and no communication range (:class:`ValueError` otherwise). Each team's run is the
         same as in a uniform batch of its own scenario."""
-        first = scenarios[0]
-        strategy = check_strategy(first)
-        unlike = next((each for each in scenarios
-                       if msgspec.structs.replace(each.spec, team=first.spec.team) != first.spec), None)
-        if unlike is not None:
-            raise ValueError(f"{unlike.name}: teams of one ragged batch may differ only in [team]")
-        if first.estimation.mode != "known" or strategy.listens or strategy.pushes or strategy.relays:
-            raise ValueError("a ragged batch runs robots that know the target, with a strategy that neither "
-                             "listens, pushes nor relays")
-        if first.faults.active:
-            raise ValueError("a ragged batch runs without faults")
-        if first.communication_range is not None:
-            raise ValueError("a ragged batch runs without a communication range")
-        return cls(first, list(seeds), steps, layout=Layout.of_teams([each.robots for each in scenarios]),
-                   scenarios=scenarios)
+        refusal = ragged_refusal(scenarios)
+        if refusal is not None:
+            raise ValueError(refusal)
+        return cls(scenarios[0], list(seeds), steps, scenarios=scenarios)
 
     @property
     def keeps(self) -> bool:
-        """Whether :meth:`keep` can let teams leave: a ragged batch whose strategy's memory can drop
-        robots (:meth:`agents.controller.MidpointController.keep`)."""
-        return self.layout.ragged and isinstance(self.controller, MidpointController)
+        """Whether :meth:`keep` can let teams leave: a ragged batch whose robots' memory is the
+        midpoint strategies' own (:meth:`agents.controller.MidpointController.keep`; a strategy's
+        controller of its own may hold more, and keeps every robot)."""
+        return self.layout.ragged and type(self.controller) is MidpointController
 
     def keep(self, teams: NDArray[np.bool_]) -> None:
         """Go on with the ``teams`` kept only (a mask of the batch's teams, in its order; see
@@ -800,22 +792,46 @@ def run_until_converged(scenarios: Sequence[Scenario], seeds: Sequence[int]) -> 
     ``max_steps``) and return the :class:`TeamSeries` of every trial, each the same as a batch of
     its scenario alone gives (:func:`run` with ``until_converged``).
 
-    Teams of scenarios that differ only in their team (a sweep over team sizes) run as one ragged
-    batch (:meth:`Batch.of_teams`: robots that know the target, no fault, no communication range,
-    a strategy that neither listens, pushes nor relays), converged teams leaving it as it goes:
-    a step of it costs about its robots, not its number of team sizes. Other scenarios run as a
-    uniform batch each."""
-    try:
-        batch = Batch.of_teams(scenarios, seeds, max(each.max_steps for each in scenarios))
-    except ValueError:
-        parts = []
-        for scenario in {id(each): each for each in scenarios}.values():  # each distinct scenario once, in order
-            columns = np.array([index for index, each in enumerate(scenarios) if each is scenario])
-            history = run(scenario, [seeds[index] for index in columns], until_converged=True, record_positions=False)
-            parts.append((columns, TeamSeries.of_history(history)))
-        return TeamSeries.joined(parts)
-    return _ragged_series(batch, np.rad2deg([each.threshold for each in scenarios]),
-                          max(each.max_steps for each in scenarios))
+    Teams of scenarios that may share a ragged batch (:func:`ragged_refusal`: a sweep over team
+    sizes) run as one, converged teams leaving it as it goes where their memory allows
+    (:attr:`Batch.keeps`): a step of it costs about the robots it holds, not its number of team
+    sizes. Other scenarios run as a uniform batch each (:func:`uniform_series`)."""
+    if ragged_refusal(scenarios) is not None:
+        return uniform_series(scenarios, seeds)
+    steps = max(each.max_steps for each in scenarios)
+    return _ragged_series(Batch.of_teams(scenarios, seeds, steps), np.rad2deg([each.threshold for each in scenarios]),
+                          steps)
+
+
+def ragged_refusal(scenarios: Sequence[Scenario]) -> str | None:
+    """Why the teams of ``scenarios`` cannot share a ragged batch (None: they can): they must
+    differ only in their ``[team]`` (its size, its start), their robots must know the target, their
+    strategy neither listen, push nor relay, and they must have no fault and no communication range."""
+    first = scenarios[0]
+    strategy = check_strategy(first)
+    unlike = next((each for each in scenarios
+                   if msgspec.structs.replace(each.spec, team=first.spec.team) != first.spec), None)
+    if unlike is not None:
+        return f"{unlike.name}: teams of one ragged batch may differ only in [team]"
+    if first.estimation.mode != "known" or strategy.listens or strategy.pushes or strategy.relays:
+        return ("a ragged batch runs robots that know the target, with a strategy that neither listens, pushes "
+                "nor relays")
+    if first.faults.active:
+        return "a ragged batch runs without faults"
+    if first.communication_range is not None:
+        return "a ragged batch runs without a communication range"
+    return None
+
+
+def uniform_series(scenarios: Sequence[Scenario], seeds: Sequence[int]) -> TeamSeries:
+    """The :class:`TeamSeries` of trial t, ``scenarios[t]`` from ``seeds[t]``, run until it
+    converged in a uniform batch of the trials of its scenario (the same object)."""
+    parts = []
+    for scenario in {id(each): each for each in scenarios}.values():  # each distinct scenario once, in order
+        columns = np.array([index for index, each in enumerate(scenarios) if each is scenario])
+        history = run(scenario, [seeds[index] for index in columns], until_converged=True, record_positions=False)
+        parts.append((columns, TeamSeries.of_history(history)))
+    return TeamSeries.joined(parts)
 
 
 def _ragged_series(batch: Batch, thresholds_deg: FloatArray, steps: int) -> TeamSeries:

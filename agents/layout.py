@@ -130,9 +130,7 @@ class Layout:
     def per_robot(self, values: NDArray) -> NDArray:
         """Per-team ``values`` (T, ...) as per-robot ones that broadcast against ``(*shape, ...)``:
         ``(T, 1, ...)`` uniform, each team's value repeated for its robots ``(1, R, ...)`` ragged."""
-        if not self.ragged:
-            return values[:, None]
-        return np.repeat(values, self.sizes, axis=0)[None]
+        return values[:, None] if not self.ragged else self.spread(values)
 
     def spread(self, values: NDArray) -> NDArray:
         """Per-team ``values`` (T, ...) as a per-robot array ``(*shape, ...)``, each team's value

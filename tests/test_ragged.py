@@ -18,17 +18,6 @@ from ringtrack.world.scenario import load_scenario
 SERIES = ("cerr", "cerr_true", "polls", "sent_bytes", "ctime")
 
 
-def uniform_series(scenarios: list, seeds: list[int]) -> engine.TeamSeries:
-    """The series of each distinct scenario's teams run as a uniform batch of their own, joined."""
-    parts = []
-    for scenario in {id(each): each for each in scenarios}.values():
-        columns = np.array([index for index, each in enumerate(scenarios) if each is scenario])
-        history = engine.run(scenario, [seeds[index] for index in columns], until_converged=True,
-                             record_positions=False)
-        parts.append((columns, engine.TeamSeries.of_history(history)))
-    return engine.TeamSeries.joined(parts)
-
-
 def assert_same(ragged: engine.TeamSeries, uniform: engine.TeamSeries) -> None:
     for name in SERIES:
         assert np.array_equal(getattr(ragged, name), getattr(uniform, name), equal_nan=True), name
@@ -72,7 +61,7 @@ def test_a_ragged_sweep_equals_a_uniform_batch_per_team_size(sizes: list[int], t
                for size in sizes}
     scenarios = [by_size[size] for trial in range(trials) for size in sizes]
     seeds = [first_seed + trial for trial in range(trials) for _ in sizes]
-    assert_same(engine.run_until_converged(scenarios, seeds), uniform_series(scenarios, seeds))
+    assert_same(engine.run_until_converged(scenarios, seeds), engine.uniform_series(scenarios, seeds))
 
 
 def test_teams_leave_a_ragged_batch_once_converged() -> None:
@@ -92,7 +81,7 @@ def test_teams_leave_a_ragged_batch_once_converged() -> None:
     series = engine._ragged_series(batch, np.rad2deg([each.threshold for each in scenarios]), by_size[5].max_steps)
     assert stepped[0] == 6 * 5 + 6 * 9 and stepped[-1] < stepped[0]
     assert len(stepped) == len(series.cerr) == series.ctime.max()
-    assert_same(series, uniform_series(scenarios, seeds))
+    assert_same(series, engine.uniform_series(scenarios, seeds))
 
 
 @pytest.mark.parametrize(("change", "error"), [
@@ -104,11 +93,64 @@ def test_teams_leave_a_ragged_batch_once_converged() -> None:
 ])
 def test_a_ragged_batch_refuses_what_it_cannot_run(change: dict, error: str) -> None:
     """What a ragged batch cannot run is said; run_until_converged then runs a uniform batch per
-    scenario, with the same series."""
+    scenario, each trial as it runs alone."""
     base = load_scenario("paper-stationary", max_steps=300)
     other = load_scenario("paper-stationary", robots=4, max_steps=300, **change)
+    teams = [other, base] if "sigma_deg" in change else [other, other]
+    assert engine.ragged_refusal(teams) == error
     with pytest.raises(ValueError) as raised:
-        engine.Batch.of_teams([other, base] if "sigma_deg" in change else [other, other], [0, 1], 300)
+        engine.Batch.of_teams(teams, [0, 1], 300)
     assert str(raised.value) == error
-    scenarios = [base, base, other]
-    assert_same(engine.run_until_converged(scenarios, [0, 1, 2]), uniform_series(scenarios, [0, 1, 2]))
+    scenarios, seeds = [base, base, other], [0, 1, 2]
+    series = engine.run_until_converged(scenarios, seeds)
+    for column, (scenario, seed) in enumerate(zip(scenarios, seeds, strict=True)):
+        alone = engine.run(scenario, [seed], until_converged=True, record_positions=False)
+        assert series.ctime[column] == alone.ctime[0]
+        assert np.array_equal(series.cerr_true[:alone.steps, column], alone.cerr_true[:, 0])
+        assert np.array_equal(series.polls[:alone.steps, column], (alone.triggers[:, 0] != 0).sum(axis=-1))
+
+
+COUNTING = '''
+import numpy as np
+from ringtrack.agents.controller import MidpointController
+from ringtrack.agents.strategy import SelfTriggered
+
+
+class Counting(MidpointController):
+    """The self-triggered memory, and the replies each robot has had."""
+
+    def __init__(self, *arguments, **options):
+        super().__init__(*arguments, **options)
+        self.replies = np.zeros(self.own_position.shape[:-1], dtype=np.int64)
+
+    def receive(self, predecessor, successor, predecessor_fresh=True, successor_fresh=True, *ages):
+        self.replies = self.replies + np.asarray(predecessor_fresh, dtype=np.int64)
+        super().receive(predecessor, successor, predecessor_fresh, successor_fresh, *ages)
+
+
+class CountingReplies(SelfTriggered):
+    """Self-triggered, polling once more after 50 replies."""
+
+    name = "counting"
+
+    def controller(self, region, params, own_position):
+        return Counting(region, params, own_position, rule=self.triggers)
+
+    def triggers(self, controller):
+        reasons = super().triggers(controller)
+        return np.where(controller.replies == 50, reasons | 1, reasons)
+'''
+
+
+def test_a_strategys_own_controller_keeps_every_robot(tmp_path) -> None:
+    """A strategy file whose controller subclasses the midpoint one with state of its own runs
+    ragged with its teams kept to the end (teams leaving would cut the base state only), and equals
+    a uniform batch per team size."""
+    strategy = tmp_path / "counting.py"
+    strategy.write_text(COUNTING)
+    by_size = {size: random_start_scenarios("paper-stationary", size, [str(strategy)])["counting"] for size in (3, 5, 9)}
+    scenarios, seeds = [by_size[size] for _ in range(3) for size in (3, 5, 9)], [trial for trial in range(3)
+                                                                                  for _ in (3, 5, 9)]
+    batch = engine.Batch.of_teams(scenarios, seeds, 100)
+    assert batch.layout.ragged and not batch.keeps
+    assert_same(engine.run_until_converged(scenarios, seeds), engine.uniform_series(scenarios, seeds))

@@ -26,10 +26,10 @@ from rich.console import Console
 from ringtrack.tools.cli import main
 from ringtrack.tools.output.progress import TrialProgress, duration
 from ringtrack.tools.studies import pool, provenance, runner
-from ringtrack.tools.studies.experiment import StationaryPart, StationaryTask, stationary_task
+from ringtrack.tools.studies.experiment import STATIONARY_BATCH, StationaryPart, StationaryTask, stationary_task
 from ringtrack.tools.studies.journal import inputs_digest
 from ringtrack.tools.studies.provenance import PACKAGE_ROOT, RESULT_SOURCES
-from ringtrack.tools.studies.study import Execution, Study, StudyStopped, Task
+from ringtrack.tools.studies.study import BATCH, Execution, Study, StudyStopped, Task
 from ringtrack.world.scenario import load_scenario
 from tests.helpers import MOVING, RINGTRACK
 from tests.test_strategy import example
@@ -232,6 +232,20 @@ def test_resume_without_a_journal_or_with_another_studys(tmp_path: Path, capsys:
     assert main(arguments) == 0
     assert capsys.readouterr().err.splitlines() == [
         f"experiment stationary: replacing the journal {tmp_path / 's.journal.jsonl'} (--resume continues one)"]
+
+
+def test_resume_with_the_default_batch_given_is_the_same_study(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A study started with the default --batch resumes with that number given, and the other way:
+    the journal keeps the trials per task the study was cut into, not whether a flag said it."""
+    for study, default in (("stationary", STATIONARY_BATCH), ("moving", BATCH)):
+        arguments = [*STUDIES[study][:-2], "--workers", "1", "--quiet", "--json", str(tmp_path / f"{study}.json")]
+        assert main(arguments) == 0
+        assert main([*arguments, "--resume", "--batch", str(default)]) == 0
+        assert capsys.readouterr().err.splitlines()[-1].endswith("tasks done, 0 to run")
+        assert main([*arguments, "--batch", str(default)]) == 0
+        assert main([*arguments, "--resume"]) == 0
+        assert capsys.readouterr().err.splitlines()[-1].endswith("tasks done, 0 to run")
 
 
 def test_resume_refuses_a_journal_of_other_code_or_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

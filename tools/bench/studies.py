@@ -135,7 +135,7 @@ def trials_per_s(scenario: Scenario, trials: int, batch: int, workers: int) -> f
     ``workers`` local processes (pool start-up included)."""
     tasks = bench_tasks(scenario, trials, batch)
     started = time.perf_counter()
-    run_study(Study("bench", {}, tasks, bench_task, BenchPart), Execution(workers=workers, batch=batch))
+    run_study(Study("bench", {}, tasks, bench_task, BenchPart, batch), Execution(workers=workers, batch=batch))
     return trials / (time.perf_counter() - started)
 
 

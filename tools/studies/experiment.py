@@ -213,9 +213,9 @@ STATIONARY_BATCH = 420
 
 @dataclass(frozen=True)
 class StationaryTask(Task):
-    """A chunk of the trials of one strategy, its team sizes mixed (its reported name): its trial
-    ``i`` runs ``scenarios[i]`` (its team size's) from ``seeds[i]`` and is trial ``trials[i]`` of
-    its team size."""
+    """A chunk of the runs of one strategy, its team sizes mixed (its reported name): its run ``i``
+    runs ``scenarios[i]`` (its team size's) from ``seeds[i]`` and is trial ``trials[i]`` of its
+    team size; ``first`` indexes its first run in its strategy's list of (team size, trial) runs."""
 
     strategy: str
     scenarios: list[Scenario]
@@ -238,7 +238,7 @@ def stationary_task(task: StationaryTask) -> StationaryPart:
     order = sorted(range(len(task.seeds)), key=lambda index: task.scenarios[index].robots)
     series = engine.run_until_converged([task.scenarios[index] for index in order],
                                         [task.seeds[index] for index in order])
-    rows: list[StationaryTrial | None] = [None] * len(order)
+    rows: dict[int, StationaryTrial] = {}
     for column, index in enumerate(order):
         scenario, ctime = task.scenarios[index], int(series.ctime[column])
         steps = slice(None, ctime or None)  # a trial alone stops at its own Ctime
@@ -255,7 +255,7 @@ def stationary_task(task: StationaryTask) -> StationaryPart:
             triggers=polls,
             robot_bytes=int(series.sent_bytes[steps, column].sum()),
         )
-    return StationaryPart([row for row in rows if row is not None])
+    return StationaryPart([rows[index] for index in range(len(order))])
 
 
 def stationary_cell(rows: list[StationaryTrial], scenario: Scenario) -> StationaryCell:
@@ -301,16 +301,16 @@ def stationary_experiment(
         raise UsageError(f"--trials {trials}: give at least 1 trial")
     started = time.perf_counter()
     scenarios = {size: random_start_scenarios(base, size, strategies, **overrides) for size in robots}
-    # a strategy's trials, team sizes mixed in each chunk (so that chunks cost alike): (size, trial)
+    # a strategy's runs, team sizes mixed in each chunk (so that chunks cost alike): (size, trial)
     mixed = [(size, trial) for trial in range(trials) for size in robots]
-    tasks = [StationaryTask(f"{strategy} trials {first}-{first + len(part) - 1} of {len(mixed)}", first,
+    batch = execution.trials_per_task(STATIONARY_BATCH)
+    tasks = [StationaryTask(f"{strategy} runs {first}-{first + len(part) - 1} of {len(mixed)}", first,
                             [seed + trial for _, trial in part], strategy,
                             [scenarios[size][strategy] for size, _ in part], [trial for _, trial in part])
-             for strategy in scenarios[robots[0]]
-             for first, part in chunks(mixed, execution.trials_per_task(STATIONARY_BATCH))]
+             for strategy in scenarios[robots[0]] for first, part in chunks(mixed, batch)]
     parameters = {"scenario": base, "robots": list(robots), "trials": trials, "seed": seed,
                   "strategies": list(strategies), **overrides}
-    parts = run_study(Study("stationary", parameters, tasks, stationary_task, StationaryPart), execution)
+    parts = run_study(Study("stationary", parameters, tasks, stationary_task, StationaryPart, batch), execution)
     by_cell: dict[tuple[int, str], list[StationaryTrial]] = {(size, strategy): [] for size in robots
                                                              for strategy in scenarios[size]}
     for row in sorted((row for part in parts for row in part.rows), key=lambda row: row.trial):
@@ -517,6 +517,7 @@ def moving_experiment(
         plan += [("velocities", setting, strategy) for setting in VELOCITY_SETTINGS
                  for strategy in (VELOCITY_STRATEGIES if strategies is None else compared)]
     seeds = list(range(seed, seed + trials))
+    batch = execution.trials_per_task()
     runs: list[tuple[dict[str, Any], tuple]] = []  # (MovingSetting's own fields, the run's key)
     tasks: list[MovingTask] = []
     owners: list[tuple] = []  # the key of each task's run
@@ -538,13 +539,13 @@ def moving_experiment(
         if key not in owners:  # a velocity setting equal to the scenario's circle repeats two runs
             chunked = [MovingTask(f"v={speed} w={angular_speed} {strategy}+{mode} {seed_range(part)}", first, part,
                                   scenario, setting, settle)
-                       for first, part in chunks(seeds, execution.trials_per_task())]
+                       for first, part in chunks(seeds, batch)]
             tasks += chunked
             owners += [key] * len(chunked)
         runs.append((setting, key))
     parameters = {"scenario": base, "trials": trials, "seed": seed, "steps": steps, "settle": settle,
                   "velocities": velocities, "fusion": fusion, "strategies": strategies}
-    parts = run_study(Study("moving", parameters, tasks, moving_task, MovingPart), execution)
+    parts = run_study(Study("moving", parameters, tasks, moving_task, MovingPart, batch), execution)
     by_run: dict[tuple, list[StepTotals]] = {}
     for key, part in zip(owners, parts, strict=True):
         by_run.setdefault(key, []).append(part.totals)

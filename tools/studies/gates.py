@@ -98,11 +98,12 @@ def gates_experiment(base: str, gates: list[float], trials: int, settle: int, st
     runs = [(reference, load_scenario(base, strategy=reference, estimation=mode, max_steps=steps))]
     check_settle(settle, gated.max_steps)
     runs += [(f"{GATED} g={gate:g} (gate {number})", with_gate(gated, gate)) for number, gate in enumerate(gates)]
-    parts = chunks(list(range(trials)), execution.trials_per_task())
+    batch = execution.trials_per_task()
+    parts = chunks(list(range(trials)), batch)
     tasks = [GatesTask(f"{name} {seed_range(seeds)}", first, seeds, scenario)
              for name, scenario in runs for first, seeds in parts]
     parameters = {"scenario": base, "gates": gates, "trials": trials, "steps": steps, "settle": settle}
-    totals = run_study(Study("gates", parameters, tasks, gates_task, StepTotals), execution)
+    totals = run_study(Study("gates", parameters, tasks, gates_task, StepTotals, batch), execution)
     robots = runs[0][1].robots
     central, *points = [point(combined(totals[index:index + len(parts)]), robots, settle)
                         for index in range(0, len(tasks), len(parts))]

@@ -47,7 +47,7 @@ class JournalHeader(msgspec.Struct, frozen=True, tag="study"):
     empty in journals written before it was kept)."""
 
     experiment: str
-    batch: int | None  # --batch (None: the study's own)
+    batch: int
     parameters: dict[str, Any]
     inputs: str = ""
 
@@ -63,11 +63,11 @@ class JournalTask(msgspec.Struct, frozen=True, tag="task"):
 JOURNAL_LINE = msgspec.json.Decoder(JournalHeader | JournalTask)
 
 
-def header_of(study: Study, batch: int | None) -> JournalHeader:
-    """The journal header of ``study`` cut in chunks of ``batch`` trials (None: its own), its parameters as JSON
+def header_of(study: Study) -> JournalHeader:
+    """The journal header of ``study`` (cut in chunks of its ``batch`` trials), its parameters as JSON
     gives them back (tuples as lists), so that a header read from a journal compares equal."""
     parameters = msgspec.json.decode(msgspec.json.encode(dict(study.parameters)))
-    return JournalHeader(experiment=study.experiment, batch=batch, parameters=parameters,
+    return JournalHeader(experiment=study.experiment, batch=study.batch, parameters=parameters,
                          inputs=inputs_digest(parameters, study_files(study)))
 
 

@@ -325,6 +325,7 @@ def faults_experiment(
     the engine, in tasks of ``execution.trials_per_task()`` trials (:mod:`tools.studies.runner`)."""
     spec, label = base_spec(base)
     seeds = list(range(seed, seed + trials))
+    batch = execution.trials_per_task()
     probe = cell_scenario(spec, label, cells[0], strategies[0], None, steps)
     if probe.moving:
         check_settle(settle, probe.max_steps)
@@ -339,10 +340,10 @@ def faults_experiment(
                                                     strategy=strategy, estimation=mode) for index in group],
                                 [cell_scenario(spec, label, cells[index], strategy, mode, steps) for index in group],
                                 settle)
-                      for first, part in chunks(seeds, execution.trials_per_task())]
+                      for first, part in chunks(seeds, batch)]
     parameters = {"scenario": base, "cells": [msgspec.to_builtins(cell) for cell in cells], "trials": trials,
                   "seed": seed, "steps": steps, "settle": settle, "strategies": list(strategies)}
-    parts = run_study(Study("faults", parameters, tasks, fault_task, FaultPart), execution)
+    parts = run_study(Study("faults", parameters, tasks, fault_task, FaultPart, batch), execution)
     rows: dict[FaultVariant, list[FaultTrial]] = {}
     steps_run: dict[FaultVariant, int] = {}
     for task, part in zip(tasks, parts, strict=True):

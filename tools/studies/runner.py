@@ -28,7 +28,7 @@ from ringtrack.tools.team.supervisor import terminate_as_exception
 def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[ResultT]:
     """Run the study's tasks not yet journalled (all unless ``execution.resume``), journal each as it
     finishes and return every task's result in the study's order."""
-    header = header_of(study, execution.batch)
+    header = header_of(study)
     if execution.resume and execution.journal is None:
         raise UsageError("--resume: give the --json or --csv of the interrupted study (its journal lies beside it)")
     if execution.cluster is not None:

@@ -61,13 +61,15 @@ ResultT = TypeVar("ResultT", bound=msgspec.Struct)
 class Study(Generic[TaskT, ResultT]):
     """What the runner runs: the ``experiment``'s name, the ``parameters`` that change its results
     (plain values; the journal's header), its ``tasks`` in the study's order, the module-level
-    function ``work`` that runs one task in any process, and the type of its result."""
+    function ``work`` that runs one task in any process, the type of its result, and the ``batch``
+    of trials per task its tasks were cut into (the journal's header keeps it)."""
 
     experiment: str
     parameters: Mapping[str, object]
     tasks: list[TaskT]
     work: Callable[[TaskT], ResultT]
     result: type[ResultT]
+    batch: int = BATCH
 
     @property
     def label(self) -> str:

@@ -223,12 +223,13 @@ def tracking_experiment(sources: Sequence[str], trials: int, seed: int, strategi
         plan = [(strategy, "decentralized") for strategy in compared] + [(reference_strategy(base), "centralized")]
         runs += [(base.name, run_scenario(source, strategy, mode, steps), strategy, mode, settled)
                  for strategy, mode in plan]
-    parts = chunks(seeds, execution.trials_per_task())
+    batch = execution.trials_per_task()
+    parts = chunks(seeds, batch)
     tasks = [TrackingTask(f"{name} {strategy}+{mode} {seed_range(part)}", first, part, scenario)
              for name, scenario, strategy, mode, _ in runs for first, part in parts]
     parameters = {"scenarios": given, "trials": trials, "seed": seed, "strategies": compared,
                   "steps": steps, "settle": settle}
-    results = run_study(Study("tracking", parameters, tasks, tracking_task, TrackingPart), execution)
+    results = run_study(Study("tracking", parameters, tasks, tracking_task, TrackingPart, batch), execution)
     rows = [tracking_row(name, scenario, strategy, mode, settled, results[index * len(parts):(index + 1) * len(parts)])
             for index, (name, scenario, strategy, mode, settled) in enumerate(runs)]
     rows = with_ratios(rows)
