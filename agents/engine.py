@@ -162,6 +162,11 @@ class TeamEstimate:
         self.relay = RangeRelay(self.trials, self.robots, paths.shape[1], window) if relays else None
         self.step = 0
 
+    def keep(self, layout: Layout) -> None:
+        """Teams left a ragged batch, now laid out as ``layout``: its robots know the target, so
+        there is nothing else to keep."""
+        self.layout, self.trials = layout, layout.trials
+
     def measure(self, positions: FloatArray, targets: FloatArray, strategy: Strategy | None = None,
                 told: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
                 told_beliefs: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
@@ -571,12 +576,14 @@ class Batch:
     def keep(self, teams: NDArray[np.bool_]) -> None:
         """Go on with the ``teams`` kept only (a mask of the batch's teams, in its order; see
         :attr:`keeps`): the robots of the others leave the batch, the rest run on as before."""
+        if not self.keeps:
+            raise ValueError("only a ragged batch whose robots' memory is the midpoint strategies' lets teams leave")
         assert isinstance(self.controller, MidpointController)
         self.layout, robots = self.layout.keep(teams)
         self.kept = np.flatnonzero(teams) if self.kept is None else self.kept[teams]
         self.positions = self.positions[:, robots]
         self.controller.keep(robots)
-        self.team.layout, self.team.trials = self.layout, self.layout.trials
+        self.team.keep(self.layout)
         no_one = np.zeros(self.layout.shape, dtype=bool)
         self.told = (no_one, no_one)  # nobody listens in a ragged batch
         self.plan_seeds = self.plan_seeds[teams]

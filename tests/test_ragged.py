@@ -153,4 +153,6 @@ def test_a_strategys_own_controller_keeps_every_robot(tmp_path) -> None:
                                                                                   for _ in (3, 5, 9)]
     batch = engine.Batch.of_teams(scenarios, seeds, 100)
     assert batch.layout.ragged and not batch.keeps
+    with pytest.raises(ValueError, match="lets teams leave"):
+        batch.keep(np.arange(len(scenarios)) > 0)
     assert_same(engine.run_until_converged(scenarios, seeds), engine.uniform_series(scenarios, seeds))
