@@ -20,7 +20,7 @@ import msgspec
 
 from ringtrack.tools.output.console import UsageError, err
 from ringtrack.tools.output.files import OutputError
-from ringtrack.tools.studies.provenance import code_digest, file_digest, named_files, study_files
+from ringtrack.tools.studies.provenance import code_digest, file_digest, named_files
 from ringtrack.tools.studies.study import Study
 
 
@@ -63,12 +63,13 @@ class JournalTask(msgspec.Struct, frozen=True, tag="task"):
 JOURNAL_LINE = msgspec.json.Decoder(JournalHeader | JournalTask)
 
 
-def header_of(study: Study) -> JournalHeader:
-    """The journal header of ``study`` (cut in chunks of its ``batch`` trials), its parameters as JSON
-    gives them back (tuples as lists), so that a header read from a journal compares equal."""
+def header_of(study: Study, files: Iterable[str]) -> JournalHeader:
+    """The journal header of ``study`` (cut in chunks of its ``batch`` trials) whose tasks read
+    ``files`` (:func:`provenance.study_files`), its parameters as JSON gives them back (tuples as
+    lists), so that a header read from a journal compares equal."""
     parameters = msgspec.json.decode(msgspec.json.encode(dict(study.parameters)))
     return JournalHeader(experiment=study.experiment, batch=study.batch, parameters=parameters,
-                         inputs=inputs_digest(parameters, study_files(study)))
+                         inputs=inputs_digest(parameters, files))
 
 
 def inputs_digest(parameters: Mapping[str, object], files: Iterable[str] = ()) -> str:

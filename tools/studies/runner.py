@@ -28,14 +28,14 @@ from ringtrack.tools.team.supervisor import terminate_as_exception
 def run_study(study: Study[TaskT, ResultT], execution: Execution) -> list[ResultT]:
     """Run the study's tasks not yet journalled (all unless ``execution.resume``), journal each as it
     finishes and return every task's result in the study's order."""
-    header = header_of(study)
+    began = origin(study)
+    header = header_of(study, began.files)
     if execution.resume and execution.journal is None:
         raise UsageError("--resume: give the --json or --csv of the interrupted study (its journal lies beside it)")
     if execution.cluster is not None:
         dask_distributed()  # a missing extra is reported before any journal is touched
     results = read_journal(execution.journal, study, header) if execution.resume and execution.journal else {}
     pending = [index for index in range(len(study.tasks)) if index not in results]
-    began = origin(study)
     total = sum(len(task.seeds) for task in study.tasks)
     done = sum(len(study.tasks[index].seeds) for index in results)
     try:
